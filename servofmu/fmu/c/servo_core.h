@@ -1,0 +1,91 @@
+/* servofmu FMU core: the plant's variables, its stiff integrator and its state,
+ * independent of the FMI version.  The equations come from the CasADi-generated
+ * model_eqs.c; the sizes, names and start values from the generated
+ * model_config.h. */
+#ifndef SERVO_CORE_H
+#define SERVO_CORE_H
+
+#include <stddef.h>
+#include "model_config.h"
+
+/* Value references: one fixed layout for FMI 2.0 and 3.0 (docs/fmu.md). */
+#define SV_VR_TIME 0u
+#define SV_VR_U 1u
+#define SV_VR_Y0 2u       /* v, position, friction_force */
+#define SV_VR_P0 1000u    /* parameters */
+#define SV_VR_X0 2000u    /* continuous states (the position state is the output `position`) */
+#define SV_VR_DX0 3000u   /* their derivatives */
+
+enum sv_kind { SV_UNKNOWN, SV_TIME, SV_INPUT, SV_OUTPUT, SV_PARAM, SV_STATE, SV_DERIV };
+
+enum sv_mode { SV_INSTANTIATED, SV_INITIALIZATION, SV_EVENT, SV_CONTINUOUS, SV_STEP, SV_TERMINATED, SV_ERROR };
+
+enum sv_level { SV_LOG_OK = 0, SV_LOG_WARNING = 1, SV_LOG_ERROR = 3 };
+
+/* Everything that defines where the model is: what an FMU state saves. */
+typedef struct {
+    unsigned magic;
+    double time;
+    double x[SV_NX];
+    double p[SV_NP];
+    double u;
+    double h;       /* last step size of the Co-Simulation integrator */
+    double rtol, atol;
+    int mode;
+} SvState;
+
+typedef struct SvInstance SvInstance;
+typedef void (*sv_logger)(SvInstance *inst, int level, const char *category, const char *message);
+
+struct SvInstance {
+    SvState s;
+    int is_cosim;
+    int logging_on;
+    long steps, rejected;               /* integrator statistics */
+    double xdot[SV_NX], y[SV_NY];       /* cache, valid while !dirty */
+    int dirty;
+    char *name;
+    sv_logger log;
+    void *fmi_env;                      /* the importer's environment/callbacks */
+    void *fmi_logger;
+    /* CasADi work memory */
+    const double *arg[SV_SZ_ARG];
+    double *res[SV_SZ_RES];
+    long long iw[SV_SZ_IW + 1];
+    double w[SV_SZ_W + 1];
+};
+
+extern const double sv_p_start[SV_NP];   /* parameter start values */
+extern const double sv_x_nominal[SV_NX]; /* state nominal values */
+
+void sv_reset(SvInstance *inst);
+char *sv_strdup(const char *text);
+void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...);
+
+enum sv_kind sv_classify(unsigned vr, int *index);
+/* 0 ok; -1 unknown reference; -2 not settable in this mode; -3 not finite */
+int sv_get(SvInstance *inst, unsigned vr, double *value);
+int sv_set(SvInstance *inst, unsigned vr, double value);
+int sv_set_checked(SvInstance *inst, unsigned vr, double value); /* logs the failure */
+int sv_get_checked(SvInstance *inst, unsigned vr, double *value);
+
+void sv_eval(SvInstance *inst);
+/* Integrate from s.time to t_end with the adaptive RODAS4 method; 0 ok, -1 failure (logged). */
+int sv_integrate(SvInstance *inst, double t_end);
+/* sensitivity = d unknowns / d knowns · seed (adjoint=0) or seedᵀ · d unknowns / d knowns (adjoint=1). */
+int sv_derivative(SvInstance *inst, const unsigned *unknowns, size_t n_unknowns, const unsigned *knowns,
+                  size_t n_knowns, const double *seed, double *sensitivity, int adjoint);
+
+/* Life cycle shared by the FMI versions; 0 ok, -1 error (logged). */
+int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tolerance, double start_time);
+int sv_exit_initialization(SvInstance *inst);
+int sv_do_step(SvInstance *inst, double communication_point, double step_size);
+
+/* FMU state: get allocates when *state is NULL; 0 ok, -1 error (logged). */
+int sv_state_get(SvInstance *inst, void **state);
+int sv_state_set(SvInstance *inst, const void *state);
+int sv_state_serialize(SvInstance *inst, const void *state, unsigned char *bytes, size_t size);
+int sv_state_deserialize(SvInstance *inst, const unsigned char *bytes, size_t size, void **state);
+#define SV_STATE_SIZE sizeof(SvState)
+
+#endif
