@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import UserError
+
 FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
 
 # Friction keys per model, in parameter-vector order.
@@ -43,7 +45,7 @@ PARAMETER_INFO = {
 }
 
 
-class PlantError(ValueError):
+class PlantError(UserError):
     """A plant file or plant description is invalid; the message names file and key."""
 
 

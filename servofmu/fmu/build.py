@@ -22,6 +22,8 @@ from pathlib import Path
 import casadi as ca
 
 from .. import __version__
+from ..errors import UserError
+from ..fileio import check_output_path, partial_path
 from ..model import SymbolicModel, build_model
 from ..plant import Plant
 from . import description
@@ -32,7 +34,7 @@ DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "tolerance": 1e-10, "s
 DEFAULT_RTOL = 1e-10  # Co-Simulation integrator tolerance when the importer gives none
 
 
-class BuildError(RuntimeError):
+class BuildError(UserError):
     """The FMU could not be built (no compiler, compile failure, unwritable output)."""
 
 
@@ -120,9 +122,7 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     """
     if fmi_version not in (2, 3):
         raise BuildError(f"--fmi-version must be 2 or 3, not {fmi_version}")
-    output = Path(output)
-    if not output.parent.is_dir():
-        raise BuildError(f"{output}: folder {output.parent} does not exist")
+    output = check_output_path(output)
     cc = find_compiler()
     headers = fmi_header_dir()
     model = build_model(plant)
@@ -167,7 +167,7 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
         bindir.mkdir(parents=True)
         compile_binary(cc, src, sources, headers, bindir / f"{identifier}{_shared_suffix()}")
 
-        partial = output.with_name(f".{output.name}.part")
+        partial = partial_path(output)
         try:
             with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
                 for path in sorted(root.rglob("*")):

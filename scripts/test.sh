@@ -1,0 +1,5 @@
+#!/usr/bin/env bash
+# Run the test suite in .venv (after scripts/setup.sh). Installs Chromium for the report test when missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+exec .venv/bin/python -m pytest -q "$@"
