@@ -10,11 +10,20 @@ typedef struct {
     fmi2CallbackFunctions callbacks;
 } Fmi2Instance;
 
+/* The message goes out as the format string itself with '%' doubled, not as "%s" plus an argument:
+ * importers that cannot read variadic arguments (ctypes-based ones) then still see the text. */
 static void fmi2_logger(SvInstance *inst, int level, const char *category, const char *message) {
     Fmi2Instance *fi = (Fmi2Instance *)inst;
     fmi2Status status = level == SV_LOG_ERROR ? fmi2Error : level == SV_LOG_WARNING ? fmi2Warning : fmi2OK;
+    char format[1024];
+    size_t i, n = 0;
+    for (i = 0; message[i] && n + 2 < sizeof format; ++i) {
+        if (message[i] == '%') format[n++] = '%';
+        format[n++] = message[i];
+    }
+    format[n] = '\0';
     if (fi->callbacks.logger)
-        fi->callbacks.logger(fi->callbacks.componentEnvironment, inst->name, status, category, "%s", message);
+        fi->callbacks.logger(fi->callbacks.componentEnvironment, inst->name, status, category, format);
 }
 
 #define CORE(c) ((SvInstance *)(c))
@@ -43,7 +52,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (!functions || !functions->logger) return NULL;
     if (!fmuGUID || strcmp(fmuGUID, SV_INSTANTIATION_TOKEN) != 0) {
         functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError",
-                          "GUID does not match this FMU's (%s)", SV_INSTANTIATION_TOKEN);
+                          "GUID does not match this FMU's (" SV_INSTANTIATION_TOKEN ")");
         return NULL;
     }
     fi = (Fmi2Instance *)calloc(1, sizeof(Fmi2Instance));

@@ -1,0 +1,61 @@
+"""Fixtures shared by the test modules."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def built_fmu(tmp_path_factory):
+    """``built_fmu(name, version)``: the plant ``fmu_models/<name>.toml`` as an FMI ``version``.0 FMU.
+
+    Each FMU is built once per session; treat the file as read-only (copy it before changing it).
+    """
+    from servofmu.fmu import build_fmu
+    from servofmu.plant import load_plant
+
+    folder = tmp_path_factory.mktemp("built_fmus")
+    cache = {}
+
+    def build(name: str, version: int = 3):
+        key = (name, int(version))
+        if key not in cache:
+            cache[key] = build_fmu(load_plant(name), folder / f"{name}_fmi{version}.fmu", fmi_version=int(version))
+        return cache[key]
+
+    return build
+
+
+@dataclass(frozen=True)
+class FmuLayout:
+    """Value references of a servofmu FMU, from the fixed layout of docs/fmu.md:
+    0 time, 1 u, 2 v, 3 position (also the position state), 4 friction_force, 1000+i parameters,
+    2000+i states, 3000+i state derivatives."""
+
+    parameters: dict      # name -> value reference
+    states: list          # value references of the continuous states, in state-vector order
+    derivatives: list     # value references of their derivatives
+    state_names: tuple
+
+    TIME, U, V, POSITION, FRICTION_FORCE = 0, 1, 2, 3, 4
+
+    @property
+    def nx(self) -> int:
+        return len(self.states)
+
+
+@pytest.fixture(scope="session")
+def fmu_layout():
+    """``fmu_layout(name)``: the value references of the FMU of plant ``name`` (see FmuLayout)."""
+    from servofmu.model import build_model
+    from servofmu.plant import load_plant
+
+    def layout(name: str) -> FmuLayout:
+        model = build_model(load_plant(name))
+        names = tuple(model.state_names)
+        return FmuLayout(parameters={p: 1000 + i for i, p in enumerate(model.parameter_names)},
+                         states=[FmuLayout.POSITION if n == "position" else 2000 + i for i, n in enumerate(names)],
+                         derivatives=[3000 + i for i in range(len(names))], state_names=names)
+
+    return layout
