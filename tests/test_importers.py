@@ -176,9 +176,11 @@ def test_fmuloader_logger_names_the_bad_value_reference(built_fmu, version):
 
     messages = []
     fmu = LoaderInstance(built_fmu("g1", version), "g1", version, "cs", messages)
-    with pytest.raises(Fmi3Error if version == 3 else Fmi2Error):
-        fmu.get([4321])
-    assert any(status == 3 and "4321" in text for status, text in messages), messages
+    for call, args in ((fmu.get, ([4321],)), (fmu.set, ([4322], [1.0]))):
+        with pytest.raises(Fmi3Error if version == 3 else Fmi2Error):
+            call(*args)
+        vr = str(args[0][0])
+        assert any(status == 3 and vr in text for status, text in messages), messages
     fmu.initialize()
     assert fmu.get([0, 1]) == [0.0, 0.0]  # the instance is still usable
     fmu.close()
