@@ -7,8 +7,6 @@ import pytest
 from fmpy import simulate_fmu
 
 from reference import gain_from_dc, simulate_reference
-from servofmu.fmu import build_fmu
-from servofmu.plant import load_plant
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}
 PLANTS = {  # the plant files' contents, written out again
@@ -32,23 +30,16 @@ def reference(name, amplitude, frequency):
     return t, simulate_reference(poles, zeros, gain_from_dc(poles, zeros, dc), fr, amplitude, frequency, t)
 
 
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("fmus")
-    return {(name, v): build_fmu(load_plant(name), folder / f"{name}_fmi{v}.fmu", fmi_version=v)
-            for name in PLANTS for v in (2, 3)}
-
-
 @pytest.mark.parametrize("name, amplitude, frequency", CASES)
 @pytest.mark.parametrize("version", [3, 2])
-def test_fmpy_me_and_cs_match_radau(fmus, name, amplitude, frequency, version):
+def test_fmpy_me_and_cs_match_radau(built_fmu, name, amplitude, frequency, version):
     t, v_ref = reference(name, amplitude, frequency)
     starts = {"excitation_amplitude": amplitude, "excitation_frequency": frequency}
     # Model Exchange: the accuracy is FMPy's CVode's (atol = rtol * nominal), so ask it for 1e-12.
-    me = simulate_fmu(str(fmus[name, version]), fmi_type="ModelExchange", stop_time=STOP, output_interval=INTERVAL,
+    me = simulate_fmu(str(built_fmu(name, version)), fmi_type="ModelExchange", stop_time=STOP, output_interval=INTERVAL,
                       relative_tolerance=1e-12, start_values=starts, output=["v"])
     # Co-Simulation at the FMU's defaults (its DefaultExperiment tolerance drives the internal RODAS4).
-    cs = simulate_fmu(str(fmus[name, version]), fmi_type="CoSimulation", stop_time=STOP, output_interval=INTERVAL,
+    cs = simulate_fmu(str(built_fmu(name, version)), fmi_type="CoSimulation", stop_time=STOP, output_interval=INTERVAL,
                       start_values=starts, output=["v"])
     assert np.allclose(me["time"], t) and np.allclose(cs["time"], t)
     assert np.abs(me["v"] - v_ref).max() < 1e-6
