@@ -7,6 +7,7 @@ status 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
@@ -63,6 +64,85 @@ def cmd_simulate(args) -> None:
 
 
 # ---------------------------------------------------------------------------
+# measure / import / plot
+# ---------------------------------------------------------------------------
+class _ProgressBar:
+    """A tqdm bar on stderr driven by progress(done, total) callbacks; warnings go above it."""
+
+    def __init__(self, unit: str):
+        self._unit, self._bar = unit, None
+
+    def update(self, done: int, total: int) -> None:
+        if self._bar is None:  # created on first use: a run that fails early shows no bar
+            from tqdm import tqdm
+            self._bar = tqdm(total=total, unit=self._unit, file=sys.stderr, dynamic_ncols=True)
+        self._bar.total = total
+        self._bar.n = done
+        self._bar.refresh()
+
+    def warn(self, text: str) -> None:
+        if self._bar is None:
+            print(f"warning: {text}", file=sys.stderr)
+        else:
+            self._bar.write(f"warning: {text}", file=sys.stderr)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def cmd_measure(args) -> None:
+    from .measure import MeasureOptions, measure
+
+    given = {"input": args.input, "output": args.output, "tolerance": args.tolerance, "max_time": args.max_time,
+             "samples_per_period": args.samples_per_period, "noise_snr_db": args.noise_snr, "seed": args.seed}
+    options = MeasureOptions(**{k: v for k, v in given.items() if v is not None})
+    bar = _ProgressBar("experiment")
+    try:
+        data = measure(args.fmu, args.data, amplitudes=args.amplitudes, frequencies=args.frequencies, options=options,
+                       scheduler=args.scheduler, workers=args.workers, resume=args.resume,
+                       command=getattr(args, "command_line", ""), progress=bar.update, warn=bar.warn)
+    finally:
+        bar.close()
+    unsettled = sum(not e.converged for e in data.experiments)
+    print(f"wrote {args.data}: {len(data.experiments)} experiments, amplitudes "
+          f"{', '.join(f'{m:g}' for m in data.plan.amplitudes)} N x frequencies "
+          f"{', '.join(f'{f:g}' for f in data.plan.frequencies)} Hz"
+          + (f"; {unsettled} without steady state (flagged)" if unsettled else "; all reached steady state"))
+
+
+def cmd_import(args) -> None:
+    import numpy as np
+
+    from .records import import_records
+
+    data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output,
+                          kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
+                          command=getattr(args, "command_line", ""))
+    for r in data.records[-len(args.files):]:
+        line = f"{r.source}: {len(r.series.time)} samples at {r.sample_rate:.6g} Hz, {r.kind}"
+        if r.analysis is not None:
+            a = r.analysis
+            line += (f"; sine {a.frequency:.6g} Hz, |U1| {abs(a.U1):.4g} N, H = {abs(a.H):.4g} m/(N.s) "
+                     f"at {np.degrees(np.angle(a.H)):.2f} deg" + ("" if a.converged else " (not settled)"))
+        elif r.note:
+            line += f"; {r.note}"
+        print(line)
+    print(f"wrote {args.data}: {len(data.records)} records")
+
+
+def cmd_plot(args) -> None:
+    from .plots import bode_figure, time_series_figure
+    from .store import load_dataset
+
+    data = load_dataset(args.data)
+    what = args.what or ("time" if data.kind == "records" else "bode")
+    out = Path(args.output) if args.output else Path(args.data).with_suffix(".png")
+    (bode_figure if what == "bode" else time_series_figure)(data, out)
+    print(f"wrote {out}")
+
+
+# ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
 def cmd_demo(args) -> None:
@@ -95,6 +175,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="CSV to write (default: stdout)")
     p.set_defaults(func=cmd_simulate)
 
+    p = sub.add_parser("measure", help="stepped-sine measurement of an FMU into a data file (HDF5)")
+    p.add_argument("fmu", help="Co-Simulation FMU with a real input and a real output")
+    p.add_argument("--amplitudes", type=_float_list, help="excitation amplitudes in N (default 2.0,0.6)")
+    p.add_argument("--frequencies", type=_float_list,
+                   help="frequencies in Hz (default: a 1-2-5 grid around the bandwidth from a step response)")
+    p.add_argument("--input", help="input variable (default u)")
+    p.add_argument("--output", help="output variable (default v)")
+    p.add_argument("--noise-snr", type=float, metavar="DB", help="add measurement noise to v at this SNR (stored "
+                                                                 "beside the clean signal)")
+    p.add_argument("--seed", type=int, help="seed of the noise (default 0)")
+    p.add_argument("--tolerance", type=float, help="relative tolerance of the FMU's solver (default 1e-12)")
+    p.add_argument("--max-time", type=float, help="simulated seconds before an experiment counts as not settled "
+                                                  "(default 60)")
+    p.add_argument("--samples-per-period", type=int, help="samples per period of the analysed window (default 8192)")
+    p.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT (default: local processes)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: this process)")
+    p.add_argument("--resume", action="store_true", help="continue DATA.h5 where an interrupted run stopped")
+    p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
+    p.set_defaults(func=cmd_measure)
+
+    p = sub.add_parser("import", help="import machine records (CSV or MAT) into a data file (HDF5)")
+    p.add_argument("files", nargs="+", metavar="FILE", help="CSV (header row) or MAT files, one record each")
+    p.add_argument("--time", required=True, help="time column (s)")
+    p.add_argument("--input", required=True, help="input force column (N)")
+    p.add_argument("--output", required=True, help="velocity (m/s) or position (m) column, see --kind")
+    p.add_argument("--kind", choices=("velocity", "position"), default="velocity")
+    p.add_argument("--cutoff", type=float, help="low-pass cut-off (Hz) of the velocity estimate of position "
+                                                "records (default: a tenth of the sample rate)")
+    p.add_argument("--frequency", type=float, help="excitation frequency (Hz), when it is not to be detected")
+    p.add_argument("--append", action="store_true", help="add the records to an existing records file")
+    p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("plot", help="Bode plot of a measurement, time series of records")
+    p.add_argument("data", metavar="DATA.h5")
+    p.add_argument("--what", choices=("bode", "time"), help="default: bode for measurements, time for records")
+    p.add_argument("-o", dest="output", metavar="FIGURE.png", help="figure to write (default DATA.png)")
+    p.set_defaults(func=cmd_plot)
+
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")
     p.set_defaults(func=cmd_demo)
@@ -109,6 +228,7 @@ def _version() -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
     try:
         args.func(args)
     except UserError as exc:

@@ -239,14 +239,15 @@ int sv_integrate(SvInstance *inst, double t_end) {
             inst->steps++;
             fac = err > 0.0 ? 0.9 * pow(err, -0.25) : 5.0;
             fac = fmin(5.0, fmax(0.2, fac));
-            if (!last || fac < 1.0) inst->s.h = h * fac;
+            /* a clipped last step says little about the step size: keep the previous one unless it shrinks */
+            if (!last || fac < 1.0 || inst->s.h <= 0.0) inst->s.h = h * fac;
             h = inst->s.h;
         } else {
             inst->rejected++;
             fac = isfinite(err) ? fmax(0.2, 0.9 * pow(err, -0.25)) : 0.1;
             h *= fac;
         }
-        if (h < 1e-14 * span || --budget == 0) {
+        if (t < t_end && (h < 1e-14 * span || --budget == 0)) {
             inst->s.time = t;
             inst->dirty = 1;
             sv_logf(inst, SV_LOG_ERROR, "logStatusError",
