@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from .errors import UserError
+from .fileio import check_output_path
 
 EXIT_USER_ERROR = 2
 
@@ -143,6 +144,69 @@ def cmd_plot(args) -> None:
 
 
 # ---------------------------------------------------------------------------
+# dataset / train / identify
+# ---------------------------------------------------------------------------
+def cmd_dataset(args) -> None:
+    from .dataset import make_training_set, sine_data
+    from .plant import load_plant
+    from .store import load_dataset
+
+    structure = load_plant(args.plant)
+    data = sine_data(load_dataset(args.like))
+    bar = _ProgressBar("plant")
+    try:
+        ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
+                               resume=args.resume, scheduler=args.scheduler,
+                               command=getattr(args, "command_line", ""), progress=bar.update)
+    finally:
+        bar.close()
+    print(f"wrote {args.output}: {ts.done.sum()} plants like {structure.name} under the plan of {args.like} "
+          f"({data.amplitudes.size} experiments); {ts.usable().sum()} with every experiment at steady state")
+
+
+def cmd_train(args) -> None:
+    from .train import train_from_file
+
+    bar = _ProgressBar("epoch")
+    try:
+        net, rows = train_from_file(args.dataset, args.output, hidden=args.hidden, seed=args.seed,
+                                    progress=lambda epoch, total, loss: bar.update(epoch, total))
+    finally:
+        bar.close()
+    print(f"wrote {args.output}: {net.inputs}-{net.hidden}-{net.outputs} network trained on {rows} plants "
+          f"({net.optimizer}, {len(net.validation_loss)} epochs); validation RMS error {net.validation_rmse:.3g} "
+          "(normalised units)")
+
+
+def cmd_identify(args) -> None:
+    import time
+
+    from .identify import PSOANNIdentifier
+    from .results import result_from_estimator, table_text, to_json_text, write_result
+    from .identify import load_inputs
+
+    structure, data, ann, provenance = load_inputs(args.data, args.structure, args.ann, args.method,
+                                                             command=getattr(args, "command_line", ""))
+    check_output_path(args.output)
+    bar = None if args.json else _ProgressBar("iteration")
+    est = PSOANNIdentifier(structure, ann=ann, method=args.method, seed=args.seed, polish=not args.no_polish,
+                           progress=(lambda stage, done, total: bar.update(done, total)) if bar else None)
+    try:
+        est.fit(data)
+    finally:
+        if bar:
+            bar.close()
+    provenance["date"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    result = result_from_estimator(est, args.method, provenance)
+    write_result(args.output, result)
+    if args.json:
+        print(to_json_text(result))
+    else:
+        print(table_text(result))
+        print(f"wrote {args.output}")
+
+
+# ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
 def cmd_demo(args) -> None:
@@ -213,6 +277,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--what", choices=("bode", "time"), help="default: bode for measurements, time for records")
     p.add_argument("-o", dest="output", metavar="FIGURE.png", help="figure to write (default DATA.png)")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("dataset", help="simulate plants drawn around a structure under a data file's plan")
+    p.add_argument("plant", help="the structure: plant file or name in fmu_models/")
+    p.add_argument("--like", required=True, help="data file (HDF5) whose plan the plants are simulated under")
+    p.add_argument("--samples", type=int, required=True, help="number of plants")
+    p.add_argument("--spread", type=float, default=0.5, help="prior width: factors in [1/(1+S), 1+S] (default 0.5)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT (default: this machine)")
+    p.add_argument("--resume", action="store_true", help="complete an interrupted run of the same command")
+    p.add_argument("-o", "--output", required=True, help="training set to write (HDF5)")
+    p.set_defaults(func=cmd_dataset)
+
+    p = sub.add_parser("train", help="train the ANN on a training set")
+    p.add_argument("dataset", help="training set (HDF5) from `servofmu dataset`")
+    p.add_argument("--hidden", type=int, default=20, help="hidden neurons (default 20, the paper's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True, help="network file to write (HDF5)")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("identify", help="identify G(s) and the friction from a data file")
+    p.add_argument("data", help="data file (HDF5) from `servofmu measure` or `servofmu import`")
+    p.add_argument("--structure", required=True, help="plant file giving the structure (order, friction model)")
+    p.add_argument("--ann", help="trained network (HDF5) from `servofmu train`")
+    p.add_argument("--method", choices=("pso-ann", "pso"), default="pso-ann")
+    p.add_argument("--no-polish", action="store_true", help="skip the least-squares polish after the swarm")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    p.add_argument("-o", "--output", required=True, help="result file to write (HDF5)")
+    p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")

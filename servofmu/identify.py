@@ -1,0 +1,316 @@
+"""Identification of G(s) and the friction: the PSO-ANN hybrid, scored by output error.
+
+A candidate is scored by how well its simulated responses match the measured ones (the paper's fitness needs
+the true parameters, which no user has).  Stages (docs/identification.md):
+
+1. ``ann``: the trained network maps the measured features to a first estimate;
+2. ``pso``: a particle swarm searches a box around it (in the network's output coordinates: logs of
+   magnitudes, so the box is relative and positivity is kept); without a network (``method="pso"``) the box is
+   the prior's;
+3. ``polish``: Levenberg–Marquardt-type least squares (scipy's trust-region reflective) on the residuals from
+   the swarm's best point, with a central-difference Jacobian computed in one batch call; it also gives the
+   Jacobian for the 95 % intervals (Gauss–Newton covariance s²(JᵀJ)⁻¹, Student t quantile).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .batch import BatchSimulator, SteadyStateOptions
+from .dataset import SineData, ann_features, feature_names, from_targets, to_targets
+from .errors import UserError
+from .plant import Plant
+from .prior import canonical_order, full_vectors, identified_names
+from .pso import PsoOptions, minimize_pso
+
+METHODS = ("pso-ann", "pso")
+SEARCH_RTOL = 1e-6   # integrator tolerance while searching
+POLISH_RTOL = 1e-10  # and while polishing: the features must be far more exact than the 1e-6 we aim at
+
+
+@dataclass(frozen=True)
+class RecordData:
+    """Time-domain records to identify from: per record time (s), input u (N) and measured velocity v (m/s)."""
+
+    records: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]
+    source: str
+
+
+# ---------------------------------------------------------------------------
+# Output-error criteria: residuals of many candidates at once
+# ---------------------------------------------------------------------------
+class SineCriterion:
+    """Residuals of candidates against stepped-sine data.
+
+    Per experiment: Re and Im of (H_model − H)/|H| and √2·(dc_model − dc)/(|H|·m) — relative errors of the
+    response phasor and of the mean velocity, weighted so that white measurement noise gives each about the
+    same variance.
+    """
+
+    def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
+        self.structure, self.data, self.simulator = structure, data, simulator
+        self.scale = np.abs(data.H)
+        self.evaluations = 0
+
+    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
+        theta = np.atleast_2d(theta)
+        self.evaluations += theta.shape[0]
+        feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
+                                            self.data.frequencies, SteadyStateOptions(rtol=rtol, tol=rtol / 10))
+        dH = (feats.H - self.data.H) / self.scale
+        ddc = np.sqrt(2) * (feats.dc - self.data.dc) / (self.scale * self.data.amplitudes)
+        r = np.concatenate([dH.real, dH.imag, ddc], axis=1)
+        r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
+        return r
+
+
+class RecordCriterion:
+    """Residuals of candidates against time-domain records: (v_model − v)/rms(v) at every sample."""
+
+    def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
+        self.structure, self.data, self.simulator = structure, data, simulator
+        self.evaluations = 0
+
+    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
+        theta = np.atleast_2d(theta)
+        self.evaluations += theta.shape[0]
+        full = full_vectors(self.structure, theta)
+        parts = []
+        for t, u, v in self.data.records:
+            sim = self.simulator.simulate_record(full, t, u, rtol=rtol)
+            parts.append((sim - v) / np.sqrt(np.mean(v**2)))
+        return np.concatenate(parts, axis=1)
+
+
+def rms(r: np.ndarray) -> np.ndarray:
+    """The fitness: root mean square of the residuals per candidate (inf where a simulation failed)."""
+    out = np.sqrt(np.mean(np.square(r), axis=-1))
+    return np.where(np.isfinite(out), out, np.inf)
+
+
+# ---------------------------------------------------------------------------
+# The estimator
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Stage:
+    """One stage's outcome: identified parameters, fitness, wall time and candidates evaluated."""
+
+    name: str
+    theta: np.ndarray
+    fitness: float
+    seconds: float
+    evaluations: int
+
+
+@dataclass(frozen=True)
+class AnnModel:
+    """A trained network with the plan it belongs to (see servofmu.ann)."""
+
+    network: object
+    layout: object
+    source: str
+
+
+def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """The prior's box in target coordinates (see servofmu.prior and servofmu.dataset.to_targets)."""
+    centre = to_targets(structure, structure.parameter_vector()[None, _mask(structure)])[0]
+    nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
+    half = np.array([np.log1p(spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_"))
+                     else spread for n in identified_names(structure)])
+    return centre - half, centre + half
+
+
+def _mask(structure: Plant) -> np.ndarray:
+    from .prior import identified_mask
+    return identified_mask(structure)
+
+
+class PSOANNIdentifier:
+    """PSO-ANN identification (estimator-style: ``__init__`` stores settings, ``fit`` returns self).
+
+    After ``fit``: ``theta_`` (identified parameters, in ``names_`` order), ``plant_`` (the identified plant),
+    ``fitness_`` (RMS relative output error), ``intervals_`` (p × 2, 95 %), ``stages_`` (list of Stage),
+    ``history_`` (PSO best cost per iteration), ``seconds_``, ``evaluations_``.
+    """
+
+    def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
+                 pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
+                 seed: int = 0, threads: int | None = None,
+                 progress: Callable[[str, int, int], None] | None = None):
+        self.structure, self.ann, self.method, self.pso = structure, ann, method, pso
+        self.polish, self.box, self.spread, self.seed = polish, box, spread, seed
+        self.threads, self.progress = threads, progress
+
+    # ---- stages ------------------------------------------------------------------------------------------
+    def _ann_estimate(self, data: SineData) -> tuple[np.ndarray, np.ndarray]:
+        """The network's estimate and its search half-width, both in target coordinates."""
+        from .ann import FeatureLayout
+
+        names = identified_names(self.structure)
+        layout = FeatureLayout(feature_names=feature_names(data.amplitudes.size), parameter_names=names,
+                               plan=data.plan)
+        self.ann.layout.check_compatible(layout, self.ann.source)
+        x = ann_features(data.H[None], data.dc[None], data.amplitudes)
+        y = self.ann.network.predict(x)[0]
+        half = self.box * self.ann.network.validation_rmse * np.asarray(self.ann.network.y_scale)
+        return y, half
+
+    def fit(self, data: SineData | RecordData) -> "PSOANNIdentifier":
+        if self.method not in METHODS:
+            raise UserError(f"unknown method {self.method!r} (choose {', '.join(METHODS)})")
+        if self.method == "pso-ann" and self.ann is None:
+            raise UserError("method pso-ann needs a trained network (--ann ANN.h5; see `servofmu train`)")
+        if self.method == "pso-ann" and isinstance(data, RecordData):
+            raise UserError("the ANN works on stepped-sine data; identify records with --method pso")
+        start = time.perf_counter()
+        simulator = BatchSimulator(self.structure, threads=self.threads)
+        crit = SineCriterion(self.structure, data, simulator) if isinstance(data, SineData) else \
+            RecordCriterion(self.structure, data, simulator)
+        self.names_ = identified_names(self.structure)
+        stages = []
+
+        def to_theta(y):
+            return canonical_order(self.structure, from_targets(self.structure, y))
+
+        def cost(y, rtol=SEARCH_RTOL):
+            return rms(crit.residuals(to_theta(y), rtol))
+
+        if self.method == "pso-ann":
+            t0 = time.perf_counter()
+            y0, half = self._ann_estimate(data)
+            theta0 = to_theta(y0)[0]
+            stages.append(Stage("ann", theta0, float(cost(y0[None])[0]), time.perf_counter() - t0, 1))
+            lower, upper = y0 - half, y0 + half
+        else:
+            lower, upper = prior_box(self.structure, self.spread)
+            y0 = None
+
+        t0, before = time.perf_counter(), crit.evaluations
+        progress = (lambda done, total, best: self.progress("pso", done, total)) if self.progress else None
+        result = minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=self.seed, progress=progress)
+        y_best = result.position
+        stages.append(Stage("pso", to_theta(y_best)[0], float(result.cost), time.perf_counter() - t0,
+                            crit.evaluations - before))
+        self.history_ = result.cost_history
+
+        if self.polish:
+            t0, before = time.perf_counter(), crit.evaluations
+            y_best, jac_y = self._polish(crit, to_theta, y_best)
+            theta = to_theta(y_best)[0]
+            r = crit.residuals(theta, POLISH_RTOL)[0]
+            stages.append(Stage("polish", theta, float(rms(r)), time.perf_counter() - t0, crit.evaluations - before))
+            # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
+            jac = jac_y @ _target_jacobian(self.structure, y_best)
+            self.intervals_ = intervals_from_jacobian(theta, r, jac)
+        else:
+            theta = stages[-1].theta
+            r = crit.residuals(theta, POLISH_RTOL)[0]
+            self.intervals_ = intervals_from_jacobian(theta, r, _central_jacobian(crit, theta))
+        self.theta_ = stages[-1].theta
+        self.fitness_ = stages[-1].fitness
+        self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
+        self.stages_ = stages
+        self.seconds_ = time.perf_counter() - start
+        self.evaluations_ = crit.evaluations
+        return self
+
+    def _polish(self, crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Least squares from ``y0`` (target coordinates); returns the optimum and the Jacobian there."""
+        from scipy.optimize import least_squares
+
+        def residual(y):
+            r = crit.residuals(to_theta(y[None]), POLISH_RTOL)[0]
+            return np.where(np.isfinite(r), r, 1e3)
+
+        def jacobian(y):  # forward differences, all columns in one batch call
+            h = 1e-6 * np.maximum(np.abs(y), 1.0)
+            r = crit.residuals(to_theta(np.concatenate([y[None], y + np.diag(h)])), POLISH_RTOL)
+            return ((r[1:] - r[0]) / h[:, None]).T
+
+        sol = least_squares(residual, y0, jac=jacobian, method="lm", xtol=1e-13, ftol=1e-15, gtol=1e-15,
+                            max_nfev=40)
+        return sol.x, sol.jac
+
+
+def _central_jacobian(crit, theta: np.ndarray) -> np.ndarray:
+    """d residuals / d theta by central differences (one batch call)."""
+    p = theta.size
+    h = 1e-6 * np.maximum(np.abs(theta), 1e-3)
+    r = crit.residuals(np.concatenate([theta + np.diag(h), theta - np.diag(h)]), POLISH_RTOL)
+    return ((r[:p] - r[p:]) / (2 * h[:, None])).T
+
+
+def _target_jacobian(structure: Plant, y: np.ndarray) -> np.ndarray:
+    """d y / d theta at the parameters of ``y`` (the coordinate change only; no simulation)."""
+    theta = from_targets(structure, y[None])[0]
+    h = 1e-7 * np.maximum(np.abs(theta), 1e-6)
+    up = to_targets(structure, theta + np.diag(h))
+    down = to_targets(structure, theta - np.diag(h))
+    return ((up - down) / (2 * h[:, None])).T
+
+
+def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95) -> np.ndarray:
+    """(p, 2) intervals from the Gauss–Newton covariance s²(JᵀJ)⁻¹ with a Student t quantile."""
+    from scipy.stats import t as student
+
+    p = theta.size
+    dof = max(r.size - p, 1)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+        return np.full((p, 2), np.nan)
+    s2 = float(r @ r) / dof
+    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    half = student.ppf(0.5 + level / 2, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
+    return np.stack([theta - half, theta + half], axis=1)
+
+
+# ---------------------------------------------------------------------------
+# Reading what `servofmu identify` is given
+# ---------------------------------------------------------------------------
+def load_inputs(data_path, structure_path, ann_path, method: str, command: str = ""):
+    """(structure, SineData | RecordData, AnnModel | None, provenance) for the identify command.
+
+    Refuses a structure that does not match the plant the data was measured on (when the data file says which),
+    and a network trained for another plan or structure.
+    """
+    import hashlib
+
+    from .ann import load_network
+    from .dataset import sine_data
+    from .plant import load_plant
+    from .store import load_dataset
+
+    if method not in METHODS:
+        raise UserError(f"unknown method {method!r} (choose {', '.join(METHODS)})")
+    structure = load_plant(structure_path)
+    ds = load_dataset(data_path)
+    measured = [n for n in ds.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain"))]
+    if measured and set(measured) - set(structure.parameter_names()):
+        raise UserError(f"{structure_path}: the structure ({', '.join(identified_names(structure))}) does not match "
+                        f"the plant {data_path} was measured on ({', '.join(measured)})")
+    if ds.kind == "records":
+        records = tuple((r.series.time, r.series.u, r.series.v) for r in ds.records)
+        if not records:
+            raise UserError(f"{data_path}: the file holds no records")
+        data = RecordData(records=records, source=str(data_path))
+    else:
+        if not ds.experiments:
+            raise UserError(f"{data_path}: the file holds no experiments")
+        data = sine_data(ds)
+    ann = None
+    if method == "pso-ann":
+        if ann_path is None:
+            raise UserError("method pso-ann needs a trained network: give --ann ANN.h5 (made by `servofmu dataset` "
+                            "and `servofmu train`), or use --method pso")
+        net, layout = load_network(ann_path)
+        ann = AnnModel(net, layout, str(ann_path))
+        if list(layout.parameter_names) != identified_names(structure):
+            raise UserError(f"{ann_path} estimates {', '.join(layout.parameter_names)}; the structure "
+                            f"{structure_path} has {', '.join(identified_names(structure))}")
+    sha = hashlib.sha256(Path(data_path).read_bytes()).hexdigest()
+    provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
+                  "ann_file": str(ann_path) if ann_path else "", "command": command}
+    return structure, data, ann, provenance

@@ -1,0 +1,190 @@
+"""Identification results: RESULT.h5 (layout in docs/hdf5.md), the `--json` object and the paper's tables."""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .errors import UserError
+from .fileio import check_output_path, partial_path
+from .plant import Plant, plant_from_dict
+from .prior import identified_names
+
+FORMAT = "servofmu-result"
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Result:
+    """One identification: the identified plant and how it was obtained.
+
+    theta, intervals (p,), (p, 2): identified parameters in ``names`` order and their 95 % intervals;
+    stages: (name, fitness, seconds, evaluations) per stage; history: PSO best cost per iteration.
+    """
+
+    method: str
+    structure: Plant
+    plant: Plant
+    names: tuple[str, ...]
+    theta: np.ndarray
+    intervals: np.ndarray
+    fitness: float
+    seconds: float
+    evaluations: int
+    stages: tuple[tuple[str, float, float, int], ...]
+    history: np.ndarray
+    provenance: dict
+
+
+def result_from_estimator(est, method: str, provenance: dict) -> Result:
+    return Result(method=method, structure=est.structure, plant=est.plant_, names=tuple(est.names_),
+                  theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
+                  seconds=float(est.seconds_), evaluations=int(est.evaluations_),
+                  stages=tuple((s.name, s.fitness, s.seconds, s.evaluations) for s in est.stages_),
+                  history=np.asarray(est.history_), provenance=dict(provenance))
+
+
+# ---------------------------------------------------------------------------
+# JSON
+# ---------------------------------------------------------------------------
+def _pairs(roots) -> list[list[float]]:
+    return [[float(r.real), float(r.imag)] for r in roots]
+
+
+def parameters_json(plant: Plant) -> dict:
+    fr = plant.friction.values()
+    dc = None
+    if not any(p == 0 for p in plant.all_poles()):
+        num, den = plant.transfer_function()
+        dc = float(num[-1] / den[-1])
+    return {"poles": _pairs(plant.all_poles()), "zeros": _pairs(plant.all_zeros()), "dc_gain": dc,
+            "gain": plant.numerator_gain(), "friction": {"model": plant.friction.model, **fr}}
+
+
+def to_json(result: Result) -> dict:
+    return {"method": result.method, "parameters": parameters_json(result.plant), "fitness": result.fitness,
+            "seconds": result.seconds,
+            "intervals": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(result.names, result.intervals)},
+            "evaluations": result.evaluations,
+            "stages": [{"stage": s[0], "fitness": s[1], "seconds": s[2], "evaluations": s[3]}
+                       for s in result.stages]}
+
+
+def to_json_text(result: Result) -> str:
+    return json.dumps(to_json(result), allow_nan=True)
+
+
+# ---------------------------------------------------------------------------
+# The paper's tables
+# ---------------------------------------------------------------------------
+def paper_rows(plant: Plant) -> list[tuple[str, str]]:
+    """(row label, value) in the layout of the paper's Table II (first order) or Table III (roots)."""
+    rows = []
+    if plant.order == 1 and not plant.zeros:
+        rows.append(("pole", f"{plant.all_poles()[0].real:.6g}"))
+        rows.append(("constant", f"{plant.numerator_gain():.6g}"))
+    else:
+        for i, r in enumerate(plant.all_poles(), 1):
+            rows.append((f"root {i}", _complex(r)))
+        for i, z in enumerate(plant.all_zeros(), 1):
+            rows.append((f"zero {i}", _complex(z)))
+    p = parameters_json(plant)
+    rows.append(("DC gain", f"{p['dc_gain']:.6g}" if p["dc_gain"] is not None else "—"))
+    fr = plant.friction
+    rows += [("Fc+", f"{fr.fc_pos:.6g}"), ("Fc−", f"{fr.fc_neg:.6g}")]
+    for key, label in (("fs_pos", "Fs+"), ("fs_neg", "Fs−"), ("vs", "vs"), ("sigma0", "σ0"), ("sigma1", "σ1")):
+        if getattr(fr, key) is not None and key in fr.keys():
+            rows.append((label, f"{getattr(fr, key):.6g}"))
+    return rows
+
+
+def _complex(z: complex) -> str:
+    if z.imag == 0:
+        return f"{z.real:.6g}"
+    return f"{z.real:.6g} {'+' if z.imag > 0 else '−'} {abs(z.imag):.6g}j"
+
+
+def table_text(result: Result, truth: Plant | None = None) -> str:
+    """A plain-text table: parameter, identified value (and truth), then fitness and time."""
+    rows = paper_rows(result.plant)
+    truth_rows = dict(paper_rows(truth)) if truth is not None else {}
+    width = max(len(r[0]) for r in rows) + 2
+    head = f"{'parameter':<{width}}{'identified':>24}" + (f"{'target':>24}" if truth is not None else "")
+    lines = [head, "-" * len(head)]
+    for label, value in rows:
+        lines.append(f"{label:<{width}}{value:>24}" + (f"{truth_rows.get(label, ''):>24}" if truth else ""))
+    lines.append("")
+    lines.append(f"method {result.method}; fitness (RMS relative output error) {result.fitness:.3e}; "
+                 f"{result.seconds:.2f} s; {result.evaluations} model evaluations")
+    for name, fitness, seconds, evals in result.stages:
+        lines.append(f"  stage {name:<7} fitness {fitness:.3e}  {seconds:7.3f} s  {evals} evaluations")
+    lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
+                                              for n, (lo, hi) in zip(result.names, result.intervals)))
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------
+# RESULT.h5
+# ---------------------------------------------------------------------------
+def write_result(path: str | Path, result: Result) -> Path:
+    path = check_output_path(path)
+    tmp = partial_path(path)
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
+                            "method": result.method, "structure_toml": result.structure.to_toml(),
+                            "plant_toml": result.plant.to_toml(), "fitness": result.fitness,
+                            "seconds": result.seconds, "evaluations": result.evaluations,
+                            "provenance": json.dumps(result.provenance)})
+            f.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
+            f.create_dataset("theta", data=result.theta)
+            f.create_dataset("intervals", data=result.intervals)
+            f.create_dataset("history", data=result.history)
+            st = f.create_group("stages")
+            st.create_dataset("name", data=np.array([s[0] for s in result.stages], dtype=h5py.string_dtype()))
+            st.create_dataset("fitness", data=np.array([s[1] for s in result.stages]))
+            st.create_dataset("seconds", data=np.array([s[2] for s in result.stages]))
+            st.create_dataset("evaluations", data=np.array([s[3] for s in result.stages]))
+        tmp.replace(path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    return path
+
+
+def read_result(path: str | Path) -> Result:
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != FORMAT:
+                raise UserError(f"{path}: not a servofmu result file (format {f.attrs.get('format')!r})")
+            version = int(f.attrs.get("schema_version", -1))
+            if version != SCHEMA_VERSION:
+                raise UserError(f"{path}: result schema version {version} is not the supported {SCHEMA_VERSION} "
+                                "(written by another servofmu version)")
+            a = dict(f.attrs)
+            names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in f["names"][()])
+            theta, intervals, history = f["theta"][()], f["intervals"][()], f["history"][()]
+            st = f["stages"]
+            stages = tuple((n.decode() if isinstance(n, bytes) else str(n), float(fi), float(se), int(ev))
+                           for n, fi, se, ev in zip(st["name"][()], st["fitness"][()], st["seconds"][()],
+                                                    st["evaluations"][()]))
+    except UserError:
+        raise
+    except (OSError, KeyError, ValueError) as exc:
+        raise UserError(f"{path}: not a readable result file ({str(exc).splitlines()[0]})") from None
+    structure = plant_from_dict(tomllib.loads(a["structure_toml"]), source=f"{path}:structure")
+    plant = plant_from_dict(tomllib.loads(a["plant_toml"]), source=f"{path}:plant")
+    if list(names) != identified_names(structure):
+        raise UserError(f"{path}: parameter names do not match its structure")
+    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta,
+                  intervals=intervals, fitness=float(a["fitness"]), seconds=float(a["seconds"]),
+                  evaluations=int(a["evaluations"]), stages=stages, history=history,
+                  provenance=json.loads(a["provenance"]))
