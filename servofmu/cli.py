@@ -207,6 +207,21 @@ def cmd_identify(args) -> None:
 
 
 # ---------------------------------------------------------------------------
+# export
+# ---------------------------------------------------------------------------
+def cmd_export(args) -> None:
+    from .export import export_result
+
+    path, fmt = export_result(args.result, args.output, fmt=args.format, fmi_version=args.fmi_version,
+                              name=args.name, command=getattr(args, "command_line", ""))
+    what = {"fmu": f"FMI {args.fmi_version or 3}.0 FMU, Model Exchange + Co-Simulation, provenance in its "
+                   "description, annotations and documentation/index.html",
+            "control": "python-control model: servofmu.export.load_control(path)", "mat": "MATLAB .mat",
+            "json": "JSON", "toml": "plant file: servofmu build accepts it"}[fmt]
+    print(f"wrote {path} ({what})")
+
+
+# ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
 def cmd_demo(args) -> None:
@@ -306,6 +321,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-o", "--output", required=True, help="result file to write (HDF5)")
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("export", help="export an identified model: FMU, python-control, MATLAB, JSON, plant TOML")
+    p.add_argument("result", metavar="RESULT.h5", help="result file from `servofmu identify`")
+    p.add_argument("--format", choices=("fmu", "control", "mat", "json", "toml"),
+                   help="default: from the suffix of -o (.fmu, .mat, .json, .toml)")
+    p.add_argument("--fmi-version", type=int, choices=(2, 3), help="FMI version of an FMU (default 3)")
+    p.add_argument("--name", help="model name in the export (default: the plant's name + _identified)")
+    p.add_argument("-o", dest="output", metavar="FILE", required=True, help="file to write")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")

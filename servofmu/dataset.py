@@ -72,6 +72,17 @@ def sine_data(ds: Dataset) -> SineData:
                     source=str(ds.path), skipped=len(ds.experiments) - len(exps))
 
 
+def sine_residuals(data: SineData, H: np.ndarray, dc: np.ndarray) -> np.ndarray:
+    """The output-error residuals of responses ``H``, ``dc`` (shape (..., n)) against ``data``: per experiment
+    Re and Im of (H − H_data)/|H_data| and √2·(dc − dc_data)/(|H_data|·m) — relative errors of the response
+    phasor and of the mean velocity, weighted so that white measurement noise gives each about the same
+    variance.  Their RMS is the fitness."""
+    scale = np.abs(data.H)
+    dH = (np.asarray(H) - data.H) / scale
+    ddc = np.sqrt(2) * (np.asarray(dc) - data.dc) / (scale * data.amplitudes)
+    return np.concatenate([dH.real, dH.imag, ddc], axis=-1)
+
+
 # ---------------------------------------------------------------------------
 # ANN features and targets
 # ---------------------------------------------------------------------------

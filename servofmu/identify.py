@@ -21,15 +21,19 @@ from typing import Callable
 import numpy as np
 
 from .batch import BatchSimulator, SteadyStateOptions
-from .dataset import SineData, ann_features, feature_names, from_targets, to_targets
+from .dataset import SineData, ann_features, feature_names, from_targets, sine_residuals, to_targets
 from .errors import UserError
 from .plant import Plant
 from .prior import canonical_order, full_vectors, identified_names
 from .pso import PsoOptions, minimize_pso
 
 METHODS = ("pso-ann", "pso")
-SEARCH_RTOL = 1e-6   # integrator tolerance while searching
-POLISH_RTOL = 1e-10  # and while polishing: the features must be far more exact than the 1e-6 we aim at
+# Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
+# more exact than the 1e-6 the parameters are to reach; its finite-difference Jacobian needs ~1e-3 (step 1e-5).
+SEARCH_RTOL = 1e-5
+POLISH_RTOL = 1e-10
+JACOBIAN_RTOL = 1e-8
+JACOBIAN_STEP = 1e-5
 
 
 @dataclass(frozen=True)
@@ -44,26 +48,19 @@ class RecordData:
 # Output-error criteria: residuals of many candidates at once
 # ---------------------------------------------------------------------------
 class SineCriterion:
-    """Residuals of candidates against stepped-sine data.
-
-    Per experiment: Re and Im of (H_model − H)/|H| and √2·(dc_model − dc)/(|H|·m) — relative errors of the
-    response phasor and of the mean velocity, weighted so that white measurement noise gives each about the
-    same variance.
-    """
+    """Residuals of candidates against stepped-sine data (servofmu.dataset.sine_residuals)."""
 
     def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
-        self.scale = np.abs(data.H)
         self.evaluations = 0
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
         feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
-                                            self.data.frequencies, SteadyStateOptions(rtol=rtol, tol=rtol / 10))
-        dH = (feats.H - self.data.H) / self.scale
-        ddc = np.sqrt(2) * (feats.dc - self.data.dc) / (self.scale * self.data.amplitudes)
-        r = np.concatenate([dH.real, dH.imag, ddc], axis=1)
+                                            self.data.frequencies,
+                                            SteadyStateOptions(rtol=rtol, tol=min(max(rtol / 10, 1e-10), 1e-6)))
+        r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r
 
@@ -227,8 +224,8 @@ class PSOANNIdentifier:
             return np.where(np.isfinite(r), r, 1e3)
 
         def jacobian(y):  # forward differences, all columns in one batch call
-            h = 1e-6 * np.maximum(np.abs(y), 1.0)
-            r = crit.residuals(to_theta(np.concatenate([y[None], y + np.diag(h)])), POLISH_RTOL)
+            h = JACOBIAN_STEP * np.maximum(np.abs(y), 1.0)
+            r = crit.residuals(to_theta(np.concatenate([y[None], y + np.diag(h)])), JACOBIAN_RTOL)
             return ((r[1:] - r[0]) / h[:, None]).T
 
         sol = least_squares(residual, y0, jac=jacobian, method="lm", xtol=1e-13, ftol=1e-15, gtol=1e-15,
@@ -239,8 +236,8 @@ class PSOANNIdentifier:
 def _central_jacobian(crit, theta: np.ndarray) -> np.ndarray:
     """d residuals / d theta by central differences (one batch call)."""
     p = theta.size
-    h = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-    r = crit.residuals(np.concatenate([theta + np.diag(h), theta - np.diag(h)]), POLISH_RTOL)
+    h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
+    r = crit.residuals(np.concatenate([theta + np.diag(h), theta - np.diag(h)]), JACOBIAN_RTOL)
     return ((r[:p] - r[p:]) / (2 * h[:, None])).T
 
 

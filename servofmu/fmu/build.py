@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import html
 import os
 import platform
 import shutil
@@ -118,7 +119,8 @@ lugre: dz/dt = v - sigma0*|v|*z/g(v) (g = g+ for v >= 0, else g-);  F = sigma0*z
 def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance: dict | None = None) -> Path:
     """Write ``output`` (.fmu) for ``plant``; returns its path.
 
-    ``provenance`` (optional) adds name/value pairs to the FMU's description and documentation.
+    ``provenance`` (optional) adds name/value pairs to the FMU's description, documentation and annotations
+    (FMI 3.0 <Annotations>, FMI 2.0 <VendorAnnotations>).
     """
     if fmi_version not in (2, 3):
         raise BuildError(f"--fmi-version must be 2 or 3, not {fmi_version}")
@@ -148,16 +150,18 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
         info = {"description": summary, "generationTool": f"servofmu {__version__}",
                 "generationDateAndTime": when}
         if fmi_version == 3:
-            md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT)
+            md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                    provenance)
         else:
             md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
-                                                    sources)
+                                                    sources, provenance)
         (root / "modelDescription.xml").write_bytes(md)
         docs = root / "documentation"
         docs.mkdir()
         extra = []
         if provenance:
-            rows = "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in provenance.items())
+            rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>"
+                           for k, v in provenance.items())
             extra.append(("Provenance", f"<table>{rows}</table>"))
         (docs / "index.html").write_text(description.documentation_html(
             f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)", summary, EQUATIONS, variables,

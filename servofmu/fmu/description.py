@@ -22,6 +22,7 @@ LOG_CATEGORIES = {
     "logSolver": "progress of the Co-Simulation integrator (with debug logging on)",
 }
 SOURCE_FILES = ("model_eqs.c", "servo_core.c")
+ANNOTATION_TYPE = "servofmu.provenance"  # FMI 3.0 <Annotation type=...>; FMI 2.0: <Tool name="servofmu">
 
 
 def _fmt(x: float) -> str:
@@ -50,8 +51,15 @@ def _default_experiment(root: ET.Element, experiment: dict) -> None:
     ET.SubElement(root, "DefaultExperiment", {k: _fmt(v) for k, v in experiment.items()})
 
 
+def _provenance_entries(parent: ET.Element, provenance: dict) -> None:
+    """<Provenance><Entry name=... value=.../>...</Provenance>: tool-specific content both standards allow."""
+    prov = ET.SubElement(parent, "Provenance")
+    for name, value in provenance.items():
+        ET.SubElement(prov, "Entry", name=str(name), value=str(value))
+
+
 def model_description_fmi3(identifier: str, token: str, variables: list[Variable], info: dict,
-                           experiment: dict) -> bytes:
+                           experiment: dict, provenance: dict | None = None) -> bytes:
     root = _common_root("3.0", {"modelName": identifier, "instantiationToken": token, **info,
                                 "variableNamingConvention": "flat"})
     caps = {"modelIdentifier": identifier, "canGetAndSetFMUState": "true", "canSerializeFMUState": "true",
@@ -85,11 +93,14 @@ def model_description_fmi3(identifier: str, token: str, variables: list[Variable
     for v in variables:
         if (v.causality == "output" and v.initial == "calculated") or v.derivative_of is not None:
             ET.SubElement(ms, "InitialUnknown", valueReference=str(v.vr))
+    if provenance:
+        _provenance_entries(ET.SubElement(ET.SubElement(root, "Annotations"), "Annotation", type=ANNOTATION_TYPE),
+                            provenance)
     return _serialize(root)
 
 
 def model_description_fmi2(identifier: str, guid: str, variables: list[Variable], info: dict,
-                           experiment: dict, sources: list[str]) -> bytes:
+                           experiment: dict, sources: list[str], provenance: dict | None = None) -> bytes:
     root = _common_root("2.0", {"modelName": identifier, "guid": guid, **info,
                                 "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
     caps = {"modelIdentifier": identifier, "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
@@ -103,6 +114,9 @@ def model_description_fmi2(identifier: str, guid: str, variables: list[Variable]
     _unit_definitions(root, variables)
     _log_categories(root)
     _default_experiment(root, experiment)
+    if provenance:
+        _provenance_entries(ET.SubElement(ET.SubElement(root, "VendorAnnotations"), "Tool", name="servofmu"),
+                            provenance)
     mv = ET.SubElement(root, "ModelVariables")
     index = {v.vr: i + 1 for i, v in enumerate(variables)}  # FMI 2.0 refers to variables by 1-based index
     for v in variables:
