@@ -20,7 +20,7 @@ import numpy as np
 
 from . import __version__
 from .errors import UserError
-from .fileio import check_output_path, partial_path
+from .fileio import check_output_path, write_hdf5
 from .plant import Plant, plant_from_dict
 from .prior import identified_names, sample_identified, full_vectors
 from .store import Dataset
@@ -165,21 +165,16 @@ class TrainingSet:
 
 
 def _write(path: Path, arrays: dict, attrs: dict) -> None:
-    """Write the whole file beside ``path`` and rename it into place (a killed run leaves a whole file)."""
-    tmp = partial_path(path)
-    try:
-        with h5py.File(tmp, "w") as f:
-            for k, v in attrs.items():
-                f.attrs[k] = v
-            for name, a in arrays.items():
-                kw = {"chunks": True, "compression": "gzip", "shuffle": True} if a.ndim >= 1 and a.size > 64 else {}
-                d = f.create_dataset(name, data=a, **kw)
-                d.attrs["unit"] = {"H_re": "m/(N.s)", "H_im": "m/(N.s)", "dc": "m/s", "amplitudes": "N",
-                                   "frequencies": "Hz"}.get(name, "1")
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    """Write the whole training set anew (a killed run leaves the previous file or this one)."""
+    units = {"H_re": "m/(N.s)", "H_im": "m/(N.s)", "dc": "m/s", "amplitudes": "N", "frequencies": "Hz"}
+
+    def fill(f):
+        f.attrs.update(attrs)
+        for name, a in arrays.items():
+            kw = {"chunks": True, "compression": "gzip", "shuffle": True} if a.size > 64 else {}
+            f.create_dataset(name, data=a, **kw).attrs["unit"] = units.get(name, "1")
+
+    write_hdf5(path, fill)
 
 
 def load_training_set(path: str | Path) -> TrainingSet:

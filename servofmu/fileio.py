@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
+from typing import Callable
 
 from .errors import UserError
 
@@ -37,3 +39,51 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
         tmp.unlink(missing_ok=True)
         raise UserError(f"{path}: cannot write ({exc.strerror})") from None
     return path
+
+
+def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None = None) -> Path:
+    """Write the HDF5 file ``path`` anew: copy ``start_from`` (or start empty), let ``edit(h5py.File)`` fill it,
+    then rename it into place, so that a killed or failed run leaves the previous file or a complete new one."""
+    import h5py
+
+    path = Path(path)
+    part = partial_path(path)
+    try:
+        if start_from is not None:
+            shutil.copyfile(start_from, part)
+        with h5py.File(part, "r+" if start_from is not None else "w") as f:
+            edit(f)
+        with open(part, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(part, path)
+    except OSError as exc:
+        part.unlink(missing_ok=True)
+        raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
+    try:  # make the rename itself durable
+        fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError:
+        pass
+    return path
+
+
+def hdf5_attr(obj, key: str, default=...):
+    """An HDF5 attribute as a plain Python value (str, int, float, ...); KeyError if missing and no default."""
+    import numpy as np
+
+    if key in obj.attrs:
+        value = obj.attrs[key]
+        if isinstance(value, bytes):
+            value = value.decode()
+        if isinstance(value, np.generic):
+            value = value.item()
+        return value
+    if default is ...:
+        raise KeyError(f"attribute {key!r} of {obj.name}")
+    return default

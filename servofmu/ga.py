@@ -14,8 +14,8 @@ to maximise:
 
 with f' the larger fitness of the two parents.  Here the cost c is minimised, f = −c, so
 fmax − f = c − cmin, fmax − favg = cavg − cmin and "f ≥ favg" is "c ≤ cavg": good
-individuals are disturbed little (the best one not at all, apart from the small default
-mutation rate the paper adds against stagnation), poor ones fully.
+individuals are disturbed little (the best one not at all, apart from a small default
+mutation rate added against stagnation), poor ones fully.
 """
 from __future__ import annotations
 
@@ -65,7 +65,9 @@ class GaOptions:
 class AdaptiveGaOptions:
     """The adaptive GA: as GaOptions, but crossover and mutation probabilities follow each
     individual's cost (module docstring).  Srinivas & Patnaik's values: k1 = k3 = 1,
-    k2 = k4 = 0.5, default mutation rate 0.005 on top."""
+    k2 = k4 = 0.5.  Their default mutation rate on top (0.005) is per bit of a binary string;
+    ``mutation_floor`` is per real gene, which stands for many bits, hence the larger 0.02.
+    Without it a converged population breeds copies of its parents only."""
 
     population: int = 20
     max_evaluations: int = 510
@@ -77,7 +79,7 @@ class AdaptiveGaOptions:
     k2: float = 0.5
     k3: float = 1.0
     k4: float = 0.5
-    mutation_floor: float = 0.005
+    mutation_floor: float = 0.02
     mutation_scale: float = 0.1
     elite: int = 1
     cost_tolerance: float | None = None
@@ -160,7 +162,8 @@ def adaptive_probabilities(c_parent: np.ndarray, c: np.ndarray, population_cost:
         good = np.isfinite(x) & (x <= cavg)
         spread = cavg - cmin
         # A converged population (cavg = cmin) leaves everyone at the minimum: rate 0 like the best.
-        ratio = np.where(good, (x - cmin) / spread if spread > 0 else 0.0, 1.0)
+        with np.errstate(invalid="ignore"):  # inf − inf for failed candidates, masked out by `good`
+            ratio = np.where(good, (x - cmin) / spread if spread > 0 else 0.0, 1.0)
         return np.where(good, k_good * ratio, k_bad)
 
     pc = rate(c_parent, o.k1, o.k3)

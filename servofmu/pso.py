@@ -60,9 +60,10 @@ class OptimizeResult:
     """The outcome of a search (PSO or GA).
 
     position          (dims,)                best point found
-    cost              float                  its cost
+    cost              float                  its cost (inf if every evaluation failed)
     cost_history      (iterations + 1,)      best cost after the initial population and after each
-                                             iteration (generation); non-increasing
+                                             iteration (generation); non-increasing (for a GA:
+                                             if it keeps at least one elite)
     position_history  (iterations + 1, dims) the best point at the same moments
     evaluations       int                    number of points the cost function was asked for
     iterations        int                    iterations (generations) run after the initial population

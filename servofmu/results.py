@@ -11,7 +11,7 @@ import numpy as np
 
 from . import __version__
 from .errors import UserError
-from .fileio import check_output_path, partial_path
+from .fileio import check_output_path, write_hdf5
 from .plant import Plant, plant_from_dict
 from .prior import identified_names
 
@@ -132,29 +132,23 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
 # RESULT.h5
 # ---------------------------------------------------------------------------
 def write_result(path: str | Path, result: Result) -> Path:
-    path = check_output_path(path)
-    tmp = partial_path(path)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
-                            "method": result.method, "structure_toml": result.structure.to_toml(),
-                            "plant_toml": result.plant.to_toml(), "fitness": result.fitness,
-                            "seconds": result.seconds, "evaluations": result.evaluations,
-                            "provenance": json.dumps(result.provenance)})
-            f.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
-            f.create_dataset("theta", data=result.theta)
-            f.create_dataset("intervals", data=result.intervals)
-            f.create_dataset("history", data=result.history)
-            st = f.create_group("stages")
-            st.create_dataset("name", data=np.array([s[0] for s in result.stages], dtype=h5py.string_dtype()))
-            st.create_dataset("fitness", data=np.array([s[1] for s in result.stages]))
-            st.create_dataset("seconds", data=np.array([s[2] for s in result.stages]))
-            st.create_dataset("evaluations", data=np.array([s[3] for s in result.stages]))
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
-    return path
+    def fill(f):
+        f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
+                        "method": result.method, "structure_toml": result.structure.to_toml(),
+                        "plant_toml": result.plant.to_toml(), "fitness": result.fitness,
+                        "seconds": result.seconds, "evaluations": result.evaluations,
+                        "provenance": json.dumps(result.provenance)})
+        f.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
+        f.create_dataset("theta", data=result.theta)
+        f.create_dataset("intervals", data=result.intervals)
+        f.create_dataset("history", data=result.history)
+        st = f.create_group("stages")
+        st.create_dataset("name", data=np.array([s[0] for s in result.stages], dtype=h5py.string_dtype()))
+        st.create_dataset("fitness", data=np.array([s[1] for s in result.stages]))
+        st.create_dataset("seconds", data=np.array([s[2] for s in result.stages]))
+        st.create_dataset("evaluations", data=np.array([s[3] for s in result.stages]))
+
+    return write_hdf5(check_output_path(path), fill)
 
 
 def read_result(path: str | Path) -> Result:

@@ -8,8 +8,6 @@ and a last time to mark it complete; ``--resume`` reads which experiments are st
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -19,7 +17,7 @@ import numpy as np
 
 from .errors import UserError
 from .excitation import ExperimentSpec, Plan
-from .fileio import check_output_path, partial_path
+from .fileio import check_output_path, hdf5_attr, write_hdf5
 
 FORMAT = "servofmu-data"
 SCHEMA_VERSION = 1
@@ -163,33 +161,6 @@ def utc_now() -> str:
 # ---------------------------------------------------------------------------
 # Atomic writes
 # ---------------------------------------------------------------------------
-def _replace(path: Path, edit: Callable[[h5py.File], None], start_from: Path | None) -> None:
-    """Write ``path`` anew: copy ``start_from`` (or start empty), apply ``edit``, then rename into place."""
-    part = partial_path(path)
-    try:
-        if start_from is not None:
-            shutil.copyfile(start_from, part)
-        with h5py.File(part, "r+" if start_from is not None else "w") as f:
-            edit(f)
-        with open(part, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(part, path)
-    except OSError as exc:
-        part.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    except BaseException:
-        part.unlink(missing_ok=True)
-        raise
-    try:  # make the rename itself durable
-        fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError:
-        pass
-
-
 def _set_attrs(obj, values: dict) -> None:
     for key, value in values.items():
         if value is None:
@@ -236,7 +207,7 @@ def create_measurement(path: str | Path, plan: Plan, provenance: dict, parameter
                                  "amplitude[k]*sin(2*pi*frequency[k]*t) from rest"
         f.create_group("experiments")
 
-    _replace(path, edit, None)
+    write_hdf5(path, edit, None)
     return path
 
 
@@ -272,7 +243,7 @@ def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> No
             _write_series(g.create_group("transient"), r.transient)
             _write_series(g.create_group("window"), r.window)
 
-    _replace(path, edit, path)
+    write_hdf5(path, edit, path)
 
 
 def mark_complete(path: str | Path) -> None:
@@ -281,7 +252,7 @@ def mark_complete(path: str | Path) -> None:
     def edit(f):
         f.attrs["complete"] = True
 
-    _replace(path, edit, path)
+    write_hdf5(path, edit, path)
 
 
 def write_records(path: str | Path, records: list[Record], provenance: dict, append: bool = False) -> Path:
@@ -305,7 +276,7 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
             f.create_group("records")
         else:
             prov = f["provenance"]
-            appended = json.loads(_attr(prov, "appended_by", "[]")) + [provenance.get("command", "")]
+            appended = json.loads(hdf5_attr(prov, "appended_by", "[]")) + [provenance.get("command", "")]
             _set_attrs(prov, {"appended_by": appended})
         recs = f["records"]
         for i, r in enumerate(records):
@@ -325,26 +296,13 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
                 g.create_dataset("harmonics", data=np.asarray(a.harmonics, dtype=complex))
             _write_series(g, r.series)
 
-    _replace(path, edit, start_from)
+    write_hdf5(path, edit, start_from)
     return path
 
 
 # ---------------------------------------------------------------------------
 # Reading
 # ---------------------------------------------------------------------------
-def _attr(obj, key, default=...):
-    if key in obj.attrs:
-        value = obj.attrs[key]
-        if isinstance(value, bytes):
-            value = value.decode()
-        if isinstance(value, np.generic):
-            value = value.item()
-        return value
-    if default is ...:
-        raise KeyError(f"attribute {key!r} of {obj.name}")
-    return default
-
-
 def _read_series(g: h5py.Group) -> Series:
     def get(name):
         return np.asarray(g[name][()], dtype=float) if name in g else None
@@ -353,36 +311,36 @@ def _read_series(g: h5py.Group) -> Series:
 
 def _read_experiment(g: h5py.Group) -> ExperimentResult:
     return ExperimentResult(
-        index=int(_attr(g, "index")), amplitude=float(_attr(g, "amplitude")), frequency=float(_attr(g, "frequency")),
-        excitation=str(_attr(g, "excitation")), U1=complex(_attr(g, "U1")), V1=complex(_attr(g, "V1")),
-        H=complex(_attr(g, "H")), dc=float(_attr(g, "dc")), harmonics=np.asarray(g["harmonics"][()]),
-        distortion=float(_attr(g, "distortion")), converged=bool(_attr(g, "converged")),
-        settling_time=float(_attr(g, "settling_time")), last_change=float(_attr(g, "last_change")),
-        remaining_error=float(_attr(g, "remaining_error")), window_start=float(_attr(g, "window_start")),
-        window_periods=int(_attr(g, "window_periods")), samples_per_period=int(_attr(g, "samples_per_period")),
-        hold_error=float(_attr(g, "hold_error")), transient=_read_series(g["transient"]),
-        window=_read_series(g["window"]), noise_sigma=_attr(g, "noise_sigma", None),
-        H_noisy=complex(_attr(g, "H_noisy")) if "H_noisy" in g.attrs else None,
-        dc_noisy=_attr(g, "dc_noisy", None))
+        index=int(hdf5_attr(g, "index")), amplitude=float(hdf5_attr(g, "amplitude")), frequency=float(hdf5_attr(g, "frequency")),
+        excitation=str(hdf5_attr(g, "excitation")), U1=complex(hdf5_attr(g, "U1")), V1=complex(hdf5_attr(g, "V1")),
+        H=complex(hdf5_attr(g, "H")), dc=float(hdf5_attr(g, "dc")), harmonics=np.asarray(g["harmonics"][()]),
+        distortion=float(hdf5_attr(g, "distortion")), converged=bool(hdf5_attr(g, "converged")),
+        settling_time=float(hdf5_attr(g, "settling_time")), last_change=float(hdf5_attr(g, "last_change")),
+        remaining_error=float(hdf5_attr(g, "remaining_error")), window_start=float(hdf5_attr(g, "window_start")),
+        window_periods=int(hdf5_attr(g, "window_periods")), samples_per_period=int(hdf5_attr(g, "samples_per_period")),
+        hold_error=float(hdf5_attr(g, "hold_error")), transient=_read_series(g["transient"]),
+        window=_read_series(g["window"]), noise_sigma=hdf5_attr(g, "noise_sigma", None),
+        H_noisy=complex(hdf5_attr(g, "H_noisy")) if "H_noisy" in g.attrs else None,
+        dc_noisy=hdf5_attr(g, "dc_noisy", None))
 
 
 def _read_record(g: h5py.Group) -> Record:
     analysis = None
-    if bool(_attr(g, "sinusoidal")):
+    if bool(hdf5_attr(g, "sinusoidal")):
         analysis = RecordAnalysis(
-            frequency=float(_attr(g, "frequency")), sine_fraction=float(_attr(g, "sine_fraction")),
-            amplitude=float(_attr(g, "amplitude")), U1=complex(_attr(g, "U1")), V1=complex(_attr(g, "V1")),
-            H=complex(_attr(g, "H")), dc_u=float(_attr(g, "dc_u")), dc=float(_attr(g, "dc")),
-            harmonics=np.asarray(g["harmonics"][()]), distortion=float(_attr(g, "distortion")),
-            converged=bool(_attr(g, "converged")), settling_time=float(_attr(g, "settling_time")),
-            window_start=float(_attr(g, "window_start")), window_periods=int(_attr(g, "window_periods")))
-    cutoff = _attr(g, "velocity_cutoff", None)
-    return Record(index=int(_attr(g, "index")), name=str(_attr(g, "name")), source=str(_attr(g, "source")),
-                  source_sha256=str(_attr(g, "source_sha256")), kind=str(_attr(g, "kind")),
-                  columns=json.loads(_attr(g, "columns")), series=_read_series(g),
-                  sample_rate=float(_attr(g, "sample_rate")), velocity_estimate=str(_attr(g, "velocity_estimate")),
+            frequency=float(hdf5_attr(g, "frequency")), sine_fraction=float(hdf5_attr(g, "sine_fraction")),
+            amplitude=float(hdf5_attr(g, "amplitude")), U1=complex(hdf5_attr(g, "U1")), V1=complex(hdf5_attr(g, "V1")),
+            H=complex(hdf5_attr(g, "H")), dc_u=float(hdf5_attr(g, "dc_u")), dc=float(hdf5_attr(g, "dc")),
+            harmonics=np.asarray(g["harmonics"][()]), distortion=float(hdf5_attr(g, "distortion")),
+            converged=bool(hdf5_attr(g, "converged")), settling_time=float(hdf5_attr(g, "settling_time")),
+            window_start=float(hdf5_attr(g, "window_start")), window_periods=int(hdf5_attr(g, "window_periods")))
+    cutoff = hdf5_attr(g, "velocity_cutoff", None)
+    return Record(index=int(hdf5_attr(g, "index")), name=str(hdf5_attr(g, "name")), source=str(hdf5_attr(g, "source")),
+                  source_sha256=str(hdf5_attr(g, "source_sha256")), kind=str(hdf5_attr(g, "kind")),
+                  columns=json.loads(hdf5_attr(g, "columns")), series=_read_series(g),
+                  sample_rate=float(hdf5_attr(g, "sample_rate")), velocity_estimate=str(hdf5_attr(g, "velocity_estimate")),
                   velocity_cutoff=None if cutoff is None else float(cutoff), analysis=analysis,
-                  note=str(_attr(g, "note", "")))
+                  note=str(hdf5_attr(g, "note", "")))
 
 
 def load_dataset(path: str | Path) -> Dataset:
@@ -396,14 +354,14 @@ def load_dataset(path: str | Path) -> Dataset:
         why = str(exc).split("(")[-1].rstrip(")") if "(" in str(exc) else str(exc)
         raise UserError(f"{path}: not a readable HDF5 file ({why})") from None
     with f:
-        if _attr(f, "format", None) != FORMAT:
+        if hdf5_attr(f, "format", None) != FORMAT:
             raise UserError(f"{path}: not a servofmu data file (no format attribute {FORMAT!r})")
-        version = _attr(f, "schema_version", None)
+        version = hdf5_attr(f, "schema_version", None)
         if not isinstance(version, int) or version > SCHEMA_VERSION or version < 1:
             raise UserError(f"{path}: schema version {version} is not supported (this servofmu reads "
                             f"version {SCHEMA_VERSION})")
         try:
-            kind = str(_attr(f, "kind"))
+            kind = str(hdf5_attr(f, "kind"))
             if kind not in KINDS:
                 raise KeyError(f"kind {kind!r}")
             plan = None
@@ -414,10 +372,10 @@ def load_dataset(path: str | Path) -> Dataset:
                                        key=lambda e: e.index))
             records = tuple(sorted((_read_record(g) for g in f.get("records", {}).values()), key=lambda r: r.index))
             prov = f["provenance"]
-            provenance = {k: _attr(prov, k) for k in prov.attrs}
-            parameters = {k: float(_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
+            provenance = {k: hdf5_attr(prov, k) for k in prov.attrs}
+            parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
                 if "parameters" in prov else {}
-            complete = bool(_attr(f, "complete"))
+            complete = bool(hdf5_attr(f, "complete"))
         except (KeyError, ValueError, TypeError, OSError) as exc:
             raise UserError(f"{path}: damaged servofmu data file (missing or bad {str(exc).strip(chr(39))})") \
                 from None
