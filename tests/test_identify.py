@@ -1,0 +1,143 @@
+"""The identifier end to end on FMU data: dataset → train → identify, and its refusals of bad input."""
+import json
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from servofmu.dataset import from_targets, make_training_set, sine_data, to_targets
+from servofmu.identify import AnnModel, PSOANNIdentifier
+from servofmu.measure import MeasureOptions, measure
+from servofmu.plant import load_plant
+from servofmu.prior import identified_mask, sample_identified
+from servofmu.store import load_dataset
+from servofmu.train import train_from_file
+from servofmu.ann import load_network
+
+PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "servofmu", *map(str, args)], capture_output=True, text=True)
+
+
+def assert_one_line_error(proc, *fragments):
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def g1_files(tmp_path_factory, built_fmu):
+    """g1 measured through its FMU, a small training set under that plan and a network trained on it."""
+    folder = tmp_path_factory.mktemp("identify")
+    data = folder / "g1.h5"
+    measure(built_fmu("g1", 3), data, options=MeasureOptions(), workers=0, **PLAN)
+    ds = folder / "ds.h5"
+    make_training_set(load_plant("g1"), sine_data(load_dataset(data)), 400, ds, seed=3)
+    ann = folder / "ann.h5"
+    train_from_file(ds, ann, seed=0)
+    return {"data": data, "ds": ds, "ann": ann, "folder": folder}
+
+
+def truth(name):
+    plant = load_plant(name)
+    return plant.parameter_vector()[identified_mask(plant)]
+
+
+def test_targets_round_trip():
+    for name in ("g1", "g2", "stribeck_servo", "lugre_servo"):
+        plant = load_plant(name)
+        theta = sample_identified(plant, 50, 0.5, np.random.default_rng(0))
+        assert np.allclose(from_targets(plant, to_targets(plant, theta)), theta, rtol=1e-12)
+
+
+def test_pso_ann_identifies_g1_from_fmu_data(g1_files):
+    net, layout = load_network(g1_files["ann"])
+    data = sine_data(load_dataset(g1_files["data"]))
+    est = PSOANNIdentifier(load_plant("g1"), ann=AnnModel(net, layout, "ann.h5"), seed=0).fit(data)
+    assert [s.name for s in est.stages_] == ["ann", "pso", "polish"]
+    assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
+    # each stage improves on the one before
+    fitness = [s.fitness for s in est.stages_]
+    assert fitness[2] < fitness[1] <= fitness[0] and fitness[2] < 1e-8
+    # the intervals contain the truth and are narrow
+    lo, hi = est.intervals_.T
+    assert np.all((lo <= truth("g1") + 1e-9) & (truth("g1") - 1e-9 <= hi))
+
+
+def test_pso_alone_from_the_prior_box(g1_files):
+    data = sine_data(load_dataset(g1_files["data"]))
+    est = PSOANNIdentifier(load_plant("g1"), method="pso", seed=1).fit(data)
+    assert [s.name for s in est.stages_] == ["pso", "polish"]
+    assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
+
+
+def test_identify_cli_json(g1_files):
+    out = g1_files["folder"] / "result.h5"
+    proc = run("identify", g1_files["data"], "--structure", "g1", "--ann", g1_files["ann"], "--json", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    obj = json.loads(proc.stdout)  # exactly one JSON object on stdout
+    assert obj["method"] == "pso-ann"
+    assert np.allclose(obj["parameters"]["poles"], [[-10.0, 0.0]], rtol=1e-6)
+    assert np.isclose(obj["parameters"]["gain"], 10.0, rtol=1e-6)
+    assert np.isclose(obj["parameters"]["friction"]["fc_neg"], 0.4, rtol=1e-6)
+    assert set(obj["intervals"]) == {"pole1", "dc_gain", "fc_pos", "fc_neg"}
+    assert obj["fitness"] < 1e-8 and obj["seconds"] > 0
+    with h5py.File(out) as f:
+        assert f.attrs["format"] == "servofmu-result"
+
+
+def test_refuses_plan_that_does_not_match_the_ann(g1_files, built_fmu, tmp_path):
+    other = tmp_path / "other.h5"
+    measure(built_fmu("g1", 3), other, amplitudes=[2.0, 0.6], frequencies=[1.0, 3.0], workers=0)
+    out = tmp_path / "r.h5"
+    proc = run("identify", other, "--structure", "g1", "--ann", g1_files["ann"], "-o", out)
+    assert_one_line_error(proc, "trained on plan")
+    assert not out.exists()
+
+
+def test_refuses_structure_that_does_not_match_the_data(g1_files, tmp_path):
+    out = tmp_path / "r.h5"
+    proc = run("identify", g1_files["data"], "--structure", "g2", "--method", "pso", "-o", out)
+    assert_one_line_error(proc, "does not match")
+    assert not out.exists()
+
+
+def test_refuses_nan_data(g1_files, tmp_path):
+    bad = tmp_path / "nan.h5"
+    bad.write_bytes(g1_files["data"].read_bytes())
+    with h5py.File(bad, "r+") as f:
+        group = next(g for g in f["experiments"].values())
+        group.attrs["H"] = complex(np.nan, 0.0)
+    out = tmp_path / "r.h5"
+    proc = run("identify", bad, "--structure", "g1", "--method", "pso", "-o", out)
+    assert_one_line_error(proc, "NaN")
+    assert not out.exists()
+
+
+def test_refuses_empty_data(g1_files, tmp_path):
+    empty = tmp_path / "empty.h5"
+    empty.write_bytes(g1_files["data"].read_bytes())
+    with h5py.File(empty, "r+") as f:
+        for name in list(f["experiments"]):
+            del f["experiments"][name]
+    out = tmp_path / "r.h5"
+    proc = run("identify", empty, "--structure", "g1", "--method", "pso", "-o", out)
+    assert_one_line_error(proc, "no experiments")
+    assert not out.exists()
+
+
+def test_pso_ann_without_network_says_so(g1_files, tmp_path):
+    proc = run("identify", g1_files["data"], "--structure", "g1", "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, "needs a trained network")
+
+
+def test_train_refuses_a_file_that_is_not_a_training_set(g1_files, tmp_path):
+    proc = run("train", g1_files["data"], "-o", tmp_path / "ann.h5")
+    assert_one_line_error(proc, "not a servofmu training set")
+    assert not (tmp_path / "ann.h5").exists()
