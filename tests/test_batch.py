@@ -1,0 +1,305 @@
+"""The batch simulator against two independent references: scipy's Radau on the plant equations
+(tests/reference.py, written without the package) and the FMU run through FMPy, with the first harmonic
+computed here by its own quadrature.  Relative errors: |H − H_ref|/|H_ref| for H, and |dc − dc_ref|
+relative to the response amplitude |H_ref|·m for the DC component."""
+import functools
+import pickle
+
+import numpy as np
+import pytest
+from fmpy import simulate_fmu
+from scipy import signal
+from scipy.integrate import solve_ivp
+
+from reference import friction, gain_from_dc, simulate_reference
+from servofmu.batch import BatchSimulator, SteadyStateOptions, valid_parameter_sets
+from servofmu.errors import UserError
+from servofmu.plant import PlantError, load_plant, plant_from_dict
+
+COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv": 0.0, "v_smooth": 1e-3}
+NOMINAL = {  # the plant files' contents, written out again: poles, zeros, DC gain, friction
+    "g1": ([-10.0], [], 1.0, COULOMB),
+    "g2": ([-2.5 + 31.52j, -2.5 - 31.52j, -10.0], [], 1.0, COULOMB),
+}
+# A second parameter set per plant, so that the parameter vector's order is tested too.
+PERTURBED = {
+    "g1": ([-7.0], [], 1.3, {**COULOMB, "fc_pos": 0.45, "fc_neg": 0.3, "fv": 0.05}),
+    "g2": ([-3.0 + 28.0j, -3.0 - 28.0j, -12.0], [], 0.9, {**COULOMB, "fc_pos": 0.35, "fc_neg": 0.45}),
+}
+SETS = {"nominal": NOMINAL, "perturbed": PERTURBED}
+TOL = 1e-6  # the agreement asked of the batch simulator
+
+
+def vector(name, params):
+    """The parameter vector of ``params`` in the order of the plant's parameter_names()."""
+    poles, _, dc, fr = params
+    by_name = {"dc_gain": dc, **{k: v for k, v in fr.items() if k != "model"}}
+    upper = [p for p in poles if p.imag >= 0]
+    for i, p in enumerate(upper, start=1):
+        if p.imag != 0:
+            by_name.update({f"pole{i}_re": p.real, f"pole{i}_im": p.imag})
+        else:
+            by_name[f"pole{i}"] = p.real
+    return np.array([by_name[n] for n in load_plant(name).parameter_names()])
+
+
+def period_features(t, v, f, m):
+    """H and DC from samples over one whole period (uniform, both ends included): a trapezoid sum, which for
+    a periodic signal is exact up to aliasing of harmonics near the sampling rate."""
+    t, v = t[:-1], v[:-1]
+    s1 = 1j * 2 / len(v) * np.sum(v * np.exp(-2j * np.pi * f * t))
+    return s1 / m, v.mean()
+
+
+def position_features(t, pos, f, m):
+    """H and DC from the position (the integral of v) over one whole period: DC is exact, and integrating by
+    parts, S1 = j(2/T)∫v·e^{-jωt}dt = −(2ω/T)∫p̃·e^{-jωt}dt with the periodic
+    p̃ = pos − pos(t0) − DC·(t − t0), one order smoother than v, so its trapezoid sum converges faster."""
+    T, w = 1 / f, 2 * np.pi * f
+    dc = (pos[-1] - pos[0]) / T
+    ptil = pos - pos[0] - dc * (t - t[0])
+    s1 = -(2 * w / T) * np.sum(ptil[:-1] * np.exp(-1j * w * t[:-1])) * (T / (len(t) - 1))
+    return s1 / m, dc
+
+
+def assert_close(H, dc, H_ref, dc_ref, m, tol=TOL):
+    assert abs(H - H_ref) / abs(H_ref) < tol, (H, H_ref)
+    assert abs(dc - dc_ref) / (abs(H_ref) * m) < tol, (dc, dc_ref)
+
+
+@functools.lru_cache(maxsize=None)
+def simulator(name):
+    return BatchSimulator(load_plant(name), threads=2)
+
+
+@functools.lru_cache(maxsize=None)
+def batch_features(name, m, f):
+    """Both parameter sets and an invalid one in one call (the invalid row must not disturb the others)."""
+    sets = np.array([vector(name, NOMINAL[name]), vector(name, PERTURBED[name]), vector(name, NOMINAL[name])])
+    sets[2, 0] = 1.0  # an unstable pole
+    return simulator(name).steady_state(sets, [m], [f])
+
+
+def batch(name, which, m, f):
+    r = batch_features(name, m, f)
+    i = {"nominal": 0, "perturbed": 1}[which]
+    assert r.converged[i, 0]
+    return r.H[i, 0], r.dc[i, 0]
+
+
+# ---------------------------------------------------------------------------
+# Steady state against scipy's Radau
+# ---------------------------------------------------------------------------
+RADAU_CASES = [("g1", "nominal", 2.0, 1.0, 5), ("g1", "perturbed", 0.6, 5.0, 6), ("g2", "nominal", 2.0, 1.0, 14)]
+
+
+@pytest.mark.parametrize("name, which, m, f, periods", RADAU_CASES)
+def test_steady_state_matches_radau(name, which, m, f, periods):
+    poles, zeros, dc, fr = SETS[which][name]
+    n = 4000  # samples per period
+    T = 1 / f
+    t = np.concatenate([[0.0], (periods - 2) * T + T * np.arange(2 * n + 1) / n])
+    v = simulate_reference(poles, zeros, gain_from_dc(poles, zeros, dc), fr, m, f, t, rtol=1e-10, atol=1e-12)
+    H_prev, dc_prev = period_features(t[1:n + 2], v[1:n + 2], f, m)
+    H_ref, dc_ref = period_features(t[n + 1:], v[n + 1:], f, m)
+    assert_close(H_prev, dc_prev, H_ref, dc_ref, m, tol=1e-8)  # the reference itself is in steady state
+    H, dc_b = batch(name, which, m, f)
+    assert_close(H, dc_b, H_ref, dc_ref, m)
+
+
+# ---------------------------------------------------------------------------
+# Steady state against the FMU in FMPy
+# ---------------------------------------------------------------------------
+FMU_CASES = [("g1", "nominal", 2.0, 0.5, 4), ("g1", "nominal", 0.6, 2.0, 4), ("g1", "perturbed", 2.0, 5.0, 20),
+             ("g2", "nominal", 2.0, 3.0, 45), ("g2", "nominal", 0.6, 5.2, 90), ("g2", "perturbed", 2.0, 2.0, 40)]
+
+
+@pytest.mark.parametrize("name, which, m, f, periods", FMU_CASES)
+def test_steady_state_matches_fmu(built_fmu, name, which, m, f, periods):
+    plant = load_plant(name)
+    starts = dict(zip(plant.parameter_names(), vector(name, SETS[which][name]).tolist()))
+    starts.update(excitation_amplitude=m, excitation_frequency=f)
+    n = 1000  # samples per period
+    res = simulate_fmu(str(built_fmu(name, 3)), fmi_type="CoSimulation", stop_time=periods / f,
+                       output_interval=1 / (n * f), relative_tolerance=1e-12, start_values=starts,
+                       output=["position"])
+    t, pos = res["time"], res["position"]
+    assert len(t) == periods * n + 1
+    H_prev, dc_prev = position_features(t[-2 * n - 1:-n], pos[-2 * n - 1:-n], f, m)
+    H_ref, dc_ref = position_features(t[-n - 1:], pos[-n - 1:], f, m)
+    assert_close(H_prev, dc_prev, H_ref, dc_ref, m, tol=1e-8)  # the FMU run has reached steady state
+    H, dc = batch(name, which, m, f)
+    assert_close(H, dc, H_ref, dc_ref, m)
+
+
+@pytest.mark.parametrize("name, m, f, periods", [("stribeck_servo", 0.6, 0.5, 10), ("lugre_servo", 2.0, 5.0, 20)])
+def test_other_friction_models_match_fmu(built_fmu, name, m, f, periods):
+    n = 1000
+    res = simulate_fmu(str(built_fmu(name, 3)), fmi_type="CoSimulation", stop_time=periods / f,
+                       output_interval=1 / (n * f), relative_tolerance=1e-12,
+                       start_values={"excitation_amplitude": m, "excitation_frequency": f}, output=["position"])
+    t, pos = res["time"], res["position"]
+    H_prev, dc_prev = position_features(t[-2 * n - 1:-n], pos[-2 * n - 1:-n], f, m)
+    H_ref, dc_ref = position_features(t[-n - 1:], pos[-n - 1:], f, m)
+    assert_close(H_prev, dc_prev, H_ref, dc_ref, m, tol=1e-8)
+    r = simulator(name).steady_state(load_plant(name).parameter_vector(), [m], [f])
+    assert r.converged[0, 0]
+    assert_close(r.H[0, 0], r.dc[0, 0], H_ref, dc_ref, m)
+
+
+def test_failed_integration_gives_nan():
+    r = simulator("g1").steady_state(load_plant("g1").parameter_vector(), [2.0], [1.0],
+                                     SteadyStateOptions(max_steps=50))
+    assert np.isnan(r.H[0, 0]) and np.isnan(r.dc[0, 0]) and not r.converged[0, 0]
+
+
+def test_invalid_parameter_set_gives_nan_and_leaves_the_others_alone():
+    r = batch_features("g1", 2.0, 0.5)
+    assert np.isnan(r.H[2, 0]) and np.isnan(r.dc[2, 0]) and np.isnan(r.distortion[2, 0])
+    assert not r.converged[2, 0]
+    alone = simulator("g1").steady_state(vector("g1", NOMINAL["g1"]), [2.0], [0.5])
+    assert alone.H[0, 0] == r.H[0, 0] and alone.dc[0, 0] == r.dc[0, 0]  # tasks are independent
+
+
+# ---------------------------------------------------------------------------
+# Options, threads, acceleration, distortion
+# ---------------------------------------------------------------------------
+def test_results_do_not_depend_on_threads_or_batching():
+    plant = load_plant("g1")
+    rng = np.random.default_rng(7)
+    sets = plant.parameter_vector() * rng.uniform(0.8, 1.2, size=(6, len(plant.parameter_names())))
+    amps, freqs = [2.0, 0.6, 2.0], [1.0, 1.0, 7.0]
+    one = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
+    calls = []
+    two = BatchSimulator(plant, threads=2).steady_state(sets, amps, freqs, progress=lambda *a: calls.append(a))
+    assert np.array_equal(one.H, two.H) and np.array_equal(one.dc, two.dc)
+    assert calls[-1] == (6, 6) and [c[0] for c in calls] == sorted(c[0] for c in calls)
+    single = BatchSimulator(plant, threads=1).steady_state(sets[3], amps[2:], freqs[2:])
+    assert single.H[0, 0] == one.H[3, 2]
+    # sent to a worker process, a simulator is rebuilt from its plant
+    copy = pickle.loads(pickle.dumps(BatchSimulator(plant, threads=1)))
+    assert copy.steady_state(sets[3], amps[2:], freqs[2:]).H[0, 0] == one.H[3, 2]
+
+
+@pytest.mark.parametrize("name, m, f", [("g1", 2.0, 10.0), ("g2", 2.0, 4.0)])
+def test_acceleration_reaches_the_same_steady_state_sooner(name, m, f):
+    plant = load_plant(name)
+    sim = simulator(name)
+    plain = sim.steady_state(plant.parameter_vector(), [m], [f], SteadyStateOptions(accelerate=False))
+    fast = sim.steady_state(plant.parameter_vector(), [m], [f], SteadyStateOptions(accelerate=True))
+    assert plain.converged.all() and fast.converged.all()
+    assert_close(fast.H[0, 0], fast.dc[0, 0], plain.H[0, 0], plain.dc[0, 0], m, tol=1e-7)
+    assert fast.settle_time[0, 0] < plain.settle_time[0, 0]
+
+
+def test_hopeless_experiment_is_given_up_early_with_the_same_verdict():
+    # g2 at 0.6 N, 1 Hz: the friction's relay oscillation near 5 Hz does not lock to the excitation
+    plant = load_plant("g2")
+    sim = simulator("g2")
+    full = sim.steady_state(plant.parameter_vector(), [0.6], [1.0], SteadyStateOptions(give_up_early=False))
+    early = sim.steady_state(plant.parameter_vector(), [0.6], [1.0])
+    assert not full.converged[0, 0] and not early.converged[0, 0]
+    assert full.settle_time[0, 0] >= 60.0 and early.settle_time[0, 0] < 30.0
+
+
+def test_looser_tolerance_is_less_accurate_but_close():
+    plant = load_plant("g1")
+    sim = simulator("g1")
+    fine = sim.steady_state(plant.parameter_vector(), [0.6], [2.0], SteadyStateOptions(rtol=1e-11))
+    coarse = sim.steady_state(plant.parameter_vector(), [0.6], [2.0], SteadyStateOptions(rtol=1e-6))
+    err = abs(coarse.H[0, 0] - fine.H[0, 0]) / abs(fine.H[0, 0])
+    assert 1e-9 < err < 1e-4
+    assert coarse.steps[0, 0] < fine.steps[0, 0] / 4
+
+
+def test_distortion_matches_the_harmonics_of_the_reference():
+    poles, zeros, dc, fr = NOMINAL["g1"]
+    m, f, n = 0.6, 1.0, 4096
+    t = np.concatenate([[0.0], 4 + np.arange(n + 1) / (n * f)])
+    v = simulate_reference(poles, zeros, gain_from_dc(poles, zeros, dc), fr, m, f, t, rtol=1e-10, atol=1e-12)
+    spectrum = np.fft.rfft(v[1:-1]) * 2 / n  # |S_k| of the last period
+    ref = np.sqrt(np.sum(np.abs(spectrum[2:n // 2]) ** 2)) / np.abs(spectrum[1])
+    r = simulator("g1").steady_state(load_plant("g1").parameter_vector(), [m], [f])
+    assert ref > 0.05  # stick-slip: a clearly distorted response
+    assert abs(r.distortion[0, 0] - ref) < 1e-5 * ref
+
+
+# ---------------------------------------------------------------------------
+# Validity of parameter sets
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["g1", "g2", "stribeck_servo", "lugre_servo"])
+def test_valid_parameter_sets_follow_the_plant_file_rules(name):
+    import tomllib
+
+    plant = load_plant(name)
+    rng = np.random.default_rng(3)
+    nominal = plant.parameter_vector()
+    sets = nominal * rng.uniform(-0.3, 1.7, size=(300, nominal.size))
+    sets[rng.random(sets.shape) < 0.05] = 0.0
+    sets[0, 0], sets[1, -1] = np.nan, np.inf
+    expected = []
+    for row in sets:
+        try:
+            plant_from_dict(tomllib.loads(plant.with_parameters(row).to_toml()))
+            expected.append(True)
+        except PlantError:
+            expected.append(False)
+    assert np.array_equal(valid_parameter_sets(plant, sets), expected)
+    assert 0 < sum(expected) < len(expected)
+
+
+# ---------------------------------------------------------------------------
+# Records
+# ---------------------------------------------------------------------------
+def reference_record(params, t, u):
+    """v at t for u linear between samples: scipy's Radau on the equations, written without the package."""
+    poles, zeros, dc, fr = params
+    A, B, C, _ = signal.zpk2ss(zeros, poles, gain_from_dc(poles, zeros, dc))
+
+    def rhs(tt, x):
+        force, _ = friction(float(C[0] @ x), 0.0, fr)
+        return A @ x + B[:, 0] * (np.interp(tt, t, u) - force)
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), np.zeros(A.shape[0]), method="Radau", t_eval=t, rtol=1e-10, atol=1e-12,
+                    max_step=float(np.min(np.diff(t))))
+    assert sol.success
+    return (C @ sol.y).ravel()
+
+
+@pytest.mark.parametrize("name", ["g1", "g2"])
+def test_record_matches_radau(name):
+    rng = np.random.default_rng(11)
+    t = 0.5 + np.cumsum(rng.uniform(0.01, 0.03, 120))  # irregular sampling, starting away from zero
+    u = 1.5 * np.sin(2 * np.pi * 1.3 * (t - t[0])) + 0.4 * rng.standard_normal(t.size)
+    sets = np.array([vector(name, NOMINAL[name]), vector(name, PERTURBED[name])])
+    v = simulator(name).simulate_record(sets, t, u)
+    for row, which in enumerate(("nominal", "perturbed")):
+        ref = reference_record(SETS[which][name], t, u)
+        assert np.abs(ref).max() > 0.1
+        assert np.abs(v[row] - ref).max() < 1e-6 * np.abs(ref).max()
+
+
+def test_record_of_an_invalid_set_is_nan():
+    t = np.linspace(0, 1, 11)
+    sets = np.array([vector("g1", NOMINAL["g1"]), vector("g1", NOMINAL["g1"])])
+    sets[1, 2] = -0.5  # negative Coulomb friction
+    v = simulator("g1").simulate_record(sets, t, np.ones_like(t))
+    assert np.all(np.isfinite(v[0])) and np.all(np.isnan(v[1]))
+
+
+# ---------------------------------------------------------------------------
+# User errors
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("call", [
+    lambda s: s.steady_state(np.ones(3), [1.0], [1.0]),                      # wrong number of parameters
+    lambda s: s.steady_state(load_plant("g1").parameter_vector(), [1.0, 2.0], [1.0]),
+    lambda s: s.steady_state(load_plant("g1").parameter_vector(), [0.0], [1.0]),
+    lambda s: s.steady_state(load_plant("g1").parameter_vector(), [1.0], [-1.0]),
+    lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0, 1.0], [0.0, 1.0, 2.0]),
+    lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0], [0.0, np.nan]),
+    lambda s: SteadyStateOptions(rtol=0.5),
+    lambda s: SteadyStateOptions(min_periods=1),
+])
+def test_bad_inputs_raise_user_errors(call):
+    with pytest.raises(UserError):
+        call(simulator("g1"))
