@@ -315,7 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", help="data file (HDF5) from `servofmu measure` or `servofmu import`")
     p.add_argument("--structure", required=True, help="plant file giving the structure (order, friction model)")
     p.add_argument("--ann", help="trained network (HDF5) from `servofmu train`")
-    p.add_argument("--method", choices=("pso-ann", "pso"), default="pso-ann")
+    p.add_argument("--method", choices=("pso-ann", "pso", "ga-ann", "aga-ann"), default="pso-ann",
+                   help="pso-ann (default), pso (no ANN), ga-ann or aga-ann (the paper's GA comparators)")
     p.add_argument("--no-polish", action="store_true", help="skip the least-squares polish after the swarm")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")

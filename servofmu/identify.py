@@ -25,9 +25,13 @@ from .dataset import SineData, ann_features, feature_names, from_targets, sine_r
 from .errors import UserError
 from .plant import Plant
 from .prior import canonical_order, full_vectors, identified_names
+from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from .pso import PsoOptions, minimize_pso
 
-METHODS = ("pso-ann", "pso")
+# The paper's hybrid, the swarm alone, and its comparators GA-ANN [31] and adaptive GA-ANN [35]: the same ANN
+# estimate, box, criterion, polish and number of model evaluations, only the search differs.
+METHODS = ("pso-ann", "pso", "ga-ann", "aga-ann")
+SEARCH_NAMES = {"pso-ann": "pso", "pso": "pso", "ga-ann": "ga", "aga-ann": "aga"}
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
 # more exact than the 1e-6 the parameters are to reach.  Its forward-difference Jacobian (relative step 1e-5) is
 # evaluated at the same tight tolerance: looser ones (1e-8) made g2's steady-state test fail for single
@@ -162,9 +166,10 @@ class PSOANNIdentifier:
     def fit(self, data: SineData | RecordData) -> "PSOANNIdentifier":
         if self.method not in METHODS:
             raise UserError(f"unknown method {self.method!r} (choose {', '.join(METHODS)})")
-        if self.method == "pso-ann" and self.ann is None:
-            raise UserError("method pso-ann needs a trained network (--ann ANN.h5; see `servofmu train`)")
-        if self.method == "pso-ann" and isinstance(data, RecordData):
+        uses_ann = self.method != "pso"
+        if uses_ann and self.ann is None:
+            raise UserError(f"method {self.method} needs a trained network (--ann ANN.h5; see `servofmu train`)")
+        if uses_ann and isinstance(data, RecordData):
             raise UserError("the ANN works on stepped-sine data; identify records with --method pso")
         start = time.perf_counter()
         simulator = BatchSimulator(self.structure, threads=self.threads)
@@ -179,7 +184,7 @@ class PSOANNIdentifier:
         def cost(y, rtol=SEARCH_RTOL):
             return rms(crit.residuals(to_theta(y), rtol))
 
-        if self.method == "pso-ann":
+        if uses_ann:
             t0 = time.perf_counter()
             y0, half = self._ann_estimate(data)
             theta0 = to_theta(y0)[0]
@@ -190,10 +195,16 @@ class PSOANNIdentifier:
             y0 = None
 
         t0, before = time.perf_counter(), crit.evaluations
-        progress = (lambda done, total, best: self.progress("pso", done, total)) if self.progress else None
-        result = minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=self.seed, progress=progress)
+        search = SEARCH_NAMES[self.method]
+        progress = (lambda done, total, best: self.progress(search, done, total)) if self.progress else None
+        if search == "pso":
+            result = minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=self.seed, progress=progress)
+        else:  # the GAs get the swarm's budget: particles × (iterations + 1) evaluations
+            budget = self.pso.particles * (self.pso.iterations + 1)
+            options = GaOptions(max_evaluations=budget) if search == "ga" else AdaptiveGaOptions(max_evaluations=budget)
+            result = minimize_ga(cost, lower, upper, options, x0=y0, seed=self.seed, progress=progress)
         y_best = result.position
-        stages.append(Stage("pso", to_theta(y_best)[0], float(result.cost), time.perf_counter() - t0,
+        stages.append(Stage(search, to_theta(y_best)[0], float(result.cost), time.perf_counter() - t0,
                             crit.evaluations - before))
         self.history_ = result.cost_history
 
@@ -319,9 +330,9 @@ def load_inputs(data_path, structure_path, ann_path, method: str, command: str =
             raise UserError(f"{data_path}: the file holds no experiments")
         data = sine_data(ds)
     ann = None
-    if method == "pso-ann":
+    if method != "pso":
         if ann_path is None:
-            raise UserError("method pso-ann needs a trained network: give --ann ANN.h5 (made by `servofmu dataset` "
+            raise UserError(f"method {method} needs a trained network: give --ann ANN.h5 (made by `servofmu dataset` "
                             "and `servofmu train`), or use --method pso")
         net, layout = load_network(ann_path)
         ann = AnnModel(net, layout, str(ann_path))

@@ -70,6 +70,16 @@ def test_pso_ann_identifies_g1_from_fmu_data(g1_files):
     assert np.all((lo <= truth("g1") + 1e-9) & (truth("g1") - 1e-9 <= hi))
 
 
+@pytest.mark.parametrize("method, search", [("ga-ann", "ga"), ("aga-ann", "aga")])
+def test_ga_comparators_share_the_budget(g1_files, method, search):
+    net, layout = load_network(g1_files["ann"])
+    data = sine_data(load_dataset(g1_files["data"]))
+    est = PSOANNIdentifier(load_plant("g1"), ann=AnnModel(net, layout, "ann.h5"), method=method, seed=0).fit(data)
+    assert [s.name for s in est.stages_] == ["ann", search, "polish"]
+    assert est.stages_[1].evaluations == 510  # PSO-ANN's 10 particles x (50 + 1)
+    assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
+
+
 def test_pso_alone_from_the_prior_box(g1_files):
     data = sine_data(load_dataset(g1_files["data"]))
     est = PSOANNIdentifier(load_plant("g1"), method="pso", seed=1).fit(data)
