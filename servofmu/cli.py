@@ -221,6 +221,52 @@ def cmd_export(args) -> None:
     print(f"wrote {path} ({what})")
 
 
+def cmd_compare(args) -> None:
+    import json
+
+    from .compare import (IDENTIFIER_METHODS, METHODS, check_methods, check_truth, comparison_json,
+                          comparison_markdown, run_methods)
+    from .fileio import atomic_write
+    from .identify import load_inputs
+    from .plant import load_plant
+    from .results import write_comparison
+
+    methods = check_methods(args.methods.split(",") if args.methods else
+                            [m for m in METHODS if args.ann or m in ("pso", "chen2002", "casadi-nls")], bool(args.ann))
+    structure, data, ann, provenance = load_inputs(args.data, args.structure, args.ann,
+                                                   "pso-ann" if args.ann else "pso",
+                                                   command=getattr(args, "command_line", ""))
+    truth = load_plant(args.truth) if args.truth else None
+    if truth is not None:
+        check_truth(structure, truth, args.truth)
+    if args.output:
+        check_output_path(args.output)
+    report = None if args.json else (lambda m: print(f"running {m} ...", file=sys.stderr))
+    results = run_methods(structure, data, methods, ann=ann, seed=args.seed, provenance=provenance, progress=report)
+    table = comparison_markdown(results, truth)
+    if args.output:
+        if str(args.output).endswith(".h5"):
+            write_comparison(args.output, results)
+        else:
+            atomic_write(args.output, table)
+    if args.json:
+        print(json.dumps(comparison_json(results, truth), allow_nan=True))
+    else:
+        print(table, end="")
+        if args.output:
+            print(f"wrote {args.output}")
+
+
+# ---------------------------------------------------------------------------
+# report
+# ---------------------------------------------------------------------------
+def cmd_report(args) -> None:
+    from .report import make_report
+
+    path = make_report(args.source, args.output, data=args.data, truth=args.truth)
+    print(f"wrote {path} (self-contained HTML: tables and figures)")
+
+
 # ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
@@ -331,6 +377,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="model name in the export (default: the plant's name + _identified)")
     p.add_argument("-o", dest="output", metavar="FILE", required=True, help="file to write")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("compare", help="every identification method on the same data, in the paper's table layout")
+    p.add_argument("data", help="data file (HDF5) from `servofmu measure`")
+    p.add_argument("--structure", required=True, help="plant file giving the structure")
+    p.add_argument("--ann", help="trained network (HDF5); needed by pso-ann, ga-ann, aga-ann, casadi-nls-ann")
+    p.add_argument("--truth", help="plant file of the true plant: adds the target column and relative errors")
+    p.add_argument("--methods", help="comma-separated: pso-ann, pso, ga-ann, aga-ann, chen2002, casadi-nls-ann, "
+                                     "casadi-nls (default: all that the inputs allow)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print one JSON object keyed by method")
+    p.add_argument("-o", "--output", help="write the table (.md) or every result (.h5, for `servofmu report`)")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("report", help="one self-contained HTML page of an identification: tables and figures")
+    p.add_argument("source", metavar="RESULT.h5", help="result file from `servofmu identify`")
+    p.add_argument("--data", metavar="DATA.h5", help="the data file it was identified from (default: the path "
+                                                     "its provenance records, or that name beside it)")
+    p.add_argument("--truth", metavar="PLANT", help="the true plant (file or name in fmu_models/), when known: "
+                                                    "drawn in the friction figure, relative errors in the table")
+    p.add_argument("-o", dest="output", metavar="REPORT.html", required=True, help="HTML file to write")
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")

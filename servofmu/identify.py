@@ -163,6 +163,11 @@ class PSOANNIdentifier:
         half = self.box * self.ann.network.validation_rmse * np.asarray(self.ann.network.y_scale)
         return y, half
 
+    def ann_theta(self, data: SineData) -> np.ndarray:
+        """The network's estimate of the identified parameters (the first stage alone)."""
+        y, _ = self._ann_estimate(data)
+        return canonical_order(self.structure, from_targets(self.structure, y[None]))[0]
+
     def fit(self, data: SineData | RecordData) -> "PSOANNIdentifier":
         if self.method not in METHODS:
             raise UserError(f"unknown method {self.method!r} (choose {', '.join(METHODS)})")

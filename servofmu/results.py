@@ -13,9 +13,10 @@ from . import __version__
 from .errors import UserError
 from .fileio import check_output_path, write_hdf5
 from .plant import Plant, plant_from_dict
-from .prior import identified_names
+from .prior import full_vectors, identified_names
 
 FORMAT = "servofmu-result"
+COMPARE_FORMAT = "servofmu-comparison"
 SCHEMA_VERSION = 1
 
 
@@ -131,54 +132,83 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
 # ---------------------------------------------------------------------------
 # RESULT.h5
 # ---------------------------------------------------------------------------
+def _fill(group, result: Result) -> None:
+    group.attrs.update({"method": result.method, "structure_toml": result.structure.to_toml(),
+                        "plant_toml": result.plant.to_toml(), "fitness": result.fitness, "seconds": result.seconds,
+                        "evaluations": result.evaluations, "provenance": json.dumps(result.provenance)})
+    group.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
+    group.create_dataset("theta", data=result.theta)
+    group.create_dataset("intervals", data=result.intervals)
+    group.create_dataset("history", data=result.history)
+    st = group.create_group("stages")
+    st.create_dataset("name", data=np.array([s[0] for s in result.stages], dtype=h5py.string_dtype()))
+    st.create_dataset("fitness", data=np.array([s[1] for s in result.stages]))
+    st.create_dataset("seconds", data=np.array([s[2] for s in result.stages]))
+    st.create_dataset("evaluations", data=np.array([s[3] for s in result.stages]))
+
+
 def write_result(path: str | Path, result: Result) -> Path:
     def fill(f):
-        f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
-                        "method": result.method, "structure_toml": result.structure.to_toml(),
-                        "plant_toml": result.plant.to_toml(), "fitness": result.fitness,
-                        "seconds": result.seconds, "evaluations": result.evaluations,
-                        "provenance": json.dumps(result.provenance)})
-        f.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
-        f.create_dataset("theta", data=result.theta)
-        f.create_dataset("intervals", data=result.intervals)
-        f.create_dataset("history", data=result.history)
-        st = f.create_group("stages")
-        st.create_dataset("name", data=np.array([s[0] for s in result.stages], dtype=h5py.string_dtype()))
-        st.create_dataset("fitness", data=np.array([s[1] for s in result.stages]))
-        st.create_dataset("seconds", data=np.array([s[2] for s in result.stages]))
-        st.create_dataset("evaluations", data=np.array([s[3] for s in result.stages]))
+        f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__})
+        _fill(f, result)
 
     return write_hdf5(check_output_path(path), fill)
 
 
-def read_result(path: str | Path) -> Result:
+def write_comparison(path: str | Path, results: dict[str, Result]) -> Path:
+    """COMPARE.h5: one group per method under /methods, each laid out like a RESULT.h5 root."""
+    def fill(f):
+        f.attrs.update({"format": COMPARE_FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
+                        "methods": json.dumps(list(results))})
+        for method, result in results.items():
+            _fill(f.create_group(f"methods/{method}"), result)
+
+    return write_hdf5(check_output_path(path), fill)
+
+
+def _read(group, path: Path) -> Result:
+    a = dict(group.attrs)
+    names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in group["names"][()])
+    st = group["stages"]
+    stages = tuple((n.decode() if isinstance(n, bytes) else str(n), float(fi), float(se), int(ev))
+                   for n, fi, se, ev in zip(st["name"][()], st["fitness"][()], st["seconds"][()],
+                                            st["evaluations"][()]))
+    structure = plant_from_dict(tomllib.loads(a["structure_toml"]), source=f"{path}:structure")
+    if list(names) != identified_names(structure):
+        raise UserError(f"{path}: parameter names do not match its structure")
+    theta = np.asarray(group["theta"][()], dtype=float)
+    plant = structure.with_parameters(full_vectors(structure, theta)[0])
+    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta, intervals=group["intervals"][()], fitness=float(a["fitness"]),
+                  seconds=float(a["seconds"]), evaluations=int(a["evaluations"]), stages=stages,
+                  history=group["history"][()], provenance=json.loads(a["provenance"]))
+
+
+def read_results(path: str | Path) -> dict[str, Result]:
+    """RESULT.h5 (one entry, keyed by its method) or COMPARE.h5 (one per method)."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != FORMAT:
-                raise UserError(f"{path}: not a servofmu result file (format {f.attrs.get('format')!r})")
+            kind = f.attrs.get("format")
+            if kind not in (FORMAT, COMPARE_FORMAT):
+                raise UserError(f"{path}: not a servofmu result or comparison file (format {kind!r})")
             version = int(f.attrs.get("schema_version", -1))
             if version != SCHEMA_VERSION:
                 raise UserError(f"{path}: result schema version {version} is not the supported {SCHEMA_VERSION} "
                                 "(written by another servofmu version)")
-            a = dict(f.attrs)
-            names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in f["names"][()])
-            theta, intervals, history = f["theta"][()], f["intervals"][()], f["history"][()]
-            st = f["stages"]
-            stages = tuple((n.decode() if isinstance(n, bytes) else str(n), float(fi), float(se), int(ev))
-                           for n, fi, se, ev in zip(st["name"][()], st["fitness"][()], st["seconds"][()],
-                                                    st["evaluations"][()]))
+            if kind == FORMAT:
+                result = _read(f, path)
+                return {result.method: result}
+            return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
     except UserError:
         raise
-    except (OSError, KeyError, ValueError) as exc:
+    except (OSError, KeyError, ValueError, tomllib.TOMLDecodeError) as exc:
         raise UserError(f"{path}: not a readable result file ({str(exc).splitlines()[0]})") from None
-    structure = plant_from_dict(tomllib.loads(a["structure_toml"]), source=f"{path}:structure")
-    plant = plant_from_dict(tomllib.loads(a["plant_toml"]), source=f"{path}:plant")
-    if list(names) != identified_names(structure):
-        raise UserError(f"{path}: parameter names do not match its structure")
-    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta,
-                  intervals=intervals, fitness=float(a["fitness"]), seconds=float(a["seconds"]),
-                  evaluations=int(a["evaluations"]), stages=stages, history=history,
-                  provenance=json.loads(a["provenance"]))
+
+
+def read_result(path: str | Path) -> Result:
+    results = read_results(path)
+    if len(results) != 1:
+        raise UserError(f"{path}: holds a comparison of {len(results)} methods, not one result")
+    return next(iter(results.values()))
