@@ -391,7 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("report", help="one self-contained HTML page of an identification: tables and figures")
-    p.add_argument("source", metavar="RESULT.h5", help="result file from `servofmu identify`")
+    p.add_argument("source", metavar="RESULT.h5|COMPARE.h5",
+                   help="result file from `servofmu identify` or comparison file from `servofmu compare`")
     p.add_argument("--data", metavar="DATA.h5", help="the data file it was identified from (default: the path "
                                                      "its provenance records, or that name beside it)")
     p.add_argument("--truth", metavar="PLANT", help="the true plant (file or name in fmu_models/), when known: "

@@ -54,6 +54,11 @@ class RecordData:
 # ---------------------------------------------------------------------------
 # Output-error criteria: residuals of many candidates at once
 # ---------------------------------------------------------------------------
+def steady_state_options(rtol: float) -> SteadyStateOptions:
+    """Batch-simulator settings for an integrator tolerance: periods compared to a tenth of it (within limits)."""
+    return SteadyStateOptions(rtol=rtol, tol=min(max(rtol / 10, 1e-10), 1e-6))
+
+
 class SineCriterion:
     """Residuals of candidates against stepped-sine data (servofmu.dataset.sine_residuals)."""
 
@@ -65,8 +70,7 @@ class SineCriterion:
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
         feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
-                                            self.data.frequencies,
-                                            SteadyStateOptions(rtol=rtol, tol=min(max(rtol / 10, 1e-10), 1e-6)))
+                                            self.data.frequencies, steady_state_options(rtol))
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r

@@ -1,0 +1,242 @@
+"""`servofmu report`: the HTML page opened in headless Chromium (Debian's chromium and chromium-driver, installed by
+scripts/test.sh), its tables checked against the result and data files read with h5py, its images decoded, no
+console errors; the friction curve against the friction formulas of docs/model.md; refusals of bad input."""
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+
+from servofmu.compare import run_methods
+from servofmu.dataset import sine_data
+from servofmu.export import file_sha256
+from servofmu.measure import measure
+from servofmu.plant import load_plant
+from servofmu.report import steady_friction
+from servofmu.results import write_comparison, write_result
+from servofmu.store import load_dataset
+
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                  "--window-size=1200,900")
+PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
+# The "true" plant the report is given: g1 with other values, so that every relative error is large and known.
+TRUTH_TOML = """name = "g1_other"
+[linear]
+poles = [[-11.0, 0.0]]
+zeros = []
+dc_gain = 1.25
+[friction]
+model = "coulomb"
+fc_pos = 0.55
+fc_neg = 0.3
+"""
+TRUTH = {"pole1": -11.0, "dc_gain": 1.25, "fc_pos": 0.55, "fc_neg": 0.3}
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "servofmu", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd)
+
+
+def assert_one_line_error(proc, *fragments):
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def g1_result(tmp_path_factory, built_fmu):
+    """g1 measured through its FMU, identified by PSO alone (RESULT.h5) and compared with Chen 2002 (COMPARE.h5);
+    the files record the data file by its name."""
+    folder = tmp_path_factory.mktemp("report")
+    data = folder / "g1.h5"
+    measure(built_fmu("g1", 3), data, workers=0, **PLAN)
+    provenance = {"data_file": "g1.h5", "data_sha256": file_sha256(data), "command": "test",
+                  "date": "2024-01-01T00:00:00Z"}
+    results = run_methods(load_plant("g1"), sine_data(load_dataset(data)), ["pso", "chen2002"], seed=0,
+                          provenance=provenance)
+    write_result(folder / "g1-result.h5", results["pso"])
+    write_comparison(folder / "g1-compare.h5", results)
+    (folder / "truth.toml").write_text(TRUTH_TOML)
+    return {"folder": folder, "data": data, "result": folder / "g1-result.h5", "compare": folder / "g1-compare.h5",
+            "truth": folder / "truth.toml"}
+
+
+@pytest.fixture(scope="module")
+def report(g1_result, tmp_path_factory):
+    """The report made by the CLI from another working folder (the data file is found beside the result)."""
+    out = tmp_path_factory.mktemp("elsewhere") / "report.html"
+    proc = run("report", g1_result["result"], "--truth", g1_result["truth"], "-o", out, cwd=out.parent)
+    assert proc.returncode == 0, proc.stderr
+    assert out.stat().st_size > 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def browser():
+    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
+    if missing:
+        pytest.fail(f"{', '.join(missing)} missing: scripts/test.sh installs Debian's chromium and chromium-driver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in CHROMIUM_FLAGS:
+        options.add_argument(flag)
+    profile = tempfile.TemporaryDirectory(ignore_cleanup_errors=True)
+    options.add_argument(f"--user-data-dir={profile.name}")
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)  # no Selenium Manager
+    yield driver
+    driver.quit()
+    profile.cleanup()
+
+
+def table(driver, table_id):
+    """Rows of the table as lists of the cell texts a reader sees (header row first)."""
+    return driver.execute_script(
+        "const t = document.getElementById(arguments[0]); if (!t) return null;"
+        "return Array.from(t.rows).map(r => Array.from(r.cells).map(c => c.innerText.trim()));", table_id)
+
+
+def test_report_renders_in_chromium(report, browser, g1_result):
+    browser.get(report.as_uri())
+    assert browser.execute_script("return document.readyState") == "complete"
+    with h5py.File(g1_result["result"], "r") as f:
+        names = [n.decode() for n in f["names"][()]]
+        theta, intervals = f["theta"][()], f["intervals"][()]
+        stages = [(n.decode(), fit) for n, fit in zip(f["stages/name"][()], f["stages/fitness"][()])]
+        fitness = f.attrs["fitness"]
+
+    # identified parameters, their intervals, the truth and the relative errors
+    rows = table(browser, "parameters")
+    assert rows[0][:5] == ["parameter", "unit", "identified", "95 % low", "95 % high"]
+    assert rows[0][5:] == ["true", "relative error"]
+    assert [r[0] for r in rows[1:]] == names == list(TRUTH)
+    for r, value, (lo, hi) in zip(rows[1:], theta, intervals):
+        assert np.allclose([float(r[2]), float(r[3]), float(r[4])], [value, lo, hi], rtol=1e-7, atol=0)
+        true = TRUTH[r[0]]
+        assert float(r[5]) == true
+        assert float(r[6]) == pytest.approx(abs(value - true) / abs(true), rel=1e-3)
+    assert float(rows[1][6]) == pytest.approx(1 / 11, rel=1e-3)  # pole -10 identified, "true" -11
+
+    # the paper's layout, beside its published Table II (g1 is the paper's plant)
+    paper = {r[0]: r for r in table(browser, "paper")}
+    assert float(paper["pole"][1]) == pytest.approx(-10, rel=1e-6)
+    assert float(paper["constant"][1]) == pytest.approx(10, rel=1e-6)
+    assert "-10.0006" in paper["pole"] and "10.0000" in paper["constant"]  # the paper's PSO-ANN column
+
+    # every experiment: the measured first harmonics as stored, the identified model reproducing them
+    with h5py.File(g1_result["data"], "r") as f:
+        measured = sorted((g.attrs["amplitude"], g.attrs["frequency"], g.attrs["H"], g.attrs["dc"])
+                          for g in f["experiments"].values())
+    rows = table(browser, "experiments")
+    assert len(rows) == 1 + len(measured) == 7
+    shown = sorted(tuple(map(float, r)) for r in rows[1:])
+    for r, (m, freq, H, dc) in zip(shown, measured):
+        assert r[:2] == (m, freq)
+        assert r[2] == pytest.approx(abs(H), rel=1e-7)
+        assert r[3] == pytest.approx(np.degrees(np.angle(H)), abs=2e-6)
+        assert r[4] == pytest.approx(dc, rel=1e-5)
+        assert r[5] == pytest.approx(abs(H), rel=1e-6)  # model |H|
+        assert r[8] < 1e-8                               # |ΔH|/|H|
+    # the fitness recomputed from the page's own simulations is the identification's
+    refit = browser.find_element("id", "refit").text
+    assert float(refit.split(":")[1].split()[0]) == pytest.approx(fitness, rel=0.05), refit
+
+    rows = table(browser, "stages")
+    assert [(r[0], float(r[1])) for r in rows[1:-1]] == [(n, pytest.approx(fit, rel=1e-3)) for n, fit in stages]
+    provenance = {r[0]: r[1] for r in table(browser, "provenance")}
+    assert provenance["data_sha256"] == file_sha256(g1_result["data"])
+
+    # five figures (one Bode plot per magnitude, all magnitudes against G, friction, PSO), embedded and decoded
+    images = browser.execute_script(
+        "return Array.from(document.images).map(i => [i.getAttribute('src').slice(0, 22), i.complete, "
+        "i.naturalWidth, i.naturalHeight]);")
+    assert len(images) == 5
+    for src, complete, width, height in images:
+        assert src == "data:image/png;base64,"
+        assert complete and width > 0 and height > 0
+    # self-contained: nothing was fetched, and the console stayed clean
+    assert browser.execute_script("return performance.getEntriesByType('resource').length") == 0
+    errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+    assert errors == []
+
+
+def test_comparison_side_by_side(g1_result, browser, tmp_path):
+    """A COMPARE.h5 of two methods: one column per method, the figures of both, a clean console."""
+    out = tmp_path / "compare.html"
+    proc = run("report", g1_result["compare"], "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    browser.get(out.as_uri())
+    with h5py.File(g1_result["compare"], "r") as f:
+        theta = {m: f[f"methods/{m}/theta"][()] for m in ("pso", "chen2002")}
+    rows = table(browser, "parameters")
+    assert rows[0][2:] == ["identified (pso)", "95 % low (pso)", "95 % high (pso)", "identified (chen2002)",
+                           "95 % low (chen2002)", "95 % high (chen2002)"]
+    for r, a, b in zip(rows[1:], theta["pso"], theta["chen2002"]):
+        assert float(r[2]) == pytest.approx(a, rel=1e-7) and float(r[5]) == pytest.approx(b, rel=1e-7)
+    assert abs(theta["chen2002"][0] / theta["pso"][0] - 1) > 1e-6  # two different answers side by side
+    # per method one Bode figure per magnitude and one against G; then friction and PSO convergence
+    sizes = browser.execute_script("return Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0);")
+    assert len(sizes) == 2 * 3 + 2 and min(sizes) > 0
+    assert [e for e in browser.get_log("browser") if e["level"] == "SEVERE"] == []
+
+
+@pytest.mark.parametrize("name", ["g1", "stribeck_servo", "lugre_servo"])
+def test_friction_curve_follows_the_model_formulas(name):
+    """F(v) at constant velocity against docs/model.md, written out here: g±(v) = fc± + (fs± − fc±)·exp(−(v/vs)²);
+    coulomb/stribeck F = g+·max(t, 0) + g−·min(t, 0) + fv·v with t = tanh(v/v_smooth); LuGre at rest (dz/dt = 0)
+    z = sign(v)·g(v)/sigma0, so F = sign(v)·g(v) + fv·v."""
+    plant = load_plant(name)
+    p = plant.parameters()
+    v = np.concatenate([-np.geomspace(1e-5, 3, 200)[::-1], np.geomspace(1e-5, 3, 200)])
+
+    def g(side):
+        if plant.friction.model == "coulomb":
+            return p[f"fc_{side}"]
+        return p[f"fc_{side}"] + (p[f"fs_{side}"] - p[f"fc_{side}"]) * np.exp(-(v / p["vs"]) ** 2)
+
+    if plant.friction.model == "lugre":
+        expected = np.where(v > 0, g("pos"), -g("neg")) + p["fv"] * v
+    else:
+        t = np.tanh(v / p["v_smooth"])
+        expected = g("pos") * np.maximum(t, 0) + g("neg") * np.minimum(t, 0) + p["fv"] * v
+    assert np.allclose(steady_friction(plant, v), expected, rtol=1e-12, atol=1e-14)
+
+
+def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
+    out = tmp_path / "report.html"
+    out.write_text("an earlier report")
+    result, data = g1_result["result"], g1_result["data"]
+    # a data file, a comparison file of a format it does not know, a file that is not HDF5
+    assert_one_line_error(run("report", data, "-o", out), str(data), "servofmu-data")
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f.attrs["format"] = "something-else"
+    assert_one_line_error(run("report", foreign, "-o", out), str(foreign), "something-else")
+    assert_one_line_error(run("report", g1_result["truth"], "-o", out), "truth.toml", "not a readable")
+    # data other than the result was identified from
+    other = tmp_path / "other.h5"
+    other.write_bytes(data.read_bytes())
+    with h5py.File(other, "a") as f:
+        f.attrs["note"] = "changed"
+    assert_one_line_error(run("report", result, "--data", other, "-o", out), str(other), "SHA-256")
+    # the data file cannot be found: the result alone in another folder
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "r.h5").write_bytes(result.read_bytes())
+    assert_one_line_error(run("report", alone / "r.h5", "-o", out, cwd=tmp_path), "g1.h5", "--data")
+    # ... and given with --data it is found
+    proc = run("report", alone / "r.h5", "--data", data, "-o", tmp_path / "ok.html", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "<table id=\"parameters\">" in (tmp_path / "ok.html").read_text()
+    assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out), "no_such_plant")
+    assert out.read_text() == "an earlier report"  # nothing written by a failed run
