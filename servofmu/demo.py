@@ -17,6 +17,7 @@ from .measure import measure
 from .paper import COLUMNS, TABLES
 from .plant import load_plant
 from .plots import bode_figure
+from .report import make_report
 from .results import paper_rows, result_from_estimator, write_result
 from .train import train_from_file
 
@@ -30,7 +31,7 @@ DEMO_SAMPLES = 3000  # training-set size of the demo (`servofmu dataset --sample
 
 
 def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPLES) -> dict:
-    """The whole path for g1 and g2: build → measure → dataset → train → identify → export → re-measure.
+    """The whole path for g1 and g2: build → measure → dataset → train → identify → report → export → re-measure.
 
     ``report`` receives one line (or table) of progress at a time.  Returns per plant the identification result.
     """
@@ -70,6 +71,8 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
         results[name] = result
         report(paper_comparison(name, result))
 
+        page = make_report(out / f"{name}-result.h5", out / f"{name}-report.html", data=data_file, truth=name)
+        report(f"wrote {page}")
         trip = remeasure(result, data_file, out / f"{name}-identified.fmu", out / f"{name}-remeasured.h5",
                          command=command)
         report(f"exported {trip.fmu} and re-measured it: largest |H − H_data|/|H_data| {trip.max_H_error:.2e} "
