@@ -224,7 +224,7 @@ def cmd_export(args) -> None:
 def cmd_compare(args) -> None:
     import json
 
-    from .compare import (IDENTIFIER_METHODS, METHODS, check_methods, check_truth, comparison_json,
+    from .compare import (METHODS, check_methods, check_truth, comparison_json,
                           comparison_markdown, run_methods)
     from .fileio import atomic_write
     from .identify import load_inputs

@@ -205,7 +205,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
         raise UserError(f"--frequency must be positive, not {frequency:g}")
     if len({time, input, output}) < 3:
-        raise UserError(f"--time, --input and --output must name three different columns")
+        raise UserError("--time, --input and --output must name three different columns")
     cols = read_columns(path, [time, input, output])
     t, u, y = cols[time], cols[input], cols[output]
     fs = 1.0 / float(np.median(np.diff(t)))

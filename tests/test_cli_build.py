@@ -1,11 +1,9 @@
 """`servofmu build` and `servofmu simulate` from the command line: outputs and one-line errors."""
-import os
-import subprocess
-import sys
 import zipfile
 
 import numpy as np
 import pytest
+from clitools import assert_one_line_error, run
 
 G1_TEXT = """name = "p"
 [linear]
@@ -17,20 +15,6 @@ model = "coulomb"
 fc_pos = 0.5
 fc_neg = 0.4
 """
-
-
-def run(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "servofmu", *args], capture_output=True, text=True,
-                          env={**os.environ, **(env or {})})
-
-
-def assert_one_line_error(proc, *fragments):
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 def test_build_then_simulate_csv(tmp_path):

@@ -1,24 +1,11 @@
 """`servofmu compare`: all methods side by side, and its refusals of bad input."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from servofmu.measure import measure
-
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "servofmu", *map(str, args)], capture_output=True, text=True)
-
-
-def assert_one_line_error(proc, *fragments):
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
+from clitools import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,5 @@
 """The identifier end to end on FMU data: dataset → train → identify, and its refusals of bad input."""
 import json
-import subprocess
-import sys
 
 import h5py
 import numpy as np
@@ -15,20 +13,9 @@ from servofmu.prior import identified_mask, sample_identified
 from servofmu.store import load_dataset
 from servofmu.train import train_from_file
 from servofmu.ann import load_network
+from clitools import assert_one_line_error, run
 
 PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
-
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "servofmu", *map(str, args)], capture_output=True, text=True)
-
-
-def assert_one_line_error(proc, *fragments):
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,6 @@
 """`servofmu report`: the HTML page opened in headless Chromium (Debian's chromium and chromium-driver, installed by
 scripts/test.sh), its tables checked against the result and data files read with h5py, its images decoded, no
 console errors; the friction curve against the friction formulas of docs/model.md; refusals of bad input."""
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from servofmu.plant import load_plant
 from servofmu.report import steady_friction
 from servofmu.results import write_comparison, write_result
 from servofmu.store import load_dataset
+from clitools import assert_one_line_error, run
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -38,19 +37,6 @@ fc_pos = 0.55
 fc_neg = 0.3
 """
 TRUTH = {"pole1": -11.0, "dc_gain": 1.25, "fc_pos": 0.55, "fc_neg": 0.3}
-
-
-def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "servofmu", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd)
-
-
-def assert_one_line_error(proc, *fragments):
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")
