@@ -1,0 +1,56 @@
+"""Identifiers to compare PSO-ANN against (docs/identification.md):
+
+- :mod:`servofmu.baselines.casadi_nls`: nonlinear least squares on the same output-error residuals, with exact
+  derivatives from the CasADi model (the periodic steady state of each experiment by Newton on the period map);
+- :mod:`servofmu.baselines.chen2002`: the two-magnitude describing-function method of Chen, Huang & Yen (2002).
+
+Both return a :class:`BaselineResult`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plant import Plant
+from ..prior import full_vectors
+
+
+@dataclass(frozen=True)
+class BaselineResult:
+    """The outcome of one baseline identification.
+
+    ``theta``: identified parameters in ``names`` order (servofmu.prior.identified_names); ``fitness``: the RMS of
+    the output-error residuals of servofmu.identify.SineCriterion at ``theta`` (inf when the identified plant is
+    invalid or has no steady state in some experiment); ``seconds``: wall time, the fitness included;
+    ``evaluations``: evaluations of the output-error residuals (each simulates every experiment; for the least
+    squares with their Jacobian; 0 for Chen 2002, which simulates nothing); ``iterations``: optimiser iterations
+    (for Chen 2002 those of its transfer-function fit); ``success``: the method ended as it should (converged,
+    or a physically valid direct solution); ``message``: how it ended.
+    """
+
+    method: str
+    names: tuple[str, ...]
+    theta: np.ndarray
+    fitness: float
+    seconds: float
+    evaluations: int
+    iterations: int
+    success: bool
+    message: str
+
+    def plant(self, structure: Plant) -> Plant:
+        """The identified plant (``structure`` with ``theta``; fixed parameters from the structure)."""
+        return structure.with_parameters(full_vectors(structure, self.theta)[0])
+
+    def parameters(self) -> dict[str, float]:
+        return dict(zip(self.names, self.theta.tolist()))
+
+
+def output_error_fitness(structure: Plant, data, theta: np.ndarray, threads: int | None = None) -> float:
+    """The RMS output error of ``theta`` by the identifier's own criterion (batch simulator, tight tolerance)."""
+    from ..batch import BatchSimulator
+    from ..identify import POLISH_RTOL, SineCriterion, rms
+
+    crit = SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
+    return float(rms(crit.residuals(np.asarray(theta, dtype=float)[None], POLISH_RTOL))[0])

@@ -1,0 +1,116 @@
+"""The CasADi least-squares baseline (servofmu.baselines.casadi_nls) against the FMU and the batch simulator.
+
+Its periodic steady state (CVODES + Newton on the period map) and the measurement (the FMU's RODAS4, run from
+rest until settled) are independent computations of the same responses; its residuals must equal those of
+servofmu.identify.SineCriterion (batch simulator) at any parameters, and its Jacobian central differences."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from servofmu.baselines.casadi_nls import CasadiCriterion, NlsOptions, fit_casadi_nls
+from servofmu.batch import BatchSimulator
+from servofmu.dataset import SineData, sine_data
+from servofmu.errors import UserError
+from servofmu.identify import RecordData, SineCriterion
+from servofmu.measure import measure
+from servofmu.plant import load_plant
+from servofmu.prior import identified_mask
+from servofmu.store import load_dataset
+
+G1 = load_plant("g1")
+TRUTH = G1.parameter_vector()[identified_mask(G1)]  # pole1, dc_gain, fc_pos, fc_neg
+
+
+@pytest.fixture(scope="module")
+def g1_data(built_fmu, tmp_path_factory) -> SineData:
+    """g1 measured from its FMU at the paper's magnitudes 2.0 and 0.6 N, default frequencies, no noise."""
+    path = tmp_path_factory.mktemp("nls") / "g1.h5"
+    measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), workers=0)
+    return sine_data(load_dataset(path))
+
+
+def start_near_truth(seed: int) -> np.ndarray:
+    return TRUTH * (1 + 0.05 * np.random.default_rng(seed).choice([-1.0, 1.0], TRUTH.size))
+
+
+def test_residuals_equal_sine_criterion_and_vanish_at_the_truth(g1_data):
+    crit = CasadiCriterion(G1, g1_data, NlsOptions(rtol=1e-10))
+    batch = SineCriterion(G1, g1_data, BatchSimulator(G1, threads=1))
+    at_truth = crit.residuals(TRUTH)
+    assert np.max(np.abs(at_truth)) < 1e-7  # CVODES periodic orbit vs the FMU's settled response
+    for theta in (TRUTH, start_near_truth(0), TRUTH * [1.2, 0.8, 0.7, 1.3]):
+        r = crit.residuals(theta)
+        assert r.shape == (3 * g1_data.amplitudes.size,)
+        assert np.max(np.abs(r - batch.residuals(theta, 1e-10)[0])) < 1e-7
+
+
+def test_jacobian_matches_central_differences(g1_data):
+    crit = CasadiCriterion(G1, g1_data, NlsOptions(rtol=1e-12))
+    theta = start_near_truth(1)
+    r, J = crit.residuals_and_jacobian(theta)
+    assert np.max(np.abs(r - crit.residuals(theta))) < 1e-9  # the same residuals (integrated with more states)
+    for i in range(theta.size):
+        h = 1e-4 * abs(theta[i])
+        step = np.eye(theta.size)[i] * h
+        column = (crit.residuals(theta + step) - crit.residuals(theta - step)) / (2 * h)
+        assert np.max(np.abs(J[:, i] - column)) < 1e-5 * np.max(np.abs(J[:, i])), i
+
+
+@pytest.mark.parametrize("method", ["gauss-newton", "ipopt"])
+def test_converges_to_the_truth_from_five_percent_off(g1_data, method):
+    theta0 = start_near_truth(2)
+    t0 = time.perf_counter()
+    result = fit_casadi_nls(G1, g1_data, theta0, NlsOptions(method=method))
+    err = np.abs(result.theta - TRUTH) / np.abs(TRUTH)
+    print(f"\ng1 {method}: max relative error {err.max():.2e}, fitness {result.fitness:.2e}, "
+          f"{result.iterations} iterations, {result.evaluations} evaluations, {time.perf_counter() - t0:.1f} s "
+          f"({result.message})")
+    assert result.success, result.message
+    assert err.max() < 1e-6
+    assert result.fitness < 1e-7 and result.names == ("pole1", "dc_gain", "fc_pos", "fc_neg")
+
+
+def test_g2_with_its_complex_pair_from_five_percent_off(built_fmu, tmp_path):
+    """Third order, a lightly damped pair near 5 Hz; magnitudes and frequencies where g2 settles (no limit cycle)."""
+    path = tmp_path / "g2.h5"
+    measure(built_fmu("g2"), path, amplitudes=(4.0, 2.0), frequencies=(0.5, 1.0, 2.0, 5.0), workers=0)
+    g2 = load_plant("g2")
+    truth = g2.parameter_vector()[identified_mask(g2)]
+    theta0 = truth * (1 + 0.05 * np.random.default_rng(3).choice([-1.0, 1.0], truth.size))
+    result = fit_casadi_nls(g2, sine_data(load_dataset(path)), theta0)
+    err = np.abs(result.theta - truth) / np.abs(truth)
+    print(f"\ng2 {result.method}: max relative error {err.max():.2e}, {result.iterations} iterations, "
+          f"{result.seconds:.1f} s")
+    assert result.success and err.max() < 1e-6
+
+
+def test_default_start_is_the_structure_file(g1_data):
+    """From theta0=None the fit starts at the structure's values; with data of that very plant it stays there."""
+    result = fit_casadi_nls(G1, g1_data)
+    assert result.success and np.max(np.abs(result.theta - TRUTH) / TRUTH) < 1e-6
+
+
+# ---------------------------------------------------------------------------
+# Inputs a user can get wrong
+# ---------------------------------------------------------------------------
+def test_bad_inputs_are_user_errors(g1_data):
+    with pytest.raises(UserError, match="has 3 values; g1 identifies 4 .pole1, dc_gain, fc_pos, fc_neg."):
+        fit_casadi_nls(G1, g1_data, TRUTH[:3])
+    with pytest.raises(UserError, match="not a valid plant"):
+        fit_casadi_nls(G1, g1_data, TRUTH * [-1, 1, 1, 1])  # a pole at +10
+    with pytest.raises(UserError, match="not a valid plant"):
+        fit_casadi_nls(G1, g1_data, [np.nan, 1, 0.5, 0.4])
+    t = np.linspace(0, 1, 11)
+    with pytest.raises(UserError, match="stepped-sine"):
+        fit_casadi_nls(G1, RecordData(records=((t, np.sin(t), np.cos(t)),), source="rec.h5"))
+    one = SineData(amplitudes=np.array([2.0]), frequencies=np.array([1.0]), H=g1_data.H[:1], dc=g1_data.dc[:1],
+                   noisy=False, source="one.h5", skipped=0)
+    with pytest.raises(UserError, match="one.h5: 1 experiments give fewer residuals than the 4 parameters"):
+        fit_casadi_nls(G1, one)
+    with pytest.raises(UserError, match="unknown least-squares method 'newton'"):
+        NlsOptions(method="newton")
+    with pytest.raises(UserError, match="rtol"):
+        NlsOptions(rtol=0.1)
