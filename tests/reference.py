@@ -63,3 +63,19 @@ def simulate_reference(poles, zeros, k, fr, amplitude, frequency, t_eval, u=0.0,
 
 def gain_from_dc(poles, zeros, dc_gain):
     return dc_gain * np.real(np.prod(-np.asarray(poles))) / (np.real(np.prod(-np.asarray(zeros))) if len(zeros) else 1.0)
+
+
+def simulate_reference_input(poles, zeros, k, fr, t, u, rtol=1e-10, atol=1e-12):
+    """v at the times ``t`` when the plant is driven by the input samples ``u`` (linear between samples)."""
+    A, B, C, D = signal.zpk2ss(zeros, poles, k)
+    n = A.shape[0]
+
+    def rhs(time, x):
+        v = float((C @ x)[0])
+        force, _ = friction(v, 0.0, fr)
+        return A @ x + B[:, 0] * (np.interp(time, t, u) - force)
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), np.zeros(n), method="Radau", t_eval=t, rtol=rtol, atol=atol,
+                    max_step=float(np.min(np.diff(t))))
+    assert sol.success, sol.message
+    return (C @ sol.y).ravel()
