@@ -32,7 +32,22 @@ CROSSOVERS = ("blend", "arithmetic")
 
 
 @dataclass(frozen=True)
-class GaOptions:
+class _GaSettings:
+    """What both GAs share: population, evaluation budget, selection, crossover kind, mutation size, elitism."""
+
+    population: int = 20
+    max_evaluations: int = 510
+    selection: str = "tournament"
+    tournament_size: int = 2
+    crossover: str = "blend"
+    blend_alpha: float = 0.5
+    mutation_scale: float = 0.1
+    elite: int = 1
+    cost_tolerance: float | None = None
+
+
+@dataclass(frozen=True)
+class GaOptions(_GaSettings):
     """A real-coded GA with elitism.
 
     ``selection``: "tournament" (best of ``tournament_size`` drawn at random) or "roulette"
@@ -43,17 +58,8 @@ class GaOptions:
     unchanged.
     """
 
-    population: int = 20
-    max_evaluations: int = 510
-    selection: str = "tournament"
-    tournament_size: int = 2
-    crossover: str = "blend"
-    blend_alpha: float = 0.5
     crossover_probability: float = 0.8
     mutation_probability: float = 0.1
-    mutation_scale: float = 0.1
-    elite: int = 1
-    cost_tolerance: float | None = None
 
     def __post_init__(self):
         _check_common(self, "GA")
@@ -62,27 +68,18 @@ class GaOptions:
 
 
 @dataclass(frozen=True)
-class AdaptiveGaOptions:
+class AdaptiveGaOptions(_GaSettings):
     """The adaptive GA: as GaOptions, but crossover and mutation probabilities follow each
     individual's cost (module docstring).  Srinivas & Patnaik's values: k1 = k3 = 1,
     k2 = k4 = 0.5.  Their default mutation rate on top (0.005) is per bit of a binary string;
     ``mutation_floor`` is per real gene, which stands for many bits, hence the larger 0.02.
     Without it a converged population breeds copies of its parents only."""
 
-    population: int = 20
-    max_evaluations: int = 510
-    selection: str = "tournament"
-    tournament_size: int = 2
-    crossover: str = "blend"
-    blend_alpha: float = 0.5
     k1: float = 1.0
     k2: float = 0.5
     k3: float = 1.0
     k4: float = 0.5
     mutation_floor: float = 0.02
-    mutation_scale: float = 0.1
-    elite: int = 1
-    cost_tolerance: float | None = None
 
     def __post_init__(self):
         _check_common(self, "adaptive GA")

@@ -80,12 +80,7 @@ def bode_figure(dataset: Dataset, path: str | Path, references: dict | None = No
         ax.grid(True, which="both", alpha=0.4)
     ax_mag.legend(fontsize=8)
     ax_mag.set_title(title or f"{Path(dataset.path).name}: first-harmonic response")
-    fig.tight_layout()
-    try:
-        _save(fig, Path(path))
-    finally:
-        plt.close(fig)
-    return Path(path)
+    return _finish(plt, fig, path)
 
 
 def time_series_figure(dataset: Dataset, path: str | Path, title: str | None = None) -> Path:
@@ -126,6 +121,11 @@ def time_series_figure(dataset: Dataset, path: str | Path, title: str | None = N
         raise UserError(f"{dataset.path}: has no experiments or records to plot")
     if title:
         fig.suptitle(title)
+    return _finish(plt, fig, path)
+
+
+def _finish(plt, fig, path) -> Path:
+    """Lay out, save (atomically) and close a figure."""
     fig.tight_layout()
     try:
         _save(fig, Path(path))
