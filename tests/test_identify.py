@@ -105,27 +105,23 @@ def test_refuses_structure_that_does_not_match_the_data(g1_files, tmp_path):
     assert not out.exists()
 
 
-def test_refuses_nan_data(g1_files, tmp_path):
-    bad = tmp_path / "nan.h5"
+def spoil_nan(f):
+    next(g for g in f["experiments"].values()).attrs["H"] = complex(np.nan, 0.0)
+
+
+def spoil_empty(f):
+    for name in list(f["experiments"]):
+        del f["experiments"][name]
+
+
+@pytest.mark.parametrize("spoil, message", [(spoil_nan, "NaN"), (spoil_empty, "no experiments")])
+def test_refuses_nan_or_empty_data(g1_files, tmp_path, spoil, message):
+    bad = tmp_path / "bad.h5"
     bad.write_bytes(g1_files["data"].read_bytes())
     with h5py.File(bad, "r+") as f:
-        group = next(g for g in f["experiments"].values())
-        group.attrs["H"] = complex(np.nan, 0.0)
+        spoil(f)
     out = tmp_path / "r.h5"
-    proc = run("identify", bad, "--structure", "g1", "--method", "pso", "-o", out)
-    assert_one_line_error(proc, "NaN")
-    assert not out.exists()
-
-
-def test_refuses_empty_data(g1_files, tmp_path):
-    empty = tmp_path / "empty.h5"
-    empty.write_bytes(g1_files["data"].read_bytes())
-    with h5py.File(empty, "r+") as f:
-        for name in list(f["experiments"]):
-            del f["experiments"][name]
-    out = tmp_path / "r.h5"
-    proc = run("identify", empty, "--structure", "g1", "--method", "pso", "-o", out)
-    assert_one_line_error(proc, "no experiments")
+    assert_one_line_error(run("identify", bad, "--structure", "g1", "--method", "pso", "-o", out), message)
     assert not out.exists()
 
 
