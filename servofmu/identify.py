@@ -7,9 +7,10 @@ the true parameters, which no user has).  Stages (docs/identification.md):
 2. ``pso``: a particle swarm searches a box around it (in the network's output coordinates: logs of
    magnitudes, so the box is relative and positivity is kept); without a network (``method="pso"``) the box is
    the prior's;
-3. ``polish``: Levenberg–Marquardt-type least squares (scipy's trust-region reflective) on the residuals from
-   the swarm's best point, with a central-difference Jacobian computed in one batch call; it also gives the
-   Jacobian for the 95 % intervals (Gauss–Newton covariance s²(JᵀJ)⁻¹, Student t quantile).
+3. ``polish``: Levenberg–Marquardt on the residuals from the search's best point, with a forward-difference
+   Jacobian computed in one batch call; its last Jacobian gives the 95 % intervals (Gauss–Newton covariance
+   s²(JᵀJ)⁻¹, Student t quantile).
+The GA comparators (``ga-ann``, ``aga-ann``) replace stage 2 with the same budget of model evaluations.
 """
 from __future__ import annotations
 
@@ -24,8 +25,8 @@ from .batch import BatchSimulator, SteadyStateOptions
 from .dataset import SineData, ann_features, feature_names, from_targets, sine_residuals, to_targets
 from .errors import UserError
 from .plant import Plant
-from .prior import canonical_order, full_vectors, identified_names
 from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
+from .prior import canonical_order, full_vectors, identified_names
 from .pso import PsoOptions, minimize_pso
 
 # The paper's hybrid, the swarm alone, and its comparators GA-ANN [31] and adaptive GA-ANN [35]: the same ANN
