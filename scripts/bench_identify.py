@@ -23,7 +23,7 @@ import numpy as np
 from servofmu.ann import load_network
 from servofmu.baselines.casadi_nls import fit_casadi_nls
 from servofmu.batch import BatchSimulator, SteadyStateOptions
-from servofmu.dataset import SineData, make_training_set, sine_data
+from servofmu.dataset import TRAINING_RTOL, SineData, make_training_set, sine_data
 from servofmu.fmu import build_fmu
 from servofmu.identify import AnnModel, PSOANNIdentifier
 from servofmu.measure import MeasureOptions, measure
@@ -72,7 +72,8 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
     est = identify(data)
     lines += [f"## {name}", "",
               f"Plan: magnitudes {amps} N × frequencies {freqs} Hz ({data.amplitudes.size} experiments with a "
-              f"steady state). Training set: {samples} plants in {t_dataset:.1f} s; training: {rows} plants, "
+              f"steady state). Training set: {samples} plants in {t_dataset:.1f} s (integrator rtol "
+              f"{TRAINING_RTOL:g}); training: {rows} plants, "
               f"{t_train:.1f} s (validation RMS {net.validation_rmse:.3g}).", "",
               "### Noise-free FMU data", "",
               "| parameter | target | identified | relative error | 95 % interval |", "|---|---|---|---|---|"]
