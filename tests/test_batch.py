@@ -176,7 +176,8 @@ def test_results_do_not_depend_on_threads_or_batching():
     assert calls[-1] == (6, 6) and [c[0] for c in calls] == sorted(c[0] for c in calls)
     single = BatchSimulator(plant, threads=1).steady_state(sets[3], amps[2:], freqs[2:])
     assert single.H[0, 0] == one.H[3, 2]
-    # sent to a worker process, a simulator is rebuilt from its plant
+    # process pools and Dask ship tasks by pickling: a simulator sent that way is rebuilt from its plant
+    # (this checks that transport; nothing is persisted with pickle)
     copy = pickle.loads(pickle.dumps(BatchSimulator(plant, threads=1)))
     assert copy.steady_state(sets[3], amps[2:], freqs[2:]).H[0, 0] == one.H[3, 2]
 
