@@ -10,7 +10,8 @@ by a hash of its sources (:func:`cache_dir`).  It then runs
   is u = 0 plus the excitation m·sin(2πf t), all states zero at t = 0.  The
   plant is integrated period by period until the first harmonic and the mean
   of the velocity change from one period to the next by less than
-  max(``tol``, ``rtol``)·|S1| — changes below rtol are the integrator's own —
+  max(``tol``, 3·``rtol``)·|S1| — steady periods integrated at rtol differ by
+  up to about 2·rtol (the step sequence may alternate from period to period) —
   or ``max_time`` is reached; ``converged`` is then False and the features of
   the last period are returned.  Per experiment:
 
@@ -26,7 +27,9 @@ by a hash of its sources (:func:`cache_dir`).  It then runs
   three speed-ups leave them unchanged: the periods before the change per
   period falls below 1e-2 are integrated at rtol = 1e-4 (only the last two
   periods, at ``rtol``, decide convergence); ``accelerate`` extrapolates the
-  fixed point of the period map (minimal polynomial extrapolation); and
+  fixed point of the period map (minimal polynomial extrapolation; one that
+  near the integrator's scatter makes the change grow is undone, and the map
+  left to converge on its own); and
   ``give_up_early`` stops an experiment whose period-to-period change does not
   decay fast enough to converge within ``max_time`` (converged = False, as at
   ``max_time``).  ``settle_time`` is the simulated time used, not that of a
@@ -78,7 +81,7 @@ class SteadyStateOptions:
     state is ``rtol`` times the largest magnitude the state has reached, so the
     features are accurate to a few ``rtol`` relative (docs/bench-batch.md).
     ``tol``: converged when S1 and DC change by less than max(``tol``,
-    ``rtol``)·|S1| from one period to the next, after at least
+    3·``rtol``)·|S1| from one period to the next, after at least
     ``min_periods`` periods.  ``max_time`` (s): stop after the period that
     reaches it.  ``max_steps``: integrator step budget per experiment
     (exceeding it gives NaN).  ``accelerate``, ``give_up_early``: see the

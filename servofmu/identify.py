@@ -252,11 +252,17 @@ class PSOANNIdentifier:
         def jacobian(y, r):  # forward differences, all columns in one batch call
             h = JACOBIAN_STEP * np.maximum(np.abs(y), 1.0)
             cols = crit.residuals(to_theta(y + np.diag(h)), JACOBIAN_RTOL)
-            return ((np.where(np.isfinite(cols), cols, 1e3) - r) / h[:, None]).T
+            failed = ~np.all(np.isfinite(cols), axis=1)
+            if failed.any():  # a perturbed candidate without steady state: step the other way
+                h[failed] = -h[failed]
+                cols[failed] = crit.residuals(to_theta(y + np.diag(h)[failed]), JACOBIAN_RTOL)
+            return ((cols - r) / h[:, None]).T  # NaN columns (both ways failed) end the polish
 
         y, r = y0.copy(), residual(y0)
         jac, damping = jacobian(y, r), 1e-6
         for _ in range(MAX_POLISH_ITERATIONS):
+            if not np.all(np.isfinite(jac)):
+                break
             a, g = jac.T @ jac, jac.T @ r
             while damping < 1e8:
                 step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
