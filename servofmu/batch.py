@@ -27,9 +27,10 @@ by a hash of its sources (:func:`cache_dir`).  It then runs
   three speed-ups leave them unchanged: the periods before the change per
   period falls below 1e-2 are integrated at rtol = 1e-4 (only the last two
   periods, at ``rtol``, decide convergence); ``accelerate`` extrapolates the
-  fixed point of the period map (minimal polynomial extrapolation; one that
-  near the integrator's scatter makes the change grow is undone, and the map
-  left to converge on its own); and
+  fixed point of the period map (minimal polynomial extrapolation, only to a
+  fixed point whose estimated multipliers lie within 0.99 — an orbit that is
+  not attracting is no steady state, a plain run never settles there — and
+  undone when near the integrator's scatter it makes the change grow); and
   ``give_up_early`` stops an experiment whose period-to-period change does not
   decay fast enough to converge within ``max_time`` (converged = False, as at
   ``max_time``).  ``settle_time`` is the simulated time used, not that of a

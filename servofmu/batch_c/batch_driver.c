@@ -224,8 +224,26 @@ static int will_converge(const double changes[8], long newest, double threshold,
  * (nearly) dependent are dropped.  Returns 0 and writes s when the extrapolation is usable: finite, a contracting
  * sequence, a jump below 50 times the last step (multipliers up to about 0.98). */
 #define MPE_L NS /* modes of the transient extrapolated: as many as states */
+#define MAX_MULTIPLIER 0.99 /* the slowest transient extrapolated decays by 1 % per period */
+
+/* Whether the polynomial sum_{i<=n} a[i] z^i (a[n] != 0) has all its roots strictly inside the unit circle
+ * (Schur-Cohn: |a[0]| < |a[n]|, and the same for (a[n] P(z) - a[0] P*(z))/z, P* the reversed polynomial). */
+static int schur_stable(const double *a_in, int n) {
+    double a[MPE_L + 1], b[MPE_L + 1];
+    int i;
+    for (i = 0; i <= n; ++i) a[i] = a_in[i];
+    for (; n > 0; --n) {
+        double scale = 0.0;
+        if (!(fabs(a[0]) < fabs(a[n]))) return 0;
+        for (i = 0; i < n; ++i) { b[i] = a[n] * a[i + 1] - a[0] * a[n - 1 - i]; scale = fmax(scale, fabs(b[i])); }
+        if (!(scale > 0.0)) return 0;
+        for (i = 0; i < n; ++i) a[i] = b[i] / scale; /* rescaled: the degree falls by one per step */
+    }
+    return 1;
+}
+
 static int extrapolate(double x[MPE_L + 2][NS], double *s) {
-    double u[MPE_L + 1][NS], q[MPE_L][NS], r[MPE_L][MPE_L], rhs_[MPE_L], c[MPE_L + 1];
+    double u[MPE_L + 1][NS], q[MPE_L][NS], r[MPE_L][MPE_L], rhs_[MPE_L], c[MPE_L + 1], scaled[MPE_L + 1];
     double sum = 0.0, jump = 0.0, last = 0.0, first = 0.0;
     int i, j, l, kept[MPE_L], nk = 0;
     for (i = 0; i <= MPE_L; ++i)
@@ -260,6 +278,12 @@ static int extrapolate(double x[MPE_L + 2][NS], double *s) {
         c[kept[l]] = acc / r[l][l];
     }
     c[MPE_L] = 1.0;
+    /* The roots of sum_i c_i z^i estimate the period map's multipliers.  A fixed point that is not clearly
+     * attracting is no steady state (a measurement never settles there: g2-like plants have unstable periodic
+     * orbits beside subharmonic ones), however well it can be extrapolated: the roots must lie within
+     * MAX_MULTIPLIER, i.e. those of sum_i c_i MAX_MULTIPLIER^i z^i within the unit circle. */
+    for (i = 0; i <= MPE_L; ++i) scaled[i] = c[i] * pow(MAX_MULTIPLIER, i);
+    if (!schur_stable(scaled, MPE_L)) return -1;
     for (i = 0; i <= MPE_L; ++i) sum += c[i];
     if (!(fabs(sum) > 1e-12)) return -1;
     for (j = 0; j < NS; ++j) {
