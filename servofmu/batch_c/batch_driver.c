@@ -218,11 +218,6 @@ static int will_converge(const double changes[8], long newest, double threshold,
     return log(threshold / recent) / log(ratio) <= 1.5 * periods_left + 2.0;
 }
 
-/* Minimal polynomial extrapolation of the period map's fixed point from the states x[0..MPE_L+1] at successive period
- * boundaries: with u_i = x[i+1] - x[i], find c minimising |sum_{i<MPE_L} c_i u_i + u_L| (c_L = 1) and return
- * s = sum_i c_i x[i] / sum_i c_i, the fixed point of an affine map whose transient has MPE_L modes.  Columns that are
- * (nearly) dependent are dropped.  Returns 0 and writes s when the extrapolation is usable: finite, a contracting
- * sequence, a jump below 50 times the last step (multipliers up to about 0.98). */
 #define MPE_L NS /* modes of the transient extrapolated: as many as states */
 #define MAX_MULTIPLIER 0.99 /* the slowest transient extrapolated decays by 1 % per period */
 
@@ -242,6 +237,12 @@ static int schur_stable(const double *a_in, int n) {
     return 1;
 }
 
+/* Minimal polynomial extrapolation of the period map's fixed point from the states x[0..MPE_L+1] at successive period
+ * boundaries: with u_i = x[i+1] - x[i], find c minimising |sum_{i<MPE_L} c_i u_i + u_L| (c_L = 1) and return
+ * s = sum_i c_i x[i] / sum_i c_i, the fixed point of an affine map whose transient has MPE_L modes.  Columns that are
+ * (nearly) dependent are dropped.  Returns 0 and writes s when the extrapolation is usable: finite, a contracting
+ * sequence, a jump below 50 times the last step (multipliers up to about 0.98), and
+ * estimated multipliers (the roots of sum_i c_i z^i) within MAX_MULTIPLIER. */
 static int extrapolate(double x[MPE_L + 2][NS], double *s) {
     double u[MPE_L + 1][NS], q[MPE_L][NS], r[MPE_L][MPE_L], rhs_[MPE_L], c[MPE_L + 1], scaled[MPE_L + 1];
     double sum = 0.0, jump = 0.0, last = 0.0, first = 0.0;
