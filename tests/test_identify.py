@@ -158,3 +158,29 @@ def test_machine_record_identified_in_the_time_domain(tmp_path):
     # a network file that is not there is named
     assert_one_line_error(run("identify", tmp_path / "rec.h5", "--structure", "g1", "--ann", "x.h5",
                               "-o", tmp_path / "r2.h5"), "x.h5")
+
+
+class _LinearCriterion:
+    """Residuals A·θ − b, with no steady state (NaN) where θ[0] > edge: a stand-in for the batch simulator."""
+
+    def __init__(self, a, b, edge):
+        self.a, self.b, self.edge, self.evaluations = a, b, edge, 0
+
+    def residuals(self, theta, rtol):
+        theta = np.atleast_2d(theta)
+        r = theta @ self.a.T - self.b
+        r[theta[:, 0] > self.edge] = np.nan
+        return r
+
+
+def test_polish_steps_back_where_a_forward_step_has_no_steady_state():
+    rng = np.random.default_rng(3)
+    a, truth = rng.standard_normal((9, 3)), np.array([1.0, -2.0, 0.5])
+    b = a @ truth + 1e-3 * rng.standard_normal(9)
+    # the least-squares optimum sits just below the edge: forward steps in θ[0] from there have no steady state
+    best = np.linalg.lstsq(a, b, rcond=None)[0]
+    crit = _LinearCriterion(a, b, edge=best[0] * (1 + 1e-7))
+    identifier = PSOANNIdentifier(load_plant("g1"))
+    y, jac = identifier._polish(crit, lambda y: np.atleast_2d(y), best + [-0.05, 0.03, 0.02])
+    np.testing.assert_allclose(y, best, rtol=1e-8)
+    np.testing.assert_allclose(jac, a, rtol=1e-6)
