@@ -252,7 +252,9 @@ def report(runs, many, pso, tols, alternatives, n_sets, load) -> str:
               "; ".join(f"{r['name']} {r['measure_all'] * 1e3:.0f} ms vs {r['batch_all'] * 1e3:.2f} ms per run"
                         for r in runs) + "). The whole plan in one call: " +
               "; ".join(f"{r['name']} {r['one'] * 1e3:.2f} ms per run on 1 thread, {r['two'] * 1e3:.2f} ms on "
-                        f"{cores}" for r in runs) + "."]
+                        f"{cores}" for r in runs) + ". Per run over all experiments, the batch simulator as it is "
+              f"used (the whole plan in one call, {cores} threads) against the measurement one run at a time: " +
+              ", ".join(f"{r['name']} {r['measure_all'] / r['two']:.0f}×" for r in runs) + "."]
     lines += ["", "Agreement with the measurement on the experiments both call converged (H relative to |H|, DC "
               "relative to the response amplitude |H|·m; distortion relative — see the notes for why it differs):",
               "", "| plant | converged (measurement / batch / both of n) | max ΔH | max ΔDC | max Δdistortion |",
