@@ -9,7 +9,7 @@ from servofmu.dataset import from_targets, make_training_set, sine_data, to_targ
 from servofmu.identify import AnnModel, PSOANNIdentifier
 from servofmu.measure import MeasureOptions, measure
 from servofmu.plant import load_plant
-from servofmu.prior import identified_mask, sample_identified
+from servofmu.prior import full_vectors, identified_mask, sample_identified
 from servofmu.store import load_dataset
 from servofmu.train import train_from_file
 from servofmu.ann import load_network
@@ -184,3 +184,26 @@ def test_polish_steps_back_where_a_forward_step_has_no_steady_state():
     y, jac = identifier._polish(crit, lambda y: np.atleast_2d(y), best + [-0.05, 0.03, 0.02])
     np.testing.assert_allclose(y, best, rtol=1e-8)
     np.testing.assert_allclose(jac, a, rtol=1e-6)
+
+
+def test_polish_tolerance_does_not_give_up_on_a_slowly_settling_experiment():
+    # a g2-like plant near the swarm's best for it: at 2 N, 4 Hz its response settles slowly, and giving up early
+    # (right for the search) called it unsettled, which stalled the polish
+    from servofmu.batch import BatchSimulator, SteadyStateOptions
+    from servofmu.dataset import SineData
+    from servofmu.identify import POLISH_RTOL, SineCriterion, steady_state_options
+
+    plant = load_plant("g2")
+    theta = np.array([-2.13696222, 38.87697534, -11.04557933, 1.39954763, 0.6566386, 0.46513884])
+    sim = BatchSimulator(plant)
+    amps, freqs = np.array([2.0]), np.array([4.0])
+    hasty = sim.steady_state(full_vectors(plant, theta), amps, freqs,
+                             SteadyStateOptions(rtol=POLISH_RTOL, tol=1e-10, give_up_early=True))
+    plain = sim.steady_state(full_vectors(plant, theta), amps, freqs,
+                             SteadyStateOptions(rtol=1e-11, tol=1e-10, accelerate=False, give_up_early=False))
+    assert not hasty.converged[0, 0] and plain.converged[0, 0]  # the case this guards against
+    assert not steady_state_options(POLISH_RTOL).give_up_early
+    data = SineData(amplitudes=amps, frequencies=freqs, H=plain.H[0], dc=plain.dc[0], noisy=False, source="test",
+                    skipped=0)
+    r = SineCriterion(plant, data, sim).residuals(theta, POLISH_RTOL)
+    assert np.all(np.isfinite(r)) and np.max(np.abs(r)) < 1e-8
