@@ -20,9 +20,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from servofmu.ann import TrainOptions, train_network
-from servofmu.ga import AdaptiveGaOptions, GaOptions, minimize_ga
-from servofmu.pso import PsoOptions, minimize_pso
+from servofmu.identification.ann import TrainOptions, train_network
+from servofmu.identification.ga import AdaptiveGaOptions, GaOptions, minimize_ga
+from servofmu.identification.pso import PsoOptions, minimize_pso
 
 NOMINAL = np.array([-2.5, 31.52, -10.0, 1.0, 0.5, 0.4])   # pole1_re, pole1_im, pole2, dc_gain, fc_pos, fc_neg
 FREQS_HZ = np.array([1.0, 3.0, 5.0, 8.0])

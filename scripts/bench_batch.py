@@ -1,10 +1,10 @@
-"""Speed and accuracy of the batch simulator (servofmu.batch) against the FMU run through FMPy.
+"""Speed and accuracy of the batch simulator (servofmu.simulation.batch) against the FMU run through FMPy.
 
 Writes docs/bench-batch.md.  Usage:
 
     python scripts/bench_batch.py [--sets 10000] [--output docs/bench-batch.md]
 
-1. Per run, against the stepped-sine measurement of the FMU (servofmu.measure.run_experiment: FMPy, the FMU
+1. Per run, against the stepped-sine measurement of the FMU (servofmu.measurement.measure.run_experiment: FMPy, the FMU
    instantiated once and reset per run, default MeasureOptions) and against one plain fmpy.simulate_fmu call per
    run, on the measurement's default plan; both ratios are measured in this one run of the script.
 2. Throughput for many parameter sets (random plants around the nominal one) on all cores.
@@ -26,11 +26,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from servofmu.batch import BatchSimulator, SteadyStateOptions, available_cores  # noqa: E402
-from servofmu.excitation import DEFAULT_AMPLITUDES, ExperimentSpec, default_frequencies  # noqa: E402
 from servofmu.fmu import build_fmu  # noqa: E402
-from servofmu.measure import FmuRunnerFactory, Job, MeasureOptions, estimate_bandwidth, run_experiment  # noqa: E402
-from servofmu.plant import load_plant  # noqa: E402
+from servofmu.measurement.excitation import DEFAULT_AMPLITUDES, ExperimentSpec, default_frequencies  # noqa: E402
+from servofmu.measurement.measure import Job, MeasureOptions, estimate_bandwidth, run_experiment
+from servofmu.model.plant import load_plant  # noqa: E402
+from servofmu.runtime import available_cores  # noqa: E402
+from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions  # noqa: E402
+from servofmu.simulation.fmu_runner import FmuRunnerFactory
 
 # g2 at 0.6 N mostly has no periodic steady state (see the notes); its many-sets plan uses magnitudes where it has.
 MANY_SETS_PLAN = {"g2": ((3.0, 2.0), (0.5, 1.0, 2.0, 3.0, 4.0, 5.0))}
@@ -175,8 +177,8 @@ def casadi_alternative(name: str, experiments) -> list[dict]:
     call and the period loop in Python, against the batch simulator (1 thread)."""
     import casadi as ca
 
-    from servofmu.batch import batch_functions
-    from servofmu.model import build_model
+    from servofmu.model.symbolic import build_model
+    from servofmu.simulation.batch import batch_functions
 
     plant = load_plant(name)
     ode, _ = batch_functions(build_model(plant))
@@ -232,7 +234,7 @@ def report(runs, many, pso, tols, alternatives, n_sets, load) -> str:
         "",
         "## 1. Per run, against the FMU in FMPy (one parameter set, the measurement's default plan)",
         "",
-        "* **measurement**: `servofmu.measure.run_experiment`, the FMU (FMI 3.0, Co-Simulation, RODAS4 at "
+        "* **measurement**: `servofmu.measurement.measure.run_experiment`, the FMU (FMI 3.0, Co-Simulation, RODAS4 at "
         "tolerance 1e-12) instantiated once and reset per run, 64 samples per period while settling and 2 periods "
         "of 4096 samples analysed — the FMU-in-FMPy measurement itself.",
         "* **simulate_fmu**: one `fmpy.simulate_fmu` call per run for the same simulated time, 64 samples per "

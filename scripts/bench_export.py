@@ -4,7 +4,7 @@ For g1 and g2, data are measured from the true plant's FMU (the plans of tests/t
 
 1. the identifier's batch simulator (at the polish tolerance) against the FMU measurement, experiment by
    experiment, on the true plant: how far apart the two computations of the same first harmonics are;
-2. round trips (servofmu.export.remeasure) of a perfect identification and of identifications whose parameters
+2. round trips (servofmu.output.export.remeasure) of a perfect identification and of identifications whose parameters
    are off by 0.5, 1 and 2 %: the fitness the identifier's criterion gives (batch simulator) against the RMS of
    the same residuals from measuring the exported FMU.  Their difference is what ROUND_TRIP_TOLERANCE must cover.
 
@@ -21,15 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from servofmu.batch import BatchSimulator, SteadyStateOptions
-from servofmu.dataset import sine_data
-from servofmu.export import ROUND_TRIP_TOLERANCE, file_sha256, remeasure
 from servofmu.fmu import build_fmu
-from servofmu.identify import POLISH_RTOL, SineCriterion, rms
-from servofmu.measure import measure
-from servofmu.plant import load_plant
-from servofmu.prior import identified_mask, identified_names
-from servofmu.results import Result
+from servofmu.identification.criterion import POLISH_RTOL, SineCriterion, rms, sine_data
+from servofmu.identification.prior import identified_mask, identified_names
+from servofmu.identification.results import Result
+from servofmu.measurement.measure import measure
+from servofmu.model.plant import load_plant
+from servofmu.output.export import ROUND_TRIP_TOLERANCE, file_sha256, remeasure
+from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
 PLANS = {"g1": ((2.0, 0.6), (0.5, 2.0, 10.0)), "g2": ((4.0, 2.0), (1.0, 2.0, 5.0))}
 FACTORS = (1.0, 1.005, 1.01, 1.02)
@@ -90,7 +89,7 @@ def main() -> None:
         "## Round trips", "",
         "Parameters (poles, gain, Coulomb levels) scaled by 1 + offset; *fitness*: the identifier's criterion "
         "(identify.SineCriterion, batch simulator); *round trip*: RMS of the same residuals from measuring the "
-        "exported FMU (servofmu.export.remeasure, which also builds the FMU). "
+        "exported FMU (servofmu.output.export.remeasure, which also builds the FMU). "
         f"ROUND_TRIP_TOLERANCE = {ROUND_TRIP_TOLERANCE:g}.", "",
         "| plant | offset | fitness | round trip | difference | max relative H error | reproduces | seconds |",
         "|---|---|---|---|---|---|---|---|", *trips, "",

@@ -16,7 +16,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from reference import gain_from_dc, simulate_reference  # noqa: E402
 
 from servofmu.fmu import build_fmu  # noqa: E402
-from servofmu.plant import load_plant  # noqa: E402
+from servofmu.model.plant import load_plant  # noqa: E402
 
 CASES = [("g1", 0.6, 0.5), ("g1", 2.0, 5.0), ("g2", 0.6, 0.5), ("g2", 2.0, 5.0)]
 TOLERANCES = (1e-8, 1e-10, 1e-12)

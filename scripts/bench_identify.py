@@ -22,18 +22,19 @@ from pathlib import Path
 
 import numpy as np
 
-from servofmu.ann import load_network
 from servofmu.baselines.casadi_nls import fit_casadi_nls
-from servofmu.batch import BatchSimulator, SteadyStateOptions
-from servofmu.dataset import TRAINING_RTOL, SineData, make_training_set, sine_data
 from servofmu.fmu import build_fmu
-from servofmu.identify import AnnModel, PSOANNIdentifier
-from servofmu.measure import MeasureOptions, measure
-from servofmu.plant import load_plant
-from servofmu.prior import full_vectors, identified_mask, identified_names, sample_identified
-from servofmu.pso import PsoOptions
-from servofmu.store import load_dataset
-from servofmu.train import train_from_file
+from servofmu.identification.ann import AnnModel, load_network
+from servofmu.identification.criterion import SineData, sine_data
+from servofmu.identification.identifier import PSOANNIdentifier
+from servofmu.identification.prior import full_vectors, identified_mask, identified_names, sample_identified
+from servofmu.identification.pso import PsoOptions
+from servofmu.identification.train import train_from_file
+from servofmu.identification.training_set import TRAINING_RTOL, make_training_set
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import MeasureOptions, measure
+from servofmu.model.plant import load_plant
+from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 # g2 has a friction-induced limit cycle: at low magnitude or above ~6 Hz no steady state (docs/identification.md)
@@ -57,7 +58,7 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
     fmu = build_fmu(plant, work / f"{name}.fmu")
     data_file = work / f"{name}.h5"
     measure(fmu, data_file, amplitudes=amps, frequencies=freqs, workers=0)
-    data = sine_data(load_dataset(data_file))
+    data = sine_data(read_data_file(data_file))
 
     t0 = time.perf_counter()
     make_training_set(plant, data, samples, work / f"{name}-ds.h5", seed=0)
@@ -109,7 +110,7 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
         noisy = work / f"{name}-noise{seed}.h5"
         measure(fmu, noisy, amplitudes=amps, frequencies=freqs, workers=0,
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
-        e = identify(sine_data(load_dataset(noisy)))
+        e = identify(sine_data(read_data_file(noisy)))
         worst.append(rel_err(e.theta_, truth).max())
         lo, hi = e.intervals_.T
         covered += int(np.sum((lo <= truth) & (truth <= hi)))

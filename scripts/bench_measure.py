@@ -24,11 +24,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from servofmu.excitation import ExperimentSpec, Plan  # noqa: E402
 from servofmu.fmu import build_fmu  # noqa: E402
-from servofmu.measure import FmuRunnerFactory, Job, MeasureOptions, measure, run_experiment  # noqa: E402
-from servofmu.parallel import WorkerResource, Workers  # noqa: E402
-from servofmu.plant import load_plant  # noqa: E402
+from servofmu.measurement.excitation import ExperimentSpec, Plan  # noqa: E402
+from servofmu.measurement.measure import Job, MeasureOptions, measure, run_experiment
+from servofmu.model.plant import load_plant  # noqa: E402
+from servofmu.simulation.fmu_runner import FmuRunnerFactory
+from servofmu.simulation.parallel import WorkerResource, Workers  # noqa: E402
 
 AMPLITUDES = (2.0, 0.6)
 FREQUENCIES = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0)

@@ -1,11 +1,11 @@
 """Reproduce the paper's Tables II and III with every method, noise-free and at 40 dB SNR; write docs/results.md.
 
-For g1 and g2 (the demo's plans, servofmu.demo.DEMO_PLANS): build the FMU, measure it, train the ANN on a
+For g1 and g2 (the demo's plans, servofmu.output.demo.DEMO_PLANS): build the FMU, measure it, train the ANN on a
 training set under the same plan, then
 - noise-free: every method of `servofmu compare`, in the paper's layout beside the paper's published columns;
 - 40 dB SNR output noise, `--seeds` measurements: mean ± standard deviation of every parameter per method;
 - figures (docs/figures/): measured vs identified Bode plot at each magnitude, the friction–velocity curve
-  (identified vs true) and the PSO convergence, all from servofmu.report.
+  (identified vs true) and the PSO convergence, all from servofmu.output.report.
 Numbers are what this run produced.  Usage: python scripts/reproduce_paper.py [--samples 5000] [--seeds 20]
 """
 from __future__ import annotations
@@ -18,20 +18,20 @@ from pathlib import Path
 
 import numpy as np
 
-from servofmu.ann import load_network
-from servofmu.compare import METHODS, max_relative_errors, run_methods
-from servofmu.dataset import make_training_set, sine_data
-from servofmu.demo import DEMO_PLANS
 from servofmu.fmu import build_fmu
-from servofmu.identify import AnnModel
-from servofmu.measure import MeasureOptions, measure
-from servofmu.paper import COLUMNS, TABLES
-from servofmu.plant import load_plant
-from servofmu.prior import identified_mask
-from servofmu.report import _velocity_range, bode_figures, compute_entries, convergence_figure, friction_figure
-from servofmu.results import paper_rows
-from servofmu.store import load_dataset
-from servofmu.train import train_from_file
+from servofmu.identification.ann import AnnModel, load_network
+from servofmu.identification.criterion import sine_data
+from servofmu.identification.prior import identified_mask
+from servofmu.identification.results import paper_rows
+from servofmu.identification.train import train_from_file
+from servofmu.identification.training_set import make_training_set
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import MeasureOptions, measure
+from servofmu.model.plant import load_plant
+from servofmu.output.compare import METHODS, max_relative_errors, run_methods
+from servofmu.output.demo import DEMO_PLANS
+from servofmu.output.paper import COLUMNS, TABLES
+from servofmu.output.report import bode_figures, compute_entries, convergence_figure, friction_figure, velocity_range
 
 ROOT = Path(__file__).resolve().parent.parent
 NOISY_METHODS = ("pso-ann", "ga-ann", "aga-ann", "chen2002", "casadi-nls-ann")
@@ -76,7 +76,7 @@ def run(name: str, work: Path, samples: int, seeds: int, figures: Path, lines: l
         noisy = work / f"{name}-noise{seed}.h5"
         measure(fmu, noisy, amplitudes=amps, frequencies=freqs, workers=0,
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
-        for m, r in run_methods(plant, sine_data(load_dataset(noisy)), list(NOISY_METHODS), ann=ann,
+        for m, r in run_methods(plant, sine_data(read_data_file(noisy)), list(NOISY_METHODS), ann=ann,
                                 seed=seed).items():
             per_method[m].append(r.theta)
     names = results["pso-ann"].names
@@ -96,7 +96,7 @@ def run(name: str, work: Path, samples: int, seeds: int, figures: Path, lines: l
 
     entries = compute_entries([("PSO-ANN", results["pso-ann"])], dataset)
     shots = bode_figures(entries[0], dataset, data)
-    shots.append(friction_figure(entries, plant, _velocity_range(dataset)))
+    shots.append(friction_figure(entries, plant, velocity_range(dataset)))
     conv = convergence_figure(compute_entries([(m, results[m]) for m in ("pso-ann", "pso", "ga-ann", "aga-ann")],
                                               dataset))
     if conv:

@@ -1,3 +1,77 @@
-"""servofmu: servo drives with friction — CasADi plant models as FMUs, stepped-sine measurement,
-PSO-ANN identification and export."""
+"""servofmu: servo drives with friction — CasADi plant models as FMUs, stepped-sine measurement, PSO-ANN
+identification and export.
+
+The public API, along the pipeline (docs/api.md)::
+
+    import servofmu as sf
+
+    plant = sf.load_plant("g1")                          # model
+    sf.build_fmu(plant, "g1.fmu")                        # FMU
+    sf.measure("g1.fmu", "g1.h5")                        # measurement
+    data = sf.sine_data(sf.read_data_file("g1.h5"))
+    est = sf.PSOANNIdentifier(plant, method="pso").fit(data)   # identification
+    sf.write_result("g1-result.h5", est.result())
+    sf.export_result("g1-result.h5", "g1-identified.fmu")      # export
+
+Names are loaded on first use, so that ``import servofmu`` stays cheap and each part loads only what it needs.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
+
+# name -> module that defines it
+_API = {
+    "UserError": "servofmu.errors",
+    "Plant": "servofmu.model.plant",
+    "load_plant": "servofmu.model.plant",
+    "build_fmu": "servofmu.fmu.build",
+    "simulate": "servofmu.simulation.fmpy_runs",
+    "MeasureOptions": "servofmu.measurement.measure",
+    "measure": "servofmu.measurement.measure",
+    "import_records": "servofmu.measurement.records",
+    "read_data_file": "servofmu.measurement.datafile",
+    "sine_data": "servofmu.identification.criterion",
+    "make_training_set": "servofmu.identification.training_set",
+    "train_from_file": "servofmu.identification.train",
+    "load_ann": "servofmu.identification.ann",
+    "PSOANNIdentifier": "servofmu.identification.identifier",
+    "write_result": "servofmu.identification.results",
+    "read_result": "servofmu.identification.results",
+    "fit_casadi_nls": "servofmu.baselines.casadi_nls",
+    "fit_chen2002": "servofmu.baselines.chen2002",
+    "export_result": "servofmu.output.export",
+}
+__all__ = list(_API)
+
+if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by __getattr__
+    from .baselines.casadi_nls import fit_casadi_nls
+    from .baselines.chen2002 import fit_chen2002
+    from .errors import UserError
+    from .fmu.build import build_fmu
+    from .identification.ann import load_ann
+    from .identification.criterion import sine_data
+    from .identification.identifier import PSOANNIdentifier
+    from .identification.results import read_result, write_result
+    from .identification.train import train_from_file
+    from .identification.training_set import make_training_set
+    from .measurement.datafile import read_data_file
+    from .measurement.measure import MeasureOptions, measure
+    from .measurement.records import import_records
+    from .model.plant import Plant, load_plant
+    from .output.export import export_result
+    from .simulation.fmpy_runs import simulate
+
+
+def __getattr__(name: str):
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value  # loaded once
+        return value
+    raise AttributeError(f"module 'servofmu' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *__all__])

@@ -14,6 +14,8 @@ from pathlib import Path
 from .errors import UserError
 from .fileio import check_output_path
 
+__all__ = ["main", "build_parser"]
+
 EXIT_USER_ERROR = 2
 
 
@@ -36,7 +38,7 @@ def _float_list(text: str) -> list[float]:
 # ---------------------------------------------------------------------------
 def cmd_build(args) -> None:
     from .fmu import build_fmu
-    from .plant import load_plant
+    from .model.plant import load_plant
 
     plant = load_plant(args.plant)
     output = Path(args.output) if args.output else Path(f"{plant.name}.fmu")
@@ -46,7 +48,7 @@ def cmd_build(args) -> None:
 
 def cmd_simulate(args) -> None:
     from .fileio import atomic_write, check_output_path
-    from .simulate import format_csv, read_input_csv, simulate
+    from .simulation.fmpy_runs import format_csv, read_input_csv, simulate
 
     if args.output:
         check_output_path(args.output)
@@ -93,7 +95,7 @@ class _ProgressBar:
 
 
 def cmd_measure(args) -> None:
-    from .measure import MeasureOptions, measure
+    from .measurement.measure import MeasureOptions, measure
 
     given = {"input": args.input, "output": args.output, "tolerance": args.tolerance, "max_time": args.max_time,
              "samples_per_period": args.samples_per_period, "noise_snr_db": args.noise_snr, "seed": args.seed}
@@ -115,7 +117,7 @@ def cmd_measure(args) -> None:
 def cmd_import(args) -> None:
     import numpy as np
 
-    from .records import import_records
+    from .measurement.records import import_records
 
     data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output,
                           kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
@@ -133,10 +135,10 @@ def cmd_import(args) -> None:
 
 
 def cmd_plot(args) -> None:
-    from .plots import bode_figure, time_series_figure
-    from .store import load_dataset
+    from .measurement.datafile import read_data_file
+    from .output.plots import bode_figure, time_series_figure
 
-    data = load_dataset(args.data)
+    data = read_data_file(args.data)
     what = args.what or ("time" if data.kind == "records" else "bode")
     out = Path(args.output) if args.output else Path(args.data).with_suffix(".png")
     (bode_figure if what == "bode" else time_series_figure)(data, out)
@@ -147,12 +149,13 @@ def cmd_plot(args) -> None:
 # dataset / train / identify
 # ---------------------------------------------------------------------------
 def cmd_dataset(args) -> None:
-    from .dataset import make_training_set, sine_data
-    from .plant import load_plant
-    from .store import load_dataset
+    from .identification.criterion import sine_data
+    from .identification.training_set import make_training_set
+    from .measurement.datafile import read_data_file
+    from .model.plant import load_plant
 
     structure = load_plant(args.plant)
-    data = sine_data(load_dataset(args.like))
+    data = sine_data(read_data_file(args.like))
     bar = _ProgressBar("plant")
     try:
         ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
@@ -165,12 +168,12 @@ def cmd_dataset(args) -> None:
 
 
 def cmd_train(args) -> None:
-    from .train import train_from_file
+    from .identification.train import train_from_file
 
     bar = _ProgressBar("epoch")
     try:
         net, rows = train_from_file(args.dataset, args.output, hidden=args.hidden, seed=args.seed,
-                                    progress=lambda epoch, total, loss: bar.update(epoch, total))
+                                    progress=bar.update)
     finally:
         bar.close()
     print(f"wrote {args.output}: {net.inputs}-{net.hidden}-{net.outputs} network trained on {rows} plants "
@@ -179,24 +182,22 @@ def cmd_train(args) -> None:
 
 
 def cmd_identify(args) -> None:
-    import time
+    from .identification.identifier import PSOANNIdentifier, load_identification_inputs
+    from .identification.results import result_from_estimator, table_text, to_json_text, write_result
+    from .runtime import utc_now
 
-    from .identify import PSOANNIdentifier
-    from .results import result_from_estimator, table_text, to_json_text, write_result
-    from .identify import load_inputs
-
-    structure, data, ann, provenance = load_inputs(args.data, args.structure, args.ann, args.method,
+    structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann, args.method,
                                                              command=getattr(args, "command_line", ""))
     check_output_path(args.output)
     bar = None if args.json else _ProgressBar("iteration")
     est = PSOANNIdentifier(structure, ann=ann, method=args.method, seed=args.seed, polish=not args.no_polish,
-                           progress=(lambda stage, done, total: bar.update(done, total)) if bar else None)
+                           progress=bar.update if bar else None)
     try:
         est.fit(data)
     finally:
         if bar:
             bar.close()
-    provenance["date"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    provenance["date"] = utc_now()
     result = result_from_estimator(est, args.method, provenance)
     write_result(args.output, result)
     if args.json:
@@ -210,13 +211,13 @@ def cmd_identify(args) -> None:
 # export
 # ---------------------------------------------------------------------------
 def cmd_export(args) -> None:
-    from .export import export_result
+    from .output.export import export_result
 
     path, fmt = export_result(args.result, args.output, fmt=args.format, fmi_version=args.fmi_version,
                               name=args.name, command=getattr(args, "command_line", ""))
     what = {"fmu": f"FMI {args.fmi_version or 3}.0 FMU, Model Exchange + Co-Simulation, provenance in its "
                    "description, annotations and documentation/index.html",
-            "control": "python-control model: servofmu.export.load_control(path)", "mat": "MATLAB .mat",
+            "control": "python-control model: servofmu.output.export.load_control(path)", "mat": "MATLAB .mat",
             "json": "JSON", "toml": "plant file: servofmu build accepts it"}[fmt]
     print(f"wrote {path} ({what})")
 
@@ -224,16 +225,23 @@ def cmd_export(args) -> None:
 def cmd_compare(args) -> None:
     import json
 
-    from .compare import (METHODS, check_methods, check_truth, comparison_json,
-                          comparison_markdown, run_methods)
     from .fileio import atomic_write
-    from .identify import load_inputs
-    from .plant import load_plant
-    from .results import write_comparison
+    from .identification.identifier import load_identification_inputs
+    from .identification.results import write_comparison
+    from .model.plant import load_plant
+    from .output.compare import (
+        METHODS,
+        NEEDS_ANN,
+        check_methods,
+        check_truth,
+        comparison_json,
+        comparison_markdown,
+        run_methods,
+    )
 
     methods = check_methods(args.methods.split(",") if args.methods else
-                            [m for m in METHODS if args.ann or m in ("pso", "chen2002", "casadi-nls")], bool(args.ann))
-    structure, data, ann, provenance = load_inputs(args.data, args.structure, args.ann,
+                            [m for m in METHODS if args.ann or m not in NEEDS_ANN], bool(args.ann))
+    structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann,
                                                    "pso-ann" if args.ann else "pso",
                                                    command=getattr(args, "command_line", ""))
     truth = load_plant(args.truth) if args.truth else None
@@ -241,8 +249,12 @@ def cmd_compare(args) -> None:
         check_truth(structure, truth, args.truth)
     if args.output:
         check_output_path(args.output)
-    report = None if args.json else (lambda m: print(f"running {m} ...", file=sys.stderr))
-    results = run_methods(structure, data, methods, ann=ann, seed=args.seed, provenance=provenance, progress=report)
+    def report(done: int, total: int) -> None:
+        if done < total:
+            print(f"running {methods[done]} ...", file=sys.stderr)
+
+    results = run_methods(structure, data, methods, ann=ann, seed=args.seed, provenance=provenance,
+                          progress=None if args.json else report)
     table = comparison_markdown(results, truth)
     if args.output:
         if str(args.output).endswith(".h5"):
@@ -261,7 +273,7 @@ def cmd_compare(args) -> None:
 # report
 # ---------------------------------------------------------------------------
 def cmd_report(args) -> None:
-    from .report import make_report
+    from .output.report import make_report
 
     path = make_report(args.source, args.output, data=args.data, truth=args.truth)
     print(f"wrote {path} (self-contained HTML: tables and figures)")
@@ -271,12 +283,18 @@ def cmd_report(args) -> None:
 # demo
 # ---------------------------------------------------------------------------
 def cmd_demo(args) -> None:
-    from .demo import run_demo
+    from .output.demo import run_demo
 
     run_demo(Path(args.out), report=print)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .baselines import BASELINE_METHODS, BASELINE_NEEDS_ANN
+    from .identification.methods import METHODS as IDENTIFY_METHODS
+    from .identification.methods import NEEDS_ANN as IDENTIFY_NEEDS_ANN
+    from .output.formats import FORMATS as EXPORT_FORMATS
+    from .output.formats import SUFFIX_FORMATS
+
     parser = _Parser(prog="servofmu", description="Servo drives with friction: FMUs, measurement, identification.")
     parser.add_argument("--version", action="version", version=f"servofmu {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -361,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", help="data file (HDF5) from `servofmu measure` or `servofmu import`")
     p.add_argument("--structure", required=True, help="plant file giving the structure (order, friction model)")
     p.add_argument("--ann", help="trained network (HDF5) from `servofmu train`")
-    p.add_argument("--method", choices=("pso-ann", "pso", "ga-ann", "aga-ann"), default="pso-ann",
+    p.add_argument("--method", choices=IDENTIFY_METHODS, default="pso-ann",
                    help="pso-ann (default), pso (no ANN), ga-ann or aga-ann (the paper's GA comparators)")
     p.add_argument("--no-polish", action="store_true", help="skip the least-squares polish after the swarm")
     p.add_argument("--seed", type=int, default=0)
@@ -371,8 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="export an identified model: FMU, python-control, MATLAB, JSON, plant TOML")
     p.add_argument("result", metavar="RESULT.h5", help="result file from `servofmu identify`")
-    p.add_argument("--format", choices=("fmu", "control", "mat", "json", "toml"),
-                   help="default: from the suffix of -o (.fmu, .mat, .json, .toml)")
+    p.add_argument("--format", choices=EXPORT_FORMATS,
+                   help=f"default: from the suffix of -o ({', '.join(SUFFIX_FORMATS)})")
     p.add_argument("--fmi-version", type=int, choices=(2, 3), help="FMI version of an FMU (default 3)")
     p.add_argument("--name", help="model name in the export (default: the plant's name + _identified)")
     p.add_argument("-o", dest="output", metavar="FILE", required=True, help="file to write")
@@ -381,10 +399,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="every identification method on the same data, in the paper's table layout")
     p.add_argument("data", help="data file (HDF5) from `servofmu measure`")
     p.add_argument("--structure", required=True, help="plant file giving the structure")
-    p.add_argument("--ann", help="trained network (HDF5); needed by pso-ann, ga-ann, aga-ann, casadi-nls-ann")
+    p.add_argument("--ann", help="trained network (HDF5); needed by "
+                                 f"{', '.join(IDENTIFY_NEEDS_ANN + BASELINE_NEEDS_ANN)}")
     p.add_argument("--truth", help="plant file of the true plant: adds the target column and relative errors")
-    p.add_argument("--methods", help="comma-separated: pso-ann, pso, ga-ann, aga-ann, chen2002, casadi-nls-ann, "
-                                     "casadi-nls (default: all that the inputs allow)")
+    p.add_argument("--methods", help=f"comma-separated: {', '.join(IDENTIFY_METHODS + BASELINE_METHODS)} "
+                                     "(default: all that the inputs allow)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by method")
     p.add_argument("-o", "--output", help="write the table (.md) or every result (.h5, for `servofmu report`)")

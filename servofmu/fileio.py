@@ -1,4 +1,10 @@
-"""Writing files so that a failed or killed run never leaves a half-written one behind."""
+"""Files: written so that a failed or killed run never leaves a half-written one behind; HDF5 files checked for
+their format and schema version in one way.
+
+Every HDF5 file servofmu writes carries the root attributes ``format`` (what kind of file) and
+``schema_version`` (an integer).  A reader accepts its own version and older ones it knows how to read,
+and refuses newer ones (written by a later servofmu) and foreign files, naming the file.
+"""
 from __future__ import annotations
 
 import os
@@ -7,6 +13,8 @@ from pathlib import Path
 from typing import Callable
 
 from .errors import UserError
+
+__all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "hdf5_attr", "open_hdf5", "check_format"]
 
 
 def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
@@ -37,7 +45,7 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
         os.replace(tmp, path)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+        raise UserError(f"{path}: cannot write ({exc.strerror})") from exc
     return path
 
 
@@ -58,7 +66,7 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
         os.replace(part, path)
     except OSError as exc:
         part.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from exc
     except BaseException:
         part.unlink(missing_ok=True)
         raise
@@ -87,3 +95,38 @@ def hdf5_attr(obj, key: str, default=...):
     if default is ...:
         raise KeyError(f"attribute {key!r} of {obj.name}")
     return default
+
+
+def open_hdf5(path: str | Path, what: str):
+    """The HDF5 file ``path`` open for reading (an h5py.File, a context manager); a missing or unreadable file is
+    a UserError naming it and saying it should be a ``what``."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such {what}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        why = str(exc).split("(")[-1].rstrip(")") if "(" in str(exc) else str(exc)
+        raise UserError(f"{path}: not a readable {what} (not an HDF5 file, or a damaged one: {why})") from exc
+
+
+def check_format(f, path: str | Path, formats: str | tuple[str, ...], schema_version: int,
+                 what: str) -> tuple[str, int]:
+    """Check the ``format`` and ``schema_version`` attributes of the open HDF5 file ``f``.
+
+    ``formats``: the accepted format name(s); ``schema_version``: the newest version this servofmu reads (every
+    version from 1 up to it is read).  Returns (format, version); a foreign or newer file is a UserError naming
+    ``path`` and saying it is not a ``what``.
+    """
+    accepted = (formats,) if isinstance(formats, str) else tuple(formats)
+    kind = hdf5_attr(f, "format", None)
+    if kind not in accepted:
+        raise UserError(f"{path}: not a servofmu {what} (format attribute {kind!r}, expected "
+                        f"{' or '.join(map(repr, accepted))})")
+    version = hdf5_attr(f, "schema_version", None)
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= schema_version:
+        raise UserError(f"{path}: {what} schema version {version!r} is not supported (this servofmu reads "
+                        f"versions 1 to {schema_version}; a newer file needs a newer servofmu)")
+    return kind, version

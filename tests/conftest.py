@@ -13,7 +13,7 @@ def built_fmu(tmp_path_factory):
     Each FMU is built once per session; treat the file as read-only (copy it before changing it).
     """
     from servofmu.fmu import build_fmu
-    from servofmu.plant import load_plant
+    from servofmu.model.plant import load_plant
 
     folder = tmp_path_factory.mktemp("built_fmus")
     cache = {}
@@ -48,8 +48,8 @@ class FmuLayout:
 @pytest.fixture(scope="session")
 def fmu_layout():
     """``fmu_layout(name)``: the value references of the FMU of plant ``name`` (see FmuLayout)."""
-    from servofmu.model import build_model
-    from servofmu.plant import load_plant
+    from servofmu.model.plant import load_plant
+    from servofmu.model.symbolic import build_model
 
     def layout(name: str) -> FmuLayout:
         model = build_model(load_plant(name))

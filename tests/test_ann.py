@@ -4,8 +4,8 @@ import h5py
 import numpy as np
 import pytest
 
-from servofmu.ann import FeatureLayout, Network, TrainOptions, load_network, save_network, train_network
 from servofmu.errors import UserError
+from servofmu.identification.ann import FeatureLayout, Network, TrainOptions, load_network, save_network, train_network
 
 
 def known_map(X):

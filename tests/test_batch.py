@@ -8,14 +8,14 @@ import pickle
 import numpy as np
 import pytest
 from fmpy import simulate_fmu
+from reference import friction, gain_from_dc, simulate_reference
 from scipy import signal
 from scipy.integrate import solve_ivp
 
-from reference import friction, gain_from_dc, simulate_reference
-from servofmu.batch import BatchSimulator, SteadyStateOptions, valid_parameter_sets
 from servofmu.errors import UserError
-from servofmu.plant import PlantError, load_plant, plant_from_dict
-from servofmu.prior import full_vectors
+from servofmu.identification.prior import full_vectors
+from servofmu.model.plant import PlantError, load_plant, plant_from_dict
+from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions, valid_parameter_sets
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv": 0.0, "v_smooth": 1e-3}
 NOMINAL = {  # the plant files' contents, written out again: poles, zeros, DC gain, friction

@@ -2,7 +2,8 @@
 
 Its periodic steady state (CVODES + Newton on the period map) and the measurement (the FMU's RODAS4, run from
 rest until settled) are independent computations of the same responses; its residuals must equal those of
-servofmu.identify.SineCriterion (batch simulator) at any parameters, and its Jacobian central differences."""
+servofmu.identification.criterion.SineCriterion (batch simulator) at any parameters, and its Jacobian central
+differences."""
 from __future__ import annotations
 
 import time
@@ -11,14 +12,13 @@ import numpy as np
 import pytest
 
 from servofmu.baselines.casadi_nls import CasadiCriterion, NlsOptions, fit_casadi_nls
-from servofmu.batch import BatchSimulator
-from servofmu.dataset import SineData, sine_data
 from servofmu.errors import UserError
-from servofmu.identify import RecordData, SineCriterion
-from servofmu.measure import measure
-from servofmu.plant import load_plant
-from servofmu.prior import identified_mask
-from servofmu.store import load_dataset
+from servofmu.identification.criterion import RecordData, SineCriterion, SineData, sine_data
+from servofmu.identification.prior import identified_mask
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import measure
+from servofmu.model.plant import load_plant
+from servofmu.simulation.batch import BatchSimulator
 
 G1 = load_plant("g1")
 TRUTH = G1.parameter_vector()[identified_mask(G1)]  # pole1, dc_gain, fc_pos, fc_neg
@@ -29,7 +29,7 @@ def g1_data(built_fmu, tmp_path_factory) -> SineData:
     """g1 measured from its FMU at the paper's magnitudes 2.0 and 0.6 N, default frequencies, no noise."""
     path = tmp_path_factory.mktemp("nls") / "g1.h5"
     measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), workers=0)
-    return sine_data(load_dataset(path))
+    return sine_data(read_data_file(path))
 
 
 def start_near_truth(seed: int) -> np.ndarray:
@@ -80,7 +80,7 @@ def test_g2_with_its_complex_pair_from_five_percent_off(built_fmu, tmp_path):
     g2 = load_plant("g2")
     truth = g2.parameter_vector()[identified_mask(g2)]
     theta0 = truth * (1 + 0.05 * np.random.default_rng(3).choice([-1.0, 1.0], truth.size))
-    result = fit_casadi_nls(g2, sine_data(load_dataset(path)), theta0)
+    result = fit_casadi_nls(g2, sine_data(read_data_file(path)), theta0)
     err = np.abs(result.theta - truth) / np.abs(truth)
     print(f"\ng2 {result.method}: max relative error {err.max():.2e}, {result.iterations} iterations, "
           f"{result.seconds:.1f} s")

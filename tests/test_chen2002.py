@@ -10,13 +10,12 @@ import pytest
 from scipy.optimize import fsolve
 
 from servofmu.baselines.chen2002 import fit_chen2002
-from servofmu.dataset import SineData, sine_data
 from servofmu.errors import UserError
-from servofmu.identify import RecordData
-from servofmu.measure import measure
-from servofmu.plant import load_plant, plant_from_dict
-from servofmu.prior import identified_mask
-from servofmu.store import load_dataset
+from servofmu.identification.criterion import RecordData, SineData, sine_data
+from servofmu.identification.prior import identified_mask
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import measure
+from servofmu.model.plant import load_plant, plant_from_dict
 
 
 def df_data(plant, amplitudes, frequencies) -> SineData:
@@ -76,7 +75,7 @@ def test_g1_fmu_data_at_the_papers_magnitudes(built_fmu, tmp_path):
     measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), workers=0)
     plant = load_plant("g1")
     truth = plant.parameter_vector()[identified_mask(plant)]
-    result = fit_chen2002(plant, sine_data(load_dataset(path)))
+    result = fit_chen2002(plant, sine_data(read_data_file(path)))
     err = np.abs(result.theta - truth) / np.abs(truth)
     print("\ng1, Chen 2002 at m = 2.0, 0.6 N:", ", ".join(f"{n} {v:.4f} ({e:.1%})" for n, v, e in
                                                       zip(result.names, result.theta, err)),

@@ -3,9 +3,9 @@ import json
 
 import numpy as np
 import pytest
-
-from servofmu.measure import measure
 from clitools import assert_one_line_error, run
+
+from servofmu.measurement.measure import measure
 
 
 @pytest.fixture(scope="module")

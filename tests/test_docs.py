@@ -30,3 +30,64 @@ def test_readme_tour_runs(tmp_path):
     text = (tmp_path / "g1-identified.toml").read_text()
     pole = float(re.search(r"poles = \[\[(-?[0-9.e+-]+),", text).group(1))
     assert abs(pole / -10.0 - 1) < 1e-6
+
+
+# ---------------------------------------------------------------------------
+# docs/api.md and the public API
+# ---------------------------------------------------------------------------
+API_DOC = README.parent / "docs" / "api.md"
+
+
+def python_blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
+
+
+def test_api_example_runs(tmp_path):
+    """The docs' Python example, as a script in an empty folder: the files it names appear, and the plant it
+    prints is the paper's G1."""
+    (script,) = python_blocks(API_DOC)
+    (tmp_path / "example.py").write_text(script)
+    proc = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("g1.fmu", "g1.h5", "g1-result.h5", "g1-identified.fmu"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert proc.stdout.strip() == "pole -10.000000, Fc+ 0.500000, Fc- 0.400000"
+
+
+def numpydoc_sections(doc: str) -> set[str]:
+    """Section titles of a numpydoc docstring (a title line followed by a line of dashes)."""
+    lines = [line.strip() for line in (doc or "").splitlines()]
+    return {a for a, b in zip(lines, lines[1:]) if b and set(b) == {"-"} and len(b) == len(a)}
+
+
+def test_every_public_name_has_a_numpydoc_docstring():
+    """Functions document Parameters and Returns; classes their Parameters (a class's call returns the
+    instance, its methods document their own Returns)."""
+    import inspect
+
+    import servofmu
+
+    assert len(servofmu.__all__) >= 15
+    for name in servofmu.__all__:
+        obj = getattr(servofmu, name)
+        sections = numpydoc_sections(inspect.getdoc(obj))
+        needed = {"Parameters"} if inspect.isclass(obj) else {"Parameters", "Returns"}
+        assert needed <= sections, f"servofmu.{name}: docstring lacks {', '.join(sorted(needed - sections))}"
+        if inspect.isclass(obj):
+            for method in ("fit", "result"):
+                if hasattr(obj, method):
+                    assert {"Parameters", "Returns"} <= numpydoc_sections(inspect.getdoc(getattr(obj, method))), \
+                        f"servofmu.{name}.{method}"
+
+
+def test_numpydoc_check_fails_on_a_bare_docstring():
+    assert numpydoc_sections("Do it.\n\nParameters\n----------\nx : int\n") == {"Parameters"}
+    assert numpydoc_sections("Do it.") == set()
+
+
+def test_importing_the_package_loads_no_numerical_code():
+    """`import servofmu` is cheap: the API is loaded on first use."""
+    code = ("import sys, servofmu; "
+            "print(sorted(m for m in ('numpy', 'casadi', 'torch', 'h5py', 'fmpy') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

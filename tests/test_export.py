@@ -18,19 +18,32 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.util import fmu_info
 from fmpy.validation import validate_fmu
-
 from reference import simulate_reference
 from test_cli_build import assert_one_line_error, run
-from test_importers import (DT, N_STEPS, STOP, TOL_INTEGRATORS, TOL_SAME_INTEGRATOR, libcosim_cosimulation,
-                            loader_cosimulation, loader_model_exchange)
+from test_importers import (
+    DT,
+    N_STEPS,
+    STOP,
+    TOL_INTEGRATORS,
+    TOL_SAME_INTEGRATOR,
+    libcosim_cosimulation,
+    loader_cosimulation,
+    loader_model_exchange,
+)
 
 from servofmu import __version__
 from servofmu.errors import UserError
-from servofmu.export import (FORMATS, ROUND_TRIP_TOLERANCE, export_result, identified_plant, load_control,
-                             remeasure)
-from servofmu.plant import load_plant
-from servofmu.prior import identified_mask, identified_names
-from servofmu.results import Result, write_result
+from servofmu.identification.prior import identified_mask, identified_names
+from servofmu.identification.results import Result, Stage, write_result
+from servofmu.model.plant import load_plant
+from servofmu.output.export import (
+    FORMATS,
+    ROUND_TRIP_TOLERANCE,
+    export_result,
+    identified_plant,
+    load_control,
+    remeasure,
+)
 
 # Perturbation of the identified parameters: an identification that is off by a few per cent.
 FACTORS = {"g1": 1.02, "g2": 1.01}
@@ -52,7 +65,8 @@ def make_result(name: str, factor: float, fitness: float, data_sha: str = DATA_S
         intervals = np.stack([theta - half, theta + half], axis=1)
     return Result(method="pso-ann", structure=structure, plant=structure.with_parameters(full),
                   names=tuple(identified_names(structure)), theta=theta, intervals=intervals, fitness=fitness,
-                  seconds=1.5, evaluations=1234, stages=(("ann", 0.1, 0.01, 1), ("pso", 0.02, 1.0, 1000)),
+                  seconds=1.5, evaluations=1234,
+                  stages=(Stage("ann", None, 0.1, 0.01, 1), Stage("pso", None, 0.02, 1.0, 1000)),
                   history=np.array([0.1, 0.05, 0.02]),
                   provenance={"data_file": f"{name}.h5", "data_sha256": data_sha,
                               "command": f"servofmu identify {name}.h5 --structure {name} -o <result> & more",
@@ -266,10 +280,9 @@ def test_round_trip_reproduces_the_data_within_the_identification_residual(built
     criterion computes with the batch simulator, reproduces it with a residual equal to that fitness: the FMU
     measurement and the batch simulator agree on first harmonics to ~5e-10 relative, so the two RMS values
     agree to ROUND_TRIP_TOLERANCE (1e-8)."""
-    from servofmu.batch import BatchSimulator
-    from servofmu.dataset import sine_data
-    from servofmu.identify import POLISH_RTOL, SineCriterion, rms
-    from servofmu.measure import measure
+    from servofmu.identification.criterion import POLISH_RTOL, SineCriterion, rms, sine_data
+    from servofmu.measurement.measure import measure
+    from servofmu.simulation.batch import BatchSimulator
 
     amplitudes, frequencies = PLANS[name]
     data_file = tmp_path / "data.h5"
@@ -296,7 +309,7 @@ def test_round_trip_reproduces_the_data_within_the_identification_residual(built
 
 
 def test_round_trip_refuses_data_the_result_was_not_identified_from(tmp_path, built_fmu):
-    from servofmu.measure import measure
+    from servofmu.measurement.measure import measure
 
     data_file = tmp_path / "data.h5"
     measure(built_fmu("g1", 3), data_file, amplitudes=(2.0,), frequencies=(1.0,), workers=0)
@@ -338,8 +351,8 @@ def corrupt(path, folder):
     ("foreign", ("foreign.h5", "schema version 99")),
     ("corrupt", ("corrupt.h5", "not a readable result file")),
     ("format", ("--format", "yaml")),
-    ("suffix", ("out.xyz", "--format")),
-    ("fmi_version", ("--fmi-version", "--format json")),
+    ("suffix", ("out.xyz", "give the format")),
+    ("fmi_version", ("fmi_version", "format json")),
 ])
 def test_cli_bad_input_is_one_line_and_writes_nothing(result_file, tmp_path, case, fragments):
     good = result_file("g1")

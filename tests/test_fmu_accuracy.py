@@ -5,7 +5,6 @@ import functools
 import numpy as np
 import pytest
 from fmpy import simulate_fmu
-
 from reference import gain_from_dc, simulate_reference
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}

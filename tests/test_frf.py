@@ -1,4 +1,4 @@
-"""Harmonic analysis from samples (servofmu.frf) against signals whose phasors are known in closed form."""
+"""Harmonic analysis from samples (servofmu.measurement.frf) against signals whose phasors are known in closed form."""
 from __future__ import annotations
 
 import math
@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from servofmu.errors import UserError
-from servofmu.frf import (SteadyStateDetector, distortion, estimate_frequency, harmonics, period_phasor,
-                          settle_noisy)
+from servofmu.measurement.frf import (
+    SteadyStateDetector,
+    distortion,
+    estimate_frequency,
+    harmonics,
+    period_phasor,
+    settle_noisy,
+)
 
 
 def multisine(t, f):

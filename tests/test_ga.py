@@ -3,7 +3,14 @@ import numpy as np
 import pytest
 
 from servofmu.errors import UserError
-from servofmu.ga import AdaptiveGaOptions, GaOptions, adaptive_probabilities, crossover, minimize_ga, select
+from servofmu.identification.ga import (
+    AdaptiveGaOptions,
+    GaOptions,
+    adaptive_probabilities,
+    crossover,
+    minimize_ga,
+    select,
+)
 
 ALGORITHMS = [GaOptions, AdaptiveGaOptions]
 

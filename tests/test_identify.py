@@ -4,16 +4,18 @@ import json
 import h5py
 import numpy as np
 import pytest
-
-from servofmu.dataset import from_targets, make_training_set, sine_data, to_targets
-from servofmu.identify import AnnModel, PSOANNIdentifier
-from servofmu.measure import MeasureOptions, measure
-from servofmu.plant import load_plant
-from servofmu.prior import full_vectors, identified_mask, sample_identified
-from servofmu.store import load_dataset
-from servofmu.train import train_from_file
-from servofmu.ann import load_network
 from clitools import assert_one_line_error, run
+
+from servofmu.identification.ann import AnnModel, load_network
+from servofmu.identification.criterion import sine_data
+from servofmu.identification.features import from_targets, to_targets
+from servofmu.identification.identifier import PSOANNIdentifier, polish
+from servofmu.identification.prior import full_vectors, identified_mask, sample_identified
+from servofmu.identification.train import train_from_file
+from servofmu.identification.training_set import make_training_set
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import MeasureOptions, measure
+from servofmu.model.plant import load_plant
 
 PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
 
@@ -25,7 +27,7 @@ def g1_files(tmp_path_factory, built_fmu):
     data = folder / "g1.h5"
     measure(built_fmu("g1", 3), data, options=MeasureOptions(), workers=0, **PLAN)
     ds = folder / "ds.h5"
-    make_training_set(load_plant("g1"), sine_data(load_dataset(data)), 400, ds, seed=3)
+    make_training_set(load_plant("g1"), sine_data(read_data_file(data)), 400, ds, seed=3)
     ann = folder / "ann.h5"
     train_from_file(ds, ann, seed=0)
     return {"data": data, "ds": ds, "ann": ann, "folder": folder}
@@ -45,7 +47,7 @@ def test_targets_round_trip():
 
 def test_pso_ann_identifies_g1_from_fmu_data(g1_files):
     net, layout = load_network(g1_files["ann"])
-    data = sine_data(load_dataset(g1_files["data"]))
+    data = sine_data(read_data_file(g1_files["data"]))
     est = PSOANNIdentifier(load_plant("g1"), ann=AnnModel(net, layout, "ann.h5"), seed=0).fit(data)
     assert [s.name for s in est.stages_] == ["ann", "pso", "polish"]
     assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
@@ -60,7 +62,7 @@ def test_pso_ann_identifies_g1_from_fmu_data(g1_files):
 @pytest.mark.parametrize("method, search", [("ga-ann", "ga"), ("aga-ann", "aga")])
 def test_ga_comparators_share_the_budget(g1_files, method, search):
     net, layout = load_network(g1_files["ann"])
-    data = sine_data(load_dataset(g1_files["data"]))
+    data = sine_data(read_data_file(g1_files["data"]))
     est = PSOANNIdentifier(load_plant("g1"), ann=AnnModel(net, layout, "ann.h5"), method=method, seed=0).fit(data)
     assert [s.name for s in est.stages_] == ["ann", search, "polish"]
     assert est.stages_[1].evaluations == 510  # PSO-ANN's 10 particles x (50 + 1)
@@ -68,7 +70,7 @@ def test_ga_comparators_share_the_budget(g1_files, method, search):
 
 
 def test_pso_alone_from_the_prior_box(g1_files):
-    data = sine_data(load_dataset(g1_files["data"]))
+    data = sine_data(read_data_file(g1_files["data"]))
     est = PSOANNIdentifier(load_plant("g1"), method="pso", seed=1).fit(data)
     assert [s.name for s in est.stages_] == ["pso", "polish"]
     assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
@@ -180,8 +182,7 @@ def test_polish_steps_back_where_a_forward_step_has_no_steady_state():
     # the least-squares optimum sits just below the edge: forward steps in θ[0] from there have no steady state
     best = np.linalg.lstsq(a, b, rcond=None)[0]
     crit = _LinearCriterion(a, b, edge=best[0] * (1 + 1e-7))
-    identifier = PSOANNIdentifier(load_plant("g1"))
-    y, jac = identifier._polish(crit, lambda y: np.atleast_2d(y), best + [-0.05, 0.03, 0.02])
+    y, jac = polish(crit, lambda y: np.atleast_2d(y), best + [-0.05, 0.03, 0.02])
     np.testing.assert_allclose(y, best, rtol=1e-8)
     np.testing.assert_allclose(jac, a, rtol=1e-6)
 
@@ -189,9 +190,8 @@ def test_polish_steps_back_where_a_forward_step_has_no_steady_state():
 def test_polish_tolerance_does_not_give_up_on_a_slowly_settling_experiment():
     # a g2-like plant near the swarm's best for it: at 2 N, 4 Hz its response settles slowly, and giving up early
     # (right for the search) called it unsettled, which stalled the polish
-    from servofmu.batch import BatchSimulator, SteadyStateOptions
-    from servofmu.dataset import SineData
-    from servofmu.identify import POLISH_RTOL, SineCriterion, steady_state_options
+    from servofmu.identification.criterion import POLISH_RTOL, SineCriterion, SineData, steady_state_options
+    from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
     plant = load_plant("g2")
     theta = np.array([-2.13696222, 38.87697534, -11.04557933, 1.39954763, 0.6566386, 0.46513884])

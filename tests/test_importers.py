@@ -189,11 +189,11 @@ def test_fmuloader_logger_names_the_bad_value_reference(built_fmu, version):
 # ---- libcosimpy -----------------------------------------------------------------------------------------------
 def libcosim_cosimulation(path, layout, amplitude, frequency):
     """v on the grid 0, DT, ..., STOP from libcosim stepping the FMI 2.0 Co-Simulation FMU."""
+    from libcosimpy._internal import get_last_error_message
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
     from libcosimpy.CosimSlave import CosimLocalSlave
-    from libcosimpy._internal import get_last_error_message
 
     # libcosim instantiates with debug logging on; keep the FMU's per-step solver messages out of the test log
     log_output_level(CosimLogLevel.WARNING)

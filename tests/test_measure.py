@@ -1,4 +1,4 @@
-"""Stepped-sine measurement of FMUs (servofmu.measure) against independent references:
+"""Stepped-sine measurement of FMUs (servofmu.measurement.measure) against independent references:
 a Radau integration of the plant equations, the linear G(jw), the describing function of Coulomb friction,
 and the same measurement run elsewhere (FMI 2 vs 3, input port vs built-in excitation, Dask vs local)."""
 from __future__ import annotations
@@ -10,15 +10,16 @@ import zipfile
 
 import numpy as np
 import pytest
+from reference import simulate_reference
 from scipy.optimize import fsolve
 
-from reference import simulate_reference
 from servofmu.errors import UserError
-from servofmu.excitation import ExperimentSpec, default_frequencies
-from servofmu.measure import FmuRunnerFactory, Job, MeasureOptions, estimate_bandwidth, measure, run_experiment
-from servofmu.parallel import WorkerResource, Workers
-from servofmu.plant import load_plant
-from servofmu.store import load_dataset
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.excitation import ExperimentSpec, default_frequencies
+from servofmu.measurement.measure import Job, MeasureOptions, estimate_bandwidth, measure, run_experiment
+from servofmu.model.plant import load_plant
+from servofmu.simulation.fmu_runner import FmuRunnerFactory
+from servofmu.simulation.parallel import WorkerResource, Workers
 
 FC_POS, FC_NEG = 0.5, 0.4  # g1 and g2 (fmu_models/*.toml)
 
@@ -59,7 +60,7 @@ def test_first_harmonic_in_stick_slip_matches_a_radau_reference(runner):
     t = res.window.time
     v_ref = simulate_reference([-10.0], [], 10.0, {"model": "coulomb", "fc_pos": FC_POS, "fc_neg": FC_NEG}, m, f,
                                np.concatenate([[0.0], t]), rtol=1e-11, atol=1e-13)[1:]
-    # first harmonic by the trapezoid rule, written out independently of servofmu.frf
+    # first harmonic by the trapezoid rule, written out independently of servofmu.measurement.frf
     w = np.gradient(t) * 0 + (t[1] - t[0])
     w[0] = w[-1] = (t[1] - t[0]) / 2
     s1_ref = 1j * 2 / (t[-1] - t[0]) * np.sum(w * v_ref * np.exp(-2j * np.pi * f * t))
@@ -271,7 +272,7 @@ def test_resume_refuses_a_different_fmu_or_plan(built_fmu, tmp_path):
     out = tmp_path / "d.h5"
     measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], workers=0)
     before = out.read_bytes()
-    with pytest.raises(UserError, match="exists already.*--resume"):
+    with pytest.raises(UserError, match="exists already.*resume it"):
         measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], workers=0)
     with pytest.raises(UserError, match="cannot resume: it was measured with a different FMU"):
         measure(built_fmu("g2"), out, amplitudes=[2.0], frequencies=[5.0], workers=0, resume=True)
@@ -283,4 +284,4 @@ def test_resume_refuses_a_different_fmu_or_plan(built_fmu, tmp_path):
     assert out.read_bytes() == before
     # a complete file resumed: nothing to do, nothing changes
     data = measure(built_fmu("g1"), out, workers=0, resume=True)
-    assert len(data.experiments) == 1 and load_dataset(out).complete
+    assert len(data.experiments) == 1 and read_data_file(out).complete

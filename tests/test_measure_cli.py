@@ -13,8 +13,8 @@ import psutil
 import pytest
 
 from servofmu.cli import main
-from servofmu.plots import bode_points
-from servofmu.store import load_dataset
+from servofmu.measurement.datafile import read_data_file
+from servofmu.output.plots import bode_points
 
 
 def run_cli(capsys, *argv):
@@ -32,7 +32,7 @@ def test_measure_then_plot(built_fmu, tmp_path, capsys):
                              "--workers", "0", "-o", data)
     assert code == 0, err
     assert "4 experiments" in out and "all reached steady state" in out
-    ds = load_dataset(data)
+    ds = read_data_file(data)
     assert ds.complete and ds.provenance["command"].startswith("servofmu measure ")
     assert ds.provenance["tolerance"] == 1e-12 and ds.provenance["excitation"] == "builtin"
     curves = bode_points(ds)  # what the Bode figure draws: one curve per amplitude
@@ -89,21 +89,21 @@ def test_a_killed_run_resumes_without_loss_or_duplication(built_fmu, tmp_path):
     gone, alive = psutil.wait_procs(children, timeout=10)
     assert not alive
 
-    partial = load_dataset(data)  # the file opens: it is the last complete version
+    partial = read_data_file(data)  # the file opens: it is the last complete version
     assert not partial.complete and 1 <= len(partial.experiments) < 8
     before = {e.index: e.H for e in partial.experiments}
 
     resumed = subprocess.run([sys.executable, "-m", "servofmu", *args, "--resume", "-o", str(data)],
                              capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
-    final = load_dataset(data)
+    final = read_data_file(data)
     assert final.complete and [e.index for e in final.experiments] == list(range(8))
     assert all(final.experiments[i].H == h for i, h in before.items())
 
     whole = subprocess.run([sys.executable, "-m", "servofmu", *args, "--workers", "0", "-o",
                             str(tmp_path / "whole.h5")], capture_output=True, text=True)
     assert whole.returncode == 0, whole.stderr
-    for a, b in zip(final.experiments, load_dataset(tmp_path / "whole.h5").experiments):
+    for a, b in zip(final.experiments, read_data_file(tmp_path / "whole.h5").experiments):
         assert (a.index, a.H, a.dc, a.distortion, a.converged, a.settling_time) == \
                (b.index, b.H, b.dc, b.distortion, b.converged, b.settling_time)
         np.testing.assert_array_equal(a.window.v, b.window.v)
@@ -147,12 +147,12 @@ BAD = [
     (["measure", "{fmu}", "--input", "force", "--frequencies", "1", "-o", "{new}"], "no variable named 'force'"),
     (["measure", "{csv}", "--frequencies", "1", "-o", "{new}"], "not an FMU"),
     (["measure", "{fmu}", "--frequencies", "5", "--amplitudes", "2", "-o", "{good}"], "exists already"),
-    (["measure", "{fmu}", "--resume", "-o", "{corrupt}"], "not a readable HDF5 file"),
+    (["measure", "{fmu}", "--resume", "-o", "{corrupt}"], "not a readable data file"),
     (["measure", "{fmu}", "--resume", "-o", "{foreign}"], "not a servofmu data file"),
     (["measure", "{fmu}", "--frequencies", "5", "--amplitudes", "3", "--resume", "-o", "{good}"], "cannot resume"),
-    (["measure", "{fmu}", "--frequencies", "1", "--tolerance", "2", "-o", "{new}"], "--tolerance must be in"),
+    (["measure", "{fmu}", "--frequencies", "1", "--tolerance", "2", "-o", "{new}"], "tolerance must be in"),
     (["measure", "{fmu}", "--frequencies", "1", "--scheduler", "nowhere", "-o", "{new}"], "is not a scheduler"),
-    (["plot", "{corrupt}", "-o", "{tmp}/x.png"], "not a readable HDF5 file"),
+    (["plot", "{corrupt}", "-o", "{tmp}/x.png"], "not a readable data file"),
     (["plot", "{foreign}", "-o", "{tmp}/x.png"], "not a servofmu data file"),
     (["plot", "{tmp}/missing.h5", "-o", "{tmp}/x.png"], "no such data file"),
     (["plot", "{good}", "-o", "{tmp}/nofolder/x.png"], "does not exist"),
@@ -165,7 +165,7 @@ BAD = [
      "line 6: time is not strictly increasing"),
     (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "-o", "{good}"], "exists already"),
     (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "--append", "-o", "{corrupt}"],
-     "not a readable HDF5 file"),
+     "not a readable data file"),
     (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "--append", "-o", "{good}"],
      "records can only be appended to a records file"),
 ]

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from servofmu.model import build_model
-from servofmu.plant import PlantError, load_plant, plant_from_dict
+from servofmu.model.plant import PlantError, load_plant, plant_from_dict
+from servofmu.model.symbolic import build_model
 
 G1 = {"name": "p", "linear": {"poles": [[-10.0, 0.0]], "zeros": [], "dc_gain": 1.0},
       "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}}

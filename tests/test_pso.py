@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from servofmu.errors import UserError
-from servofmu.pso import PsoOptions, inertia_weight, minimize_pso, update_position
+from servofmu.identification.pso import PsoOptions, inertia_weight, minimize_pso, update_position
 
 
 def sphere(X):

@@ -7,9 +7,9 @@ import pytest
 from scipy.io import savemat
 
 from servofmu.errors import UserError
-from servofmu.measure import MeasureOptions, measure
-from servofmu.records import import_records, velocity_from_position
-from servofmu.simulate import simulate
+from servofmu.measurement.measure import MeasureOptions, measure
+from servofmu.measurement.records import import_records, velocity_from_position
+from servofmu.simulation.fmpy_runs import simulate
 
 M, F, FS, DURATION = 2.0, 2.0, 1000.0, 6.0
 ENCODER = 1e-5  # m per count
@@ -126,9 +126,9 @@ def good_rows(n=20):
     (lambda r: r[:5] + ["0.005,1"] + r[6:], {}, "line 6: has no value for column 'speed'"),
     (lambda r: ["t,force,velocity"] + r[1:], {}, "no column 'speed' \\(the header has t, force, velocity\\)"),
     (lambda r: r[:5], {}, "needs at least 10 samples"),
-    (lambda r: r, {"kind": "acceleration"}, "--kind must be velocity or position"),
-    (lambda r: r, {"cutoff": 10.0}, "--cutoff applies to position records only"),
-    (lambda r: r, {"frequency": -1.0}, "--frequency must be positive"),
+    (lambda r: r, {"kind": "acceleration"}, "kind must be velocity or position"),
+    (lambda r: r, {"cutoff": 10.0}, "cutoff applies to position records only"),
+    (lambda r: r, {"frequency": -1.0}, "frequency must be positive"),
     (lambda r: r[:3] + [f"{0.0021 + 0.0001 * i},1,1" for i in range(1, 30)], {"kind": "position"},
      "needs uniformly sampled time"),
 ])

@@ -7,18 +7,18 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from clitools import assert_one_line_error, run
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 
-from servofmu.compare import run_methods
-from servofmu.dataset import sine_data
-from servofmu.export import file_sha256
-from servofmu.measure import measure
-from servofmu.plant import load_plant
-from servofmu.report import steady_friction
-from servofmu.results import write_comparison, write_result
-from servofmu.store import load_dataset
-from clitools import assert_one_line_error, run
+from servofmu.identification.criterion import sine_data
+from servofmu.identification.results import write_comparison, write_result
+from servofmu.measurement.datafile import read_data_file
+from servofmu.measurement.measure import measure
+from servofmu.model.plant import load_plant
+from servofmu.output.compare import run_methods
+from servofmu.output.export import file_sha256
+from servofmu.output.report import steady_friction
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -48,7 +48,7 @@ def g1_result(tmp_path_factory, built_fmu):
     measure(built_fmu("g1", 3), data, workers=0, **PLAN)
     provenance = {"data_file": "g1.h5", "data_sha256": file_sha256(data), "command": "test",
                   "date": "2024-01-01T00:00:00Z"}
-    results = run_methods(load_plant("g1"), sine_data(load_dataset(data)), ["pso", "chen2002"], seed=0,
+    results = run_methods(load_plant("g1"), sine_data(read_data_file(data)), ["pso", "chen2002"], seed=0,
                           provenance=provenance)
     write_result(folder / "g1-result.h5", results["pso"])
     write_comparison(folder / "g1-compare.h5", results)
@@ -219,7 +219,7 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     alone = tmp_path / "alone"
     alone.mkdir()
     (alone / "r.h5").write_bytes(result.read_bytes())
-    assert_one_line_error(run("report", alone / "r.h5", "-o", out, cwd=tmp_path), "g1.h5", "--data")
+    assert_one_line_error(run("report", alone / "r.h5", "-o", out, cwd=tmp_path), "g1.h5", "give the data file")
     # ... and given with --data it is found
     proc = run("report", alone / "r.h5", "--data", data, "-o", tmp_path / "ok.html", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -5,12 +5,21 @@ import h5py
 import numpy as np
 import pytest
 
-import servofmu.store as store
+import servofmu.measurement.datafile as store
 from servofmu.errors import UserError
-from servofmu.excitation import Plan
 from servofmu.fileio import partial_path
-from servofmu.store import (ExperimentResult, Record, RecordAnalysis, Series, add_experiments, create_measurement,
-                            load_dataset, mark_complete, write_records)
+from servofmu.measurement.datafile import (
+    ExperimentResult,
+    Record,
+    RecordAnalysis,
+    Series,
+    add_experiments,
+    create_measurement,
+    mark_complete,
+    read_data_file,
+    write_records,
+)
+from servofmu.measurement.excitation import Plan
 
 PLAN = Plan((2.0, 0.6), (1.0, 5.0))
 PROVENANCE = {"fmu_sha256": "ab" * 32, "tolerance": 1e-12, "command": "servofmu measure x.fmu -o d.h5", "seed": 3}
@@ -37,7 +46,7 @@ def test_round_trip_and_plain_h5py_layout(tmp_path):
     written = [result(i, rng) for i in (2, 0, 3)]
     for r in written:
         add_experiments(path, [r])
-    data = load_dataset(path)
+    data = read_data_file(path)
     assert data.kind == "measurement" and not data.complete and data.plan == PLAN
     assert [s.index for s in data.missing()] == [1]
     assert data.parameters == {"pole1": -10.0, "fc_pos": 0.5}
@@ -51,7 +60,7 @@ def test_round_trip_and_plain_h5py_layout(tmp_path):
         np.testing.assert_array_equal(back.transient.v, r.transient.v)
         assert back.transient.v_noisy is None
     mark_complete(path)
-    assert load_dataset(path).complete
+    assert read_data_file(path).complete
 
     # the same file through h5py alone, as docs/hdf5.md describes it
     with h5py.File(path, "r") as f:
@@ -73,7 +82,7 @@ def test_an_experiment_stored_twice_is_kept_once(tmp_path):
     first = result(1, rng)
     add_experiments(path, [first])
     add_experiments(path, [result(1, rng)])
-    data = load_dataset(path)
+    data = read_data_file(path)
     assert len(data.experiments) == 1 and data.experiments[0].H == first.H
 
 
@@ -92,7 +101,7 @@ def test_a_failed_write_leaves_the_previous_file(tmp_path, monkeypatch):
         add_experiments(path, [result(1, rng)])
     assert path.read_bytes() == before
     assert not partial_path(path).exists()
-    assert len(load_dataset(path).experiments) == 1
+    assert len(read_data_file(path).experiments) == 1
 
 
 def test_a_stale_partial_file_from_a_killed_run_is_harmless(tmp_path):
@@ -100,12 +109,12 @@ def test_a_stale_partial_file_from_a_killed_run_is_harmless(tmp_path):
     create_measurement(path, PLAN, PROVENANCE, {})
     partial_path(path).write_bytes(b"half a file")
     add_experiments(path, [result(0, np.random.default_rng(3))])
-    assert len(load_dataset(path).experiments) == 1 and not partial_path(path).exists()
+    assert len(read_data_file(path).experiments) == 1 and not partial_path(path).exists()
 
 
 @pytest.mark.parametrize("damage, message", [
-    ("truncate", "not a readable HDF5 file"),
-    ("text", "not a readable HDF5 file"),
+    ("truncate", "not a readable data file"),
+    ("text", "not a readable data file"),
     ("foreign", "not a servofmu data file"),
     ("newer", "schema version 99 is not supported"),
     ("no_kind", "damaged servofmu data file"),
@@ -135,7 +144,7 @@ def test_damaged_or_foreign_files_are_user_errors(tmp_path, damage, message):
             else:
                 del f["experiments/exp_0000"].attrs["H"]
     with pytest.raises(UserError, match=message) as info:
-        load_dataset(path)
+        read_data_file(path)
     assert "\n" not in str(info.value) and str(path) in str(info.value)
 
 
@@ -157,7 +166,7 @@ def test_records_file_and_append(tmp_path):
     with pytest.raises(UserError, match="exists already"):
         write_records(path, [rec("b", False)], {"command": "import b"})
     write_records(path, [rec("b", False)], {"command": "import b"}, append=True)
-    data = load_dataset(path)
+    data = read_data_file(path)
     assert data.kind == "records" and [r.name for r in data.records] == ["a", "b"]
     assert [r.index for r in data.records] == [0, 1]
     a, b = data.records

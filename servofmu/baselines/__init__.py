@@ -9,20 +9,26 @@ Both return a :class:`BaselineResult`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # this package is imported by the command line's parser: no numerical imports here
+    import numpy as np
 
-from ..plant import Plant
-from ..prior import full_vectors
+    from ..model.plant import Plant
+
+__all__ = ["BaselineResult", "BASELINE_METHODS", "BASELINE_NEEDS_ANN"]
+
+BASELINE_METHODS = ("chen2002", "casadi-nls-ann", "casadi-nls")
+BASELINE_NEEDS_ANN = ("casadi-nls-ann",)  # least squares started from the ANN's estimate
 
 
 @dataclass(frozen=True)
 class BaselineResult:
     """The outcome of one baseline identification.
 
-    ``theta``: identified parameters in ``names`` order (servofmu.prior.identified_names); ``fitness``: the RMS of
-    the output-error residuals of servofmu.identify.SineCriterion at ``theta`` (inf when the identified plant is
-    invalid or has no steady state in some experiment); ``seconds``: wall time, the fitness included;
+    ``theta``: identified parameters in ``names`` order (servofmu.identification.prior.identified_names);
+    ``fitness``: the RMS of the output-error residuals of servofmu.identification.criterion.SineCriterion at
+    ``theta`` (inf when the identified plant is invalid or has no steady state in some experiment); ``seconds``: wall time, the fitness included;
     ``evaluations``: evaluations of the output-error residuals (each simulates every experiment; for the least
     squares with their Jacobian; 0 for Chen 2002, which simulates nothing); ``iterations``: optimiser iterations
     (for Chen 2002 those of its transfer-function fit); ``success``: the method ended as it should (converged,
@@ -41,16 +47,10 @@ class BaselineResult:
 
     def plant(self, structure: Plant) -> Plant:
         """The identified plant (``structure`` with ``theta``; fixed parameters from the structure)."""
+        from ..identification.prior import full_vectors
+
         return structure.with_parameters(full_vectors(structure, self.theta)[0])
 
     def parameters(self) -> dict[str, float]:
         return dict(zip(self.names, self.theta.tolist()))
 
-
-def output_error_fitness(structure: Plant, data, theta: np.ndarray, threads: int | None = None) -> float:
-    """The RMS output error of ``theta`` by the identifier's own criterion (batch simulator, tight tolerance)."""
-    from ..batch import BatchSimulator
-    from ..identify import POLISH_RTOL, SineCriterion, rms
-
-    crit = SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
-    return float(rms(crit.residuals(np.asarray(theta, dtype=float)[None], POLISH_RTOL))[0])

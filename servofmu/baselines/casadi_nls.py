@@ -1,7 +1,7 @@
 """CasADi nonlinear least squares: PSO-ANN's output-error fit, solved by a derivative-based optimiser.
 
-The residuals are those of servofmu.identify.SineCriterion — per experiment Re and Im of (H_model − H)/|H| and
-√2·(dc_model − dc)/(|H|·m) — but computed from the CasADi model of servofmu.model (the single source of the
+The residuals are those of servofmu.identification.criterion.SineCriterion — per experiment Re and Im of
+(H_model − H)/|H| and √2·(dc_model − dc)/(|H|·m) (criterion.sine_residuals) — but computed from the CasADi model of servofmu.model.symbolic (the single source of the
 equations) so that CasADi gives their exact derivatives.
 
 Per experiment (amplitude m, frequency f):
@@ -9,7 +9,7 @@ Per experiment (amplitude m, frequency f):
 - the states without ``position`` (it integrates v and does not act back), divided by the measured velocity
   amplitude a = |H|·m so that they are O(1), are integrated by CVODES over one period in the scaled time
   τ = f·t ∈ [0, 1], with the quadratures q' = (2v·sin 2πτ, 2v·cos 2πτ, v)/a; then S1 = a·(q1 + j·q2) and
-  dc = a·q3 (the phasor convention of servofmu.frf), H = S1/m;
+  dc = a·q3 (the phasor convention of servofmu.measurement.frf), H = S1/m;
 - the periodic steady state is the fixed point x0 = Φ(x0; θ) of this period map, found by Newton's method with
   the sensitivity ∂Φ/∂x0 (warm-started from the previous evaluation; a line search, and where Newton does not
   shrink the gap one more simulated period instead).  A fixed point whose monodromy matrix ∂Φ/∂x0 has a
@@ -39,17 +39,20 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Callable
 
 import casadi as ca
 import numpy as np
 
-from ..dataset import SineData
 from ..errors import UserError
-from ..model import build_model
-from ..plant import Plant
-from ..prior import full_vectors, identified_mask, identified_names
-from . import BaselineResult, output_error_fitness
+from ..identification.criterion import SineData, output_error_fitness, sine_residual_jacobian, sine_residuals
+from ..identification.prior import full_vectors, identified_mask, identified_names
+from ..model.plant import Plant
+from ..model.symbolic import build_model
+from ..runtime import Progress
+from ..simulation.batch import valid_parameter_sets
+from . import BaselineResult
+
+__all__ = ["fit_casadi_nls", "NlsOptions", "CasadiCriterion", "PeriodicSteadyState"]
 
 METHODS = ("ipopt", "gauss-newton")
 FAILED_RESIDUAL = 1e3  # what the optimiser sees where a candidate has no steady state (a step it must reject)
@@ -285,33 +288,25 @@ class _LazyDict(dict):
 
 
 class CasadiCriterion:
-    """The residuals of servofmu.identify.SineCriterion for one parameter vector, with their exact Jacobian."""
+    """The residuals of servofmu.identification.criterion.SineCriterion for one parameter vector, with their exact
+    Jacobian."""
 
     def __init__(self, structure: Plant, data: SineData, options: NlsOptions = NlsOptions()):
         self.structure, self.data, self.options = structure, data, options
-        self.H_scale = np.abs(data.H)
         self.steady = PeriodicSteadyState(structure, data.amplitudes, data.frequencies,
-                                          scale=self.H_scale * data.amplitudes, rtol=options.rtol)
+                                          scale=np.abs(data.H) * data.amplitudes, rtol=options.rtol)
         self.evaluations = 0
-
-    def _residuals(self, H, dc):
-        dH = (H - self.data.H) / self.H_scale
-        ddc = np.sqrt(2) * (dc - self.data.dc) / (self.H_scale * self.data.amplitudes)
-        return np.concatenate([dH.real, dH.imag, ddc])
 
     def residuals(self, theta) -> np.ndarray:
         """Residual vector at ``theta`` (NaN for experiments without a stable periodic steady state)."""
         self.evaluations += 1
         f = self.steady.features(theta, False, self.options.steady_state_passes)
-        return self._residuals(f.H, f.dc)
+        return sine_residuals(self.data, f.H, f.dc)
 
     def residuals_and_jacobian(self, theta) -> tuple[np.ndarray, np.ndarray]:
         self.evaluations += 1
         f = self.steady.features(theta, True, self.options.steady_state_passes)
-        s = self.H_scale[:, None]
-        J = np.concatenate([f.dH.real / s, f.dH.imag / s,
-                            np.sqrt(2) * f.ddc / (s * self.data.amplitudes[:, None])])
-        return self._residuals(f.H, f.dc), J
+        return sine_residuals(self.data, f.H, f.dc), sine_residual_jacobian(self.data, f.dH, f.ddc)
 
 
 # ---------------------------------------------------------------------------
@@ -331,7 +326,6 @@ def _bounds(structure: Plant) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_inputs(structure: Plant, data, theta0) -> np.ndarray:
-    from ..batch import valid_parameter_sets
 
     if not isinstance(data, SineData):
         raise UserError("the CasADi least-squares baseline fits stepped-sine data (first harmonics); "
@@ -352,11 +346,31 @@ def _check_inputs(structure: Plant, data, theta0) -> np.ndarray:
 
 
 def fit_casadi_nls(structure: Plant, data: SineData, theta0=None, options: NlsOptions = NlsOptions(),
-                   progress: Callable[[int, int], None] | None = None) -> BaselineResult:
-    """Least-squares fit of the identified parameters of ``structure`` to ``data`` from ``theta0``.
+                   progress: Progress | None = None) -> BaselineResult:
+    """CasADi nonlinear least squares on the identifier's output-error residuals, with exact derivatives.
 
-    ``theta0``: start values in identified_names order; None: the structure's own values (the nominal plant).
-    ``progress(done, max_iterations)`` after every Jacobian evaluation (Gauss–Newton only).
+    Parameters
+    ----------
+    structure : Plant
+        The structure identified.
+    data : SineData
+        Stepped-sine data (:func:`servofmu.sine_data`).
+    theta0 : array_like, optional
+        Start values in ``identified_names`` order; default: the structure's own values (the nominal plant).
+    options : NlsOptions
+        Method (Gauss–Newton or Ipopt), tolerances, iteration limit.
+    progress : Progress, optional
+        Called with (iterations done, max_iterations) after every Jacobian evaluation (Gauss–Newton only).
+
+    Returns
+    -------
+    BaselineResult
+        Identified parameters, the identifier's fitness at them, time and how the fit ended.
+
+    Raises
+    ------
+    UserError
+        For data that is not stepped-sine data, or start values of the wrong size or outside the valid region.
     """
     theta0 = _check_inputs(structure, data, theta0)
     start = time.perf_counter()
@@ -422,10 +436,12 @@ def _ipopt(crit: CasadiCriterion, theta0, scale, lo, hi, options: NlsOptions):
     s, X, none = ca.MX.sym("s", p), ca.MX.sym("X", nx, n), ca.MX.sym("p", 0)
     w = ca.vertcat(s, ca.vec(X))
     theta = s * ca.DM(scale)
-    # residual row i·n + k = c[i, k]·q_i(experiment k) − d[i, k]  (i: Re H, Im H, dc)
-    H_scale, m = crit.H_scale, data.amplitudes
-    c = np.vstack([steady.scale / (m * H_scale)] * 2 + [np.sqrt(2) * steady.scale / (m * H_scale)])
-    d = np.vstack([data.H.real / H_scale, data.H.imag / H_scale, np.sqrt(2) * data.dc / (m * H_scale)])
+    # residual row i·n + k = c[i, k]·q_i(experiment k) − d[i, k]  (i: Re H, Im H, dc), the affine map of
+    # sine_residuals written for the quadratures q: H = (Re q_0 + j q_1)·scale/m, dc = q_2·scale
+    zero, h = np.zeros(n), steady.scale / data.amplitudes
+    d = -sine_residuals(data, zero + 0j, zero).reshape(3, n)
+    c = np.vstack([sine_residual_jacobian(data, h + 0j, zero)[:n], sine_residual_jacobian(data, 1j * h, zero)[n:2 * n],
+                   sine_residual_jacobian(data, zero + 0j, steady.scale)[2 * n:]])
 
     def residuals_and_gaps(xf, qf):
         return ca.vec((ca.DM(c) * qf[:3, :] - ca.DM(d)).T), ca.vec(xf[:nx, :] - X)

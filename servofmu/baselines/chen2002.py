@@ -30,11 +30,13 @@ import time
 
 import numpy as np
 
-from ..dataset import SineData
 from ..errors import UserError
-from ..plant import Plant
-from ..prior import canonical_order, identified_names
-from . import BaselineResult, output_error_fitness
+from ..identification.criterion import SineData, output_error_fitness
+from ..identification.prior import canonical_order, identified_names
+from ..model.plant import Plant
+from . import BaselineResult
+
+__all__ = ["fit_chen2002", "describing_function"]
 
 
 def describing_function(A, B) -> tuple[np.ndarray, np.ndarray]:
@@ -57,7 +59,25 @@ def _groups(data: SineData) -> list[np.ndarray]:
 
 
 def fit_chen2002(structure: Plant, data: SineData) -> BaselineResult:
-    """Identify G(s) and the Coulomb friction of ``structure`` from stepped-sine ``data`` (module docstring)."""
+    """Chen, Huang & Yen (2002): G(s) and Coulomb friction from two magnitudes by describing functions.
+
+    Parameters
+    ----------
+    structure : Plant
+        The structure identified (a Coulomb friction model).
+    data : SineData
+        Stepped-sine data at two or more magnitudes.
+
+    Returns
+    -------
+    BaselineResult
+        The identified parameters and the identifier's output-error fitness at them.
+
+    Raises
+    ------
+    UserError
+        For data that is not stepped-sine data or a structure the method cannot identify.
+    """
     start = time.perf_counter()
     if not isinstance(data, SineData):
         raise UserError("the Chen 2002 method works on stepped-sine data (first harmonics at two magnitudes per "

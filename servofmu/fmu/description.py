@@ -6,6 +6,9 @@ import xml.etree.ElementTree as ET
 
 from .variables import Variable
 
+__all__ = ["model_description_fmi3", "model_description_fmi2", "build_description", "documentation_html",
+           "SOURCE_FILES", "ANNOTATION_TYPE"]
+
 # Units used by the plant, as SI base-unit exponents.
 BASE_UNITS = {
     "s": {"s": 1},

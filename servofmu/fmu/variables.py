@@ -1,17 +1,24 @@
 """The FMU's variables: one table shared by the C configuration, both model descriptions and the docs.
 
-Value references follow the fixed layout of servo_core.h (docs/fmu.md): 0 time,
-1 u, 2-4 outputs (v, position, friction_force), 1000+i parameters, 2000+i
-states, 3000+i state derivatives.  The position state is the output
-``position`` itself (VR 3), so it has no 2000-series reference.
+Value references follow one fixed layout (docs/fmu.md): 0 time, 1 u, 2-4
+outputs (v, position, friction_force), 1000+i parameters, 2000+i states,
+3000+i state derivatives.  The position state is the output ``position``
+itself (VR 3), so it has no 2000-series reference.  :data:`VALUE_REFERENCES`
+is the single source of the layout: the C core reads it from the generated
+model_config.h.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..model import INPUT_INFO, OUTPUT_INFO, OUTPUT_NAMES, SymbolicModel
+from ..model.symbolic import INPUT_INFO, OUTPUT_INFO, OUTPUT_NAMES, SymbolicModel
 
 VR_TIME, VR_U, VR_Y0, VR_P0, VR_X0, VR_DX0 = 0, 1, 2, 1000, 2000, 3000
+# C macro -> value reference, written into model_config.h
+VALUE_REFERENCES = {"SV_VR_TIME": VR_TIME, "SV_VR_U": VR_U, "SV_VR_Y0": VR_Y0, "SV_VR_P0": VR_P0,
+                    "SV_VR_X0": VR_X0, "SV_VR_DX0": VR_DX0}
+
+__all__ = ["Variable", "VALUE_REFERENCES", "fmu_variables", "state_nominals", "position_index", "state_vr"]
 
 
 @dataclass(frozen=True)

@@ -8,13 +8,9 @@
 #include <stddef.h>
 #include "model_config.h"
 
-/* Value references: one fixed layout for FMI 2.0 and 3.0 (docs/fmu.md). */
-#define SV_VR_TIME 0u
-#define SV_VR_U 1u
-#define SV_VR_Y0 2u       /* v, position, friction_force */
-#define SV_VR_P0 1000u    /* parameters */
-#define SV_VR_X0 2000u    /* continuous states (the position state is the output `position`) */
-#define SV_VR_DX0 3000u   /* their derivatives */
+/* Value references: one fixed layout for FMI 2.0 and 3.0 (docs/fmu.md), generated into model_config.h from
+ * servofmu/fmu/variables.py: SV_VR_TIME, SV_VR_U, SV_VR_Y0 (v, position, friction_force), SV_VR_P0 (parameters),
+ * SV_VR_X0 (continuous states; the position state is the output `position`), SV_VR_DX0 (their derivatives). */
 
 enum sv_kind { SV_UNKNOWN, SV_TIME, SV_INPUT, SV_OUTPUT, SV_PARAM, SV_STATE, SV_DERIV };
 

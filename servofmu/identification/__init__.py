@@ -1,0 +1,4 @@
+"""Stage 5, identification: the prior, the output-error criterion, ANN features and targets, training sets,
+the ANN, the searches (PSO, GAs), the PSO-ANN identifier and its results."""
+
+__all__: list[str] = []

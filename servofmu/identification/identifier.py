@@ -1,0 +1,341 @@
+"""Identification of G(s) and the friction: the PSO-ANN hybrid, scored by output error.
+
+A candidate is scored by how well its simulated responses match the measured ones (the paper's fitness needs
+the true parameters, which no user has; servofmu.identification.criterion).  Stages (docs/identification.md):
+
+1. ``ann``: the trained network maps the measured features to a first estimate;
+2. ``pso``: a particle swarm searches a box around it (in the network's output coordinates: logs of
+   magnitudes, so the box is relative and positivity is kept); without a network (``method="pso"``) the box is
+   the prior's;
+3. ``polish``: Levenberg–Marquardt on the residuals from the search's best point, with a forward-difference
+   Jacobian computed in one batch call; its last Jacobian gives the 95 % intervals (Gauss–Newton covariance
+   s²(JᵀJ)⁻¹, Student t quantile).
+The GA comparators (``ga-ann``, ``aga-ann``) replace stage 2 with the same budget of model evaluations.
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..measurement.datafile import read_data_file
+from ..model.plant import Plant, load_plant
+from ..runtime import Progress
+from ..simulation.batch import BatchSimulator
+from .ann import AnnModel, FeatureLayout, load_ann
+from .criterion import (
+    JACOBIAN_RTOL,
+    JACOBIAN_STEP,
+    POLISH_RTOL,
+    SEARCH_RTOL,
+    RecordCriterion,
+    RecordData,
+    SineCriterion,
+    SineData,
+    central_jacobian,
+    intervals_from_jacobian,
+    rms,
+    sine_data,
+)
+from .features import ann_features, feature_names, from_targets, prior_box, target_jacobian
+from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
+from .methods import METHODS, NEEDS_ANN, SEARCH_NAMES
+from .prior import canonical_order, full_vectors, identified_names
+from .pso import PsoOptions, minimize_pso
+from .results import Result, Stage, result_from_estimator
+
+__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs"]
+
+MAX_POLISH_ITERATIONS = 20
+
+
+def check_method(method: str) -> None:
+    if method not in METHODS:
+        raise UserError(f"unknown method {method!r} (choose {', '.join(METHODS)})")
+
+
+class PSOANNIdentifier:
+    """PSO-ANN identification of a plant structure from stepped-sine data or records.
+
+    Estimator-style: ``__init__`` only stores its arguments, :meth:`fit` runs the stages and returns ``self``.
+
+    Parameters
+    ----------
+    structure : Plant
+        The structure to identify (order, which roots are complex, friction model); its values are the
+        centre of the prior and the fixed parameters (``fv``, ``v_smooth``).
+    ann : AnnModel, optional
+        A trained network (:func:`servofmu.load_network`); needed by ``pso-ann``, ``ga-ann`` and ``aga-ann``.
+    method : {"pso-ann", "pso", "ga-ann", "aga-ann"}
+        The paper's hybrid, the swarm alone (prior box), or the GA comparators.
+    pso : PsoOptions
+        Swarm settings (the paper's Table I by default).
+    polish : bool
+        Finish with the least-squares polish (and its intervals).
+    box : float
+        Half-width of the search box around the ANN estimate, in validation RMS errors of the network.
+    spread : float
+        Prior width for ``method="pso"`` (as in :func:`servofmu.make_training_set`).
+    seed : int
+        Seed of the search.
+    threads : int, optional
+        Threads of the batch simulator (default: all cores).
+    progress : Progress, optional
+        Called with (iterations done, iterations) during the search.
+
+    Attributes
+    ----------
+    theta_ : ndarray
+        Identified parameters in ``names_`` order.
+    names_ : list of str
+        Their names (servofmu.identification.prior.identified_names).
+    plant_ : Plant
+        The identified plant.
+    fitness_ : float
+        RMS relative output error at ``theta_``.
+    intervals_ : ndarray, shape (p, 2)
+        95 % intervals.
+    stages_ : list of Stage
+        Outcome of each stage.
+    history_ : ndarray
+        Best cost of the search per iteration.
+    seconds_, evaluations_ : float, int
+        Wall time and model evaluations of the whole fit.
+
+    Examples
+    --------
+    >>> from servofmu import PSOANNIdentifier, load_plant, read_data_file, sine_data
+    >>> est = PSOANNIdentifier(load_plant("g1"), method="pso")      # doctest: +SKIP
+    >>> est.fit(sine_data(read_data_file("g1.h5"))).plant_.poles   # doctest: +SKIP
+    ((-10.000000000...+0j),)
+    """
+
+    def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
+                 pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
+                 seed: int = 0, threads: int | None = None, progress: Progress | None = None):
+        self.structure, self.ann, self.method, self.pso = structure, ann, method, pso
+        self.polish, self.box, self.spread, self.seed = polish, box, spread, seed
+        self.threads, self.progress = threads, progress
+
+    # ---- coordinates ------------------------------------------------------------------------------------
+    def _to_theta(self, y: np.ndarray) -> np.ndarray:
+        """Target coordinates (N, p) → identified parameters (N, p) in canonical order."""
+        return canonical_order(self.structure, from_targets(self.structure, y))
+
+    # ---- stage 1: the network --------------------------------------------------------------------------
+    def _ann_estimate(self, data: SineData) -> tuple[np.ndarray, np.ndarray]:
+        """The network's estimate and its search half-width, both in target coordinates."""
+        names = identified_names(self.structure)
+        layout = FeatureLayout(feature_names=feature_names(data.amplitudes.size), parameter_names=names,
+                               plan=data.plan)
+        self.ann.layout.check_compatible(layout, self.ann.source)
+        x = ann_features(data.H[None], data.dc[None], data.amplitudes)
+        y = self.ann.network.predict(x)[0]
+        half = self.box * self.ann.network.validation_rmse * np.asarray(self.ann.network.y_scale)
+        return y, half
+
+    def ann_theta(self, data: SineData) -> np.ndarray:
+        """The network's estimate of the identified parameters (the first stage alone).
+
+        Parameters
+        ----------
+        data : SineData
+            The stepped-sine data.
+
+        Returns
+        -------
+        ndarray
+            The estimate, in ``identified_names`` order.
+        """
+        y, _ = self._ann_estimate(data)
+        return self._to_theta(y[None])[0]
+
+    # ---- stage 2: the search ----------------------------------------------------------------------------
+    def _search(self, cost, lower, upper, y0):
+        search = SEARCH_NAMES[self.method]
+        if search == "pso":
+            return search, minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=self.seed, progress=self.progress)
+        budget = self.pso.particles * (self.pso.iterations + 1)  # the swarm's number of model evaluations
+        options = GaOptions(max_evaluations=budget) if search == "ga" else AdaptiveGaOptions(max_evaluations=budget)
+        return search, minimize_ga(cost, lower, upper, options, x0=y0, seed=self.seed, progress=self.progress)
+
+    # ---- the fit ---------------------------------------------------------------------------------------
+    def _check(self, data) -> None:
+        check_method(self.method)
+        if self.method in NEEDS_ANN and self.ann is None:
+            raise UserError(f"method {self.method} needs a trained network (see `servofmu train`)")
+        if self.method in NEEDS_ANN and isinstance(data, RecordData):
+            raise UserError("the ANN works on stepped-sine data; identify records with method pso")
+
+    def fit(self, data: SineData | RecordData) -> "PSOANNIdentifier":
+        """Identify the structure's parameters from ``data``.
+
+        Parameters
+        ----------
+        data : SineData or RecordData
+            Stepped-sine data (:func:`servofmu.sine_data`) or time-domain records.
+
+        Returns
+        -------
+        PSOANNIdentifier
+            ``self``, with the fitted attributes set.
+
+        Raises
+        ------
+        UserError
+            For an unknown method, a method that needs a network given none, or a network trained for another
+            plan or structure.
+        """
+        self._check(data)
+        start = time.perf_counter()
+        simulator = BatchSimulator(self.structure, threads=self.threads)
+        crit = SineCriterion(self.structure, data, simulator) if isinstance(data, SineData) else \
+            RecordCriterion(self.structure, data, simulator)
+        self.names_ = identified_names(self.structure)
+
+        def cost(y):
+            return rms(crit.residuals(self._to_theta(y), SEARCH_RTOL))
+
+        stages = []
+        if self.method in NEEDS_ANN:
+            t0 = time.perf_counter()
+            y0, half = self._ann_estimate(data)
+            stages.append(Stage("ann", self._to_theta(y0[None])[0], float(cost(y0[None])[0]),
+                                time.perf_counter() - t0, 1))
+            lower, upper = y0 - half, y0 + half
+        else:
+            lower, upper = prior_box(self.structure, self.spread)
+            y0 = None
+
+        t0, before = time.perf_counter(), crit.evaluations
+        search, result = self._search(cost, lower, upper, y0)
+        y_best = result.position
+        stages.append(Stage(search, self._to_theta(y_best[None])[0], float(result.cost), time.perf_counter() - t0,
+                            crit.evaluations - before))
+        self.history_ = result.cost_history
+
+        if self.polish:
+            t0, before = time.perf_counter(), crit.evaluations
+            y_best, jac_y = polish(crit, self._to_theta, y_best)
+            theta = self._to_theta(y_best[None])[0]
+            r = crit.residuals(theta, POLISH_RTOL)[0]
+            stages.append(Stage("polish", theta, float(rms(r)), time.perf_counter() - t0, crit.evaluations - before))
+            # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
+            self.intervals_ = intervals_from_jacobian(theta, r, jac_y @ target_jacobian(self.structure, y_best))
+        else:
+            theta = stages[-1].theta
+            r = crit.residuals(theta, POLISH_RTOL)[0]
+            self.intervals_ = intervals_from_jacobian(theta, r, central_jacobian(crit, theta))
+        self.theta_ = stages[-1].theta
+        self.fitness_ = stages[-1].fitness
+        self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
+        self.stages_ = stages
+        self.seconds_ = time.perf_counter() - start
+        self.evaluations_ = crit.evaluations
+        return self
+
+    def result(self, provenance: dict | None = None) -> Result:
+        """The fitted identification as a :class:`servofmu.Result` (what :func:`servofmu.write_result` stores).
+
+        Parameters
+        ----------
+        provenance : dict, optional
+            Where the data came from, the command, the date: stored with the result.
+
+        Returns
+        -------
+        Result
+            The identified plant, its intervals, fitness and stages.
+        """
+        return result_from_estimator(self, self.method, dict(provenance or {}))
+
+
+# ---------------------------------------------------------------------------
+# Stage 3: the polish
+# ---------------------------------------------------------------------------
+def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg–Marquardt on ``crit``'s residuals from ``y0`` (search coordinates; ``to_theta`` maps rows of them
+    to parameters); returns the optimum and the Jacobian there (in search coordinates).
+
+    Stops when a step changes no coordinate by more than 1e-10 (relative), or when the best step lowers the
+    residual norm by less than 1 % (the features' own noise floor is reached).  The forward-difference Jacobian
+    is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
+    fails both ways ends the polish (NaN intervals rather than false ones)."""
+
+    def residual(y):
+        r = crit.residuals(to_theta(y[None]), POLISH_RTOL)[0]
+        return np.where(np.isfinite(r), r, 1e3)  # a candidate without steady state: far from the data
+
+    def jacobian(y, r):
+        h = JACOBIAN_STEP * np.maximum(np.abs(y), 1.0)
+        cols = crit.residuals(to_theta(y + np.diag(h)), JACOBIAN_RTOL)
+        failed = ~np.all(np.isfinite(cols), axis=1)
+        if failed.any():
+            h[failed] = -h[failed]
+            cols[failed] = crit.residuals(to_theta(y + np.diag(h)[failed]), JACOBIAN_RTOL)
+        return ((cols - r) / h[:, None]).T
+
+    y, r = y0.copy(), residual(y0)
+    jac, damping = jacobian(y, r), 1e-6
+    for _ in range(MAX_POLISH_ITERATIONS):
+        if not np.all(np.isfinite(jac)):
+            break
+        a, g = jac.T @ jac, jac.T @ r
+        while damping < 1e8:
+            step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
+            r_new = residual(y + step)
+            if r_new @ r_new < r @ r:
+                break
+            damping *= 10
+        else:
+            break  # no step lowers the residuals: converged
+        improvement = 1 - np.sqrt((r_new @ r_new) / (r @ r))
+        y, r, damping = y + step, r_new, max(damping / 10, 1e-9)
+        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10
+        jac = jacobian(y, r)
+        if small or improvement < 0.01:
+            break
+    return y, jac
+
+
+# ---------------------------------------------------------------------------
+# Reading what `servofmu identify` is given
+# ---------------------------------------------------------------------------
+def load_identification_inputs(data_path, structure_path, ann_path, method: str, command: str = ""):
+    """(structure, SineData | RecordData, AnnModel | None, provenance) for an identification from files.
+
+    Refuses a structure that does not match the plant the data was measured on (when the data file says which),
+    and a network trained for another plan or structure.
+    """
+    check_method(method)
+    structure = load_plant(structure_path)
+    ds = read_data_file(data_path)
+    measured = [n for n in ds.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain"))]
+    if measured and set(measured) - set(structure.parameter_names()):
+        raise UserError(f"{structure_path}: the structure ({', '.join(identified_names(structure))}) does not match "
+                        f"the plant {data_path} was measured on ({', '.join(measured)})")
+    if ds.kind == "records":
+        records = tuple((r.series.time, r.series.u, r.series.v) for r in ds.records)
+        if not records:
+            raise UserError(f"{data_path}: the file holds no records")
+        data = RecordData(records=records, source=str(data_path))
+    else:
+        if not ds.experiments:
+            raise UserError(f"{data_path}: the file holds no experiments")
+        data = sine_data(ds)
+    ann = None
+    if method in NEEDS_ANN:
+        if ann_path is None:
+            raise UserError(f"method {method} needs a trained network (made by `servofmu dataset` and "
+                            "`servofmu train`); or use method pso")
+        ann = load_ann(ann_path)
+        if list(ann.layout.parameter_names) != identified_names(structure):
+            raise UserError(f"{ann_path} estimates {', '.join(ann.layout.parameter_names)}; the structure "
+                            f"{structure_path} has {', '.join(identified_names(structure))}")
+    sha = hashlib.sha256(Path(data_path).read_bytes()).hexdigest()
+    provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
+                  "ann_file": str(ann_path) if ann_path else "", "command": command}
+    return structure, data, ann, provenance

@@ -1,0 +1,87 @@
+"""Which parameters the identifier estimates, and the prior it draws training plants from.
+
+Identified: the poles, the zeros, the gain (`dc_gain` or `gain`) and the friction levels (`fc_pos`, `fc_neg`,
+and `fs_pos`, `fs_neg`, `vs`, `sigma0`, `sigma1` where the model has them).  Fixed at the structure's values:
+`v_smooth` (a modelling choice, not a property of the machine) and `fv`: viscous friction adds a constant to
+1/G(jω), which a G with free poles and zeros absorbs exactly — G/(1 + fv·G) has as many poles and zeros as G —
+so fv cannot be told apart from G by any input-output data and is taken from the structure file.
+
+The prior (docs/identification.md): around the structure's nominal plant, every identified quantity is scaled by
+an independent log-uniform factor in [1/(1+spread), 1+spread]:
+- a real pole or zero: its magnitude (sign kept);
+- a complex pair σ ± jω: its natural frequency |σ + jω| and its damping ratio −σ/|σ + jω| (the damping ratio
+  capped at 0.95 so that the pair stays complex);
+- the gain: its magnitude;
+- each friction level; a static level is drawn as fc + (fs − fc)·factor so that fs ≥ fc holds.
+Real roots are stored in descending order (−1 before −10), so that a parameter vector names one plant only.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import UserError
+from ..model.plant import Plant
+
+__all__ = ["identified_names", "identified_mask", "full_vectors", "canonical_order", "sample_identified",
+           "FIXED_PARAMETERS"]
+
+FIXED_PARAMETERS = ("fv", "v_smooth")
+
+
+def identified_names(structure: Plant) -> list[str]:
+    return [n for n in structure.parameter_names() if n not in FIXED_PARAMETERS]
+
+
+def identified_mask(structure: Plant) -> np.ndarray:
+    return np.array([n not in FIXED_PARAMETERS for n in structure.parameter_names()])
+
+
+def full_vectors(structure: Plant, theta: np.ndarray) -> np.ndarray:
+    """Complete parameter vectors (all of parameter_names) from identified ones (rows of ``theta``)."""
+    theta = np.atleast_2d(theta)
+    full = np.tile(structure.parameter_vector(), (theta.shape[0], 1))
+    full[:, identified_mask(structure)] = theta
+    return full
+
+
+def canonical_order(structure: Plant, theta: np.ndarray) -> np.ndarray:
+    """Sort runs of real roots (poles, then zeros) in descending order in each row of ``theta``."""
+    theta = np.array(np.atleast_2d(theta), dtype=float)
+    names = identified_names(structure)
+    for prefix in ("pole", "zero"):
+        cols = [i for i, n in enumerate(names) if n.startswith(prefix) and "_" not in n]
+        if len(cols) > 1:
+            theta[:, cols] = -np.sort(-theta[:, cols], axis=1)
+    return theta
+
+
+def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Generator) -> np.ndarray:
+    """``n`` identified-parameter vectors drawn from the prior around ``structure`` (shape n × len(identified))."""
+    if not spread > 0:
+        raise UserError(f"spread must be positive, not {spread}")
+    names = identified_names(structure)
+    nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
+    log_f = np.log1p(spread)
+
+    def factor():
+        return np.exp(rng.uniform(-log_f, log_f, size=n))
+
+    out = np.empty((n, len(names)))
+    for i, name in enumerate(names):
+        if name.endswith("_im"):
+            continue  # drawn with its real part
+        if name.endswith("_re"):
+            re, im = nominal[name], nominal[name[:-3] + "_im"]
+            wn, zeta = np.hypot(re, im) * factor(), min(-re / np.hypot(re, im), 0.95) * factor()
+            zeta = np.minimum(zeta, 0.95)
+            out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
+        elif name.startswith(("fs_pos", "fs_neg")):
+            continue  # after its Coulomb level
+        else:
+            out[:, i] = nominal[name] * factor()
+    for side in ("pos", "neg"):
+        if f"fs_{side}" in names:
+            fc = out[:, names.index(f"fc_{side}")]
+            gap = nominal[f"fs_{side}"] - nominal[f"fc_{side}"]
+            out[:, names.index(f"fs_{side}")] = fc + gap * factor()
+    return canonical_order(structure, out)

@@ -1,0 +1,258 @@
+"""Identification results: RESULT.h5 (layout in docs/hdf5.md), the `--json` object and the paper's tables."""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..fileio import check_format, check_output_path, open_hdf5, write_hdf5
+from ..model.plant import Plant, plant_from_dict
+from .prior import full_vectors, identified_names
+
+__all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
+           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json"]
+
+FORMAT = "servofmu-result"
+COMPARE_FORMAT = "servofmu-comparison"
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of an identification: its name, the parameters it ended with (``theta``, may be None when read
+    back from a file, which stores only the last stage's), its fitness, wall time and model evaluations."""
+
+    name: str
+    theta: np.ndarray | None
+    fitness: float
+    seconds: float
+    evaluations: int
+
+
+@dataclass(frozen=True)
+class Result:
+    """One identification: the identified plant and how it was obtained.
+
+    theta, intervals (p,), (p, 2): identified parameters in ``names`` order and their 95 % intervals;
+    stages: one :class:`Stage` per stage; history: the search's best cost per iteration.
+    """
+
+    method: str
+    structure: Plant
+    plant: Plant
+    names: tuple[str, ...]
+    theta: np.ndarray
+    intervals: np.ndarray
+    fitness: float
+    seconds: float
+    evaluations: int
+    stages: tuple[Stage, ...]
+    history: np.ndarray
+    provenance: dict
+
+
+def result_from_estimator(est, method: str, provenance: dict) -> Result:
+    """The Result of a fitted :class:`servofmu.PSOANNIdentifier` (``method`` and ``provenance`` as stored)."""
+    return Result(method=method, structure=est.structure, plant=est.plant_, names=tuple(est.names_),
+                  theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
+                  seconds=float(est.seconds_), evaluations=int(est.evaluations_),
+                  stages=tuple(est.stages_),
+                  history=np.asarray(est.history_), provenance=dict(provenance))
+
+
+# ---------------------------------------------------------------------------
+# JSON
+# ---------------------------------------------------------------------------
+def _pairs(roots) -> list[list[float]]:
+    return [[float(r.real), float(r.imag)] for r in roots]
+
+
+def parameters_json(plant: Plant) -> dict:
+    fr = plant.friction.values()
+    dc = None
+    if not any(p == 0 for p in plant.all_poles()):
+        num, den = plant.transfer_function()
+        dc = float(num[-1] / den[-1])
+    return {"poles": _pairs(plant.all_poles()), "zeros": _pairs(plant.all_zeros()), "dc_gain": dc,
+            "gain": plant.numerator_gain(), "friction": {"model": plant.friction.model, **fr}}
+
+
+def to_json(result: Result) -> dict:
+    return {"method": result.method, "parameters": parameters_json(result.plant), "fitness": result.fitness,
+            "seconds": result.seconds,
+            "intervals": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(result.names, result.intervals)},
+            "evaluations": result.evaluations,
+            "stages": [{"stage": s.name, "fitness": s.fitness, "seconds": s.seconds, "evaluations": s.evaluations}
+                       for s in result.stages]}
+
+
+def to_json_text(result: Result) -> str:
+    return json.dumps(to_json(result), allow_nan=True)
+
+
+# ---------------------------------------------------------------------------
+# The paper's tables
+# ---------------------------------------------------------------------------
+def paper_rows(plant: Plant) -> list[tuple[str, str]]:
+    """(row label, value) in the layout of the paper's Table II (first order) or Table III (roots)."""
+    rows = []
+    if plant.order == 1 and not plant.zeros:
+        rows.append(("pole", f"{plant.all_poles()[0].real:.6g}"))
+        rows.append(("constant", f"{plant.numerator_gain():.6g}"))
+    else:
+        for i, r in enumerate(plant.all_poles(), 1):
+            rows.append((f"root {i}", _complex(r)))
+        for i, z in enumerate(plant.all_zeros(), 1):
+            rows.append((f"zero {i}", _complex(z)))
+    p = parameters_json(plant)
+    rows.append(("DC gain", f"{p['dc_gain']:.6g}" if p["dc_gain"] is not None else "—"))
+    fr = plant.friction
+    rows += [("Fc+", f"{fr.fc_pos:.6g}"), ("Fc−", f"{fr.fc_neg:.6g}")]
+    for key, label in (("fs_pos", "Fs+"), ("fs_neg", "Fs−"), ("vs", "vs"), ("sigma0", "σ0"), ("sigma1", "σ1")):
+        if getattr(fr, key) is not None and key in fr.keys():
+            rows.append((label, f"{getattr(fr, key):.6g}"))
+    return rows
+
+
+def _complex(z: complex) -> str:
+    if z.imag == 0:
+        return f"{z.real:.6g}"
+    return f"{z.real:.6g} {'+' if z.imag > 0 else '−'} {abs(z.imag):.6g}j"
+
+
+def table_text(result: Result, truth: Plant | None = None) -> str:
+    """A plain-text table: parameter, identified value (and truth), then fitness and time."""
+    rows = paper_rows(result.plant)
+    truth_rows = dict(paper_rows(truth)) if truth is not None else {}
+    width = max(len(r[0]) for r in rows) + 2
+    head = f"{'parameter':<{width}}{'identified':>24}" + (f"{'target':>24}" if truth is not None else "")
+    lines = [head, "-" * len(head)]
+    for label, value in rows:
+        lines.append(f"{label:<{width}}{value:>24}" + (f"{truth_rows.get(label, ''):>24}" if truth else ""))
+    lines.append("")
+    lines.append(f"method {result.method}; fitness (RMS relative output error) {result.fitness:.3e}; "
+                 f"{result.seconds:.2f} s; {result.evaluations} model evaluations")
+    for s in result.stages:
+        lines.append(f"  stage {s.name:<7} fitness {s.fitness:.3e}  {s.seconds:7.3f} s  {s.evaluations} evaluations")
+    lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
+                                              for n, (lo, hi) in zip(result.names, result.intervals)))
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------
+# RESULT.h5
+# ---------------------------------------------------------------------------
+def _fill(group, result: Result) -> None:
+    group.attrs.update({"method": result.method, "structure_toml": result.structure.to_toml(),
+                        "plant_toml": result.plant.to_toml(), "fitness": result.fitness, "seconds": result.seconds,
+                        "evaluations": result.evaluations, "provenance": json.dumps(result.provenance)})
+    group.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
+    group.create_dataset("theta", data=result.theta)
+    group.create_dataset("intervals", data=result.intervals)
+    group.create_dataset("history", data=result.history)
+    st = group.create_group("stages")
+    st.create_dataset("name", data=np.array([s.name for s in result.stages], dtype=h5py.string_dtype()))
+    st.create_dataset("fitness", data=np.array([s.fitness for s in result.stages]))
+    st.create_dataset("seconds", data=np.array([s.seconds for s in result.stages]))
+    st.create_dataset("evaluations", data=np.array([s.evaluations for s in result.stages]))
+
+
+def write_result(path: str | Path, result: Result) -> Path:
+    """Write an identification result (RESULT.h5, layout in docs/hdf5.md), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write.
+    result : Result
+        The result (:meth:`servofmu.PSOANNIdentifier.result`).
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    UserError
+        When the file cannot be written.
+    """
+    def fill(f):
+        f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__})
+        _fill(f, result)
+
+    return write_hdf5(check_output_path(path), fill)
+
+
+def write_comparison(path: str | Path, results: dict[str, Result]) -> Path:
+    """COMPARE.h5: one group per method under /methods, each laid out like a RESULT.h5 root."""
+    def fill(f):
+        f.attrs.update({"format": COMPARE_FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
+                        "methods": json.dumps(list(results))})
+        for method, result in results.items():
+            _fill(f.create_group(f"methods/{method}"), result)
+
+    return write_hdf5(check_output_path(path), fill)
+
+
+def _read(group, path: Path) -> Result:
+    a = dict(group.attrs)
+    names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in group["names"][()])
+    st = group["stages"]
+    stages = tuple(Stage(n.decode() if isinstance(n, bytes) else str(n), None, float(fi), float(se), int(ev))
+                   for n, fi, se, ev in zip(st["name"][()], st["fitness"][()], st["seconds"][()],
+                                            st["evaluations"][()]))
+    structure = plant_from_dict(tomllib.loads(a["structure_toml"]), source=f"{path}:structure")
+    if list(names) != identified_names(structure):
+        raise UserError(f"{path}: parameter names do not match its structure")
+    theta = np.asarray(group["theta"][()], dtype=float)
+    plant = structure.with_parameters(full_vectors(structure, theta)[0])
+    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta, intervals=group["intervals"][()], fitness=float(a["fitness"]),
+                  seconds=float(a["seconds"]), evaluations=int(a["evaluations"]), stages=stages,
+                  history=group["history"][()], provenance=json.loads(a["provenance"]))
+
+
+def read_results(path: str | Path) -> dict[str, Result]:
+    """RESULT.h5 (one entry, keyed by its method) or COMPARE.h5 (one per method)."""
+    path = Path(path)
+    try:
+        with open_hdf5(path, "result file") as f:
+            kind, _ = check_format(f, path, (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, "result or comparison file")
+            if kind == FORMAT:
+                result = _read(f, path)
+                return {result.method: result}
+            return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
+    except UserError:
+        raise
+    except (OSError, KeyError, ValueError, tomllib.TOMLDecodeError) as exc:
+        raise UserError(f"{path}: not a readable result file ({str(exc).splitlines()[0]})") from exc
+
+
+def read_result(path: str | Path) -> Result:
+    """Read an identification result.
+
+    Parameters
+    ----------
+    path : str or Path
+        A result file (RESULT.h5) written by ``servofmu identify`` or :func:`write_result`.
+
+    Returns
+    -------
+    Result
+        The identified plant, its parameters and intervals, fitness, stages and provenance.
+
+    Raises
+    ------
+    UserError
+        For a missing, foreign, newer or damaged file, or a comparison file of several methods.
+    """
+    results = read_results(path)
+    if len(results) != 1:
+        raise UserError(f"{path}: holds a comparison of {len(results)} methods, not one result")
+    return next(iter(results.values()))

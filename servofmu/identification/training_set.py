@@ -1,0 +1,186 @@
+"""Training sets for the ANN (`servofmu dataset`): plants drawn around a structure, simulated under a
+measurement's plan, written to DS.h5 (layout in docs/hdf5.md).  This is what "dataset" means in servofmu; a
+measurement or records file is a *data file* (servofmu.measurement.datafile).
+"""
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError, check_int
+from ..fileio import check_format, check_output_path, open_hdf5, write_hdf5
+from ..model.plant import Plant, plant_from_dict
+from ..runtime import Progress
+from ..simulation.batch import BatchSimulator, SteadyStateOptions
+from ..simulation.parallel import WorkerResource, Workers
+from .criterion import SineData
+from .prior import full_vectors, identified_names, sample_identified
+
+__all__ = ["TrainingSet", "make_training_set", "load_training_set", "TRAINING_RTOL"]
+
+FORMAT = "servofmu-training-set"
+SCHEMA_VERSION = 1
+CHUNK = 250  # parameter sets per write: a killed run loses at most this much work
+# Integrator tolerance of training sets: features to ~1e-5 (docs/bench-batch.md), far below what an ANN with
+# validation errors near 1e-3 can use, and ~3x faster than 1e-8.
+TRAINING_RTOL = 1e-6
+
+
+# ---------------------------------------------------------------------------
+# DS.h5
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrainingSet:
+    """A training set read back.  parameters (N, p) in identified_names order; H, dc, converged (N, n_exp)."""
+
+    path: Path
+    structure: Plant
+    amplitudes: np.ndarray
+    frequencies: np.ndarray
+    parameters: np.ndarray
+    H: np.ndarray
+    dc: np.ndarray
+    converged: np.ndarray
+    done: np.ndarray
+    attributes: dict
+
+    @property
+    def plan(self) -> np.ndarray:
+        return np.vstack([self.amplitudes, self.frequencies])
+
+    def usable(self) -> np.ndarray:
+        """Rows simulated with every experiment at steady state."""
+        return self.done & np.all(self.converged, axis=1) & np.all(np.isfinite(self.H), axis=1)
+
+
+def _write(path: Path, arrays: dict, attrs: dict) -> None:
+    """Write the whole training set anew (a killed run leaves the previous file or this one)."""
+    units = {"H_re": "m/(N.s)", "H_im": "m/(N.s)", "dc": "m/s", "amplitudes": "N", "frequencies": "Hz"}
+
+    def fill(f):
+        f.attrs.update(attrs)
+        for name, a in arrays.items():
+            kw = {"chunks": True, "compression": "gzip", "shuffle": True} if a.size > 64 else {}
+            f.create_dataset(name, data=a, **kw).attrs["unit"] = units.get(name, "1")
+
+    write_hdf5(path, fill)
+
+
+def load_training_set(path: str | Path) -> TrainingSet:
+    """Read a training set written by :func:`make_training_set`; anything else is refused naming the file."""
+    import tomllib
+
+    path = Path(path)
+    try:
+        with open_hdf5(path, "training set") as f:
+            check_format(f, path, FORMAT, SCHEMA_VERSION, "training set")
+            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            arrays = {k: f[k][()] for k in ("amplitudes", "frequencies", "parameters", "H_re", "H_im", "dc",
+                                             "converged", "done")}
+    except UserError:
+        raise
+    except (OSError, KeyError) as exc:
+        raise UserError(f"{path}: not a readable training set ({exc})") from exc
+    structure = plant_from_dict(tomllib.loads(attrs["structure_toml"]), source=f"{path}:structure")
+    return TrainingSet(path=path, structure=structure, amplitudes=arrays["amplitudes"],
+                       frequencies=arrays["frequencies"], parameters=arrays["parameters"],
+                       H=arrays["H_re"] + 1j * arrays["H_im"], dc=arrays["dc"],
+                       converged=arrays["converged"].astype(bool), done=arrays["done"].astype(bool), attributes=attrs)
+
+
+def _simulate_chunk(simulator, item):
+    """Worker task: features of one chunk of parameter sets (full vectors)."""
+    params, amps, freqs, rtol = item
+    feats = simulator.steady_state(params, amps, freqs, SteadyStateOptions(rtol=rtol))
+    return feats.H, feats.dc, feats.converged
+
+
+def make_training_set(structure: Plant, data: SineData, samples: int, output: str | Path, spread: float = 0.5,
+                      seed: int = 0, resume: bool = False, scheduler: str | None = None, rtol: float = TRAINING_RTOL,
+                      command: str = "", progress: Progress | None = None) -> TrainingSet:
+    """Draw plants around a structure, simulate them under a measurement's plan and write the training set.
+
+    Parameters
+    ----------
+    structure : Plant
+        The structure (order, friction model) and the centre of the prior.
+    data : SineData
+        The measurement whose plan (amplitudes, frequencies) the plants are simulated under.
+    samples : int
+        Number of plants.
+    output : str or Path
+        The training set (HDF5) to write; rewritten after every chunk, so a killed run loses little.
+    spread : float
+        Prior width: every identified quantity is scaled by a log-uniform factor in [1/(1+spread), 1+spread].
+    seed : int
+        Seed of the prior draw.
+    resume : bool
+        Complete an existing ``output`` made with the same arguments instead of starting again.
+    scheduler : str, optional
+        A Dask scheduler address; default: this machine, all cores.
+    rtol : float
+        Integrator tolerance of the batch simulator.
+    command : str
+        The command line, for provenance.
+    progress : Progress, optional
+        Called with (plants done, samples).
+
+    Returns
+    -------
+    TrainingSet
+        The file read back.
+
+    Raises
+    ------
+    UserError
+        For bad arguments, or a ``resume`` of a file made with other arguments.
+    """
+    check_int("samples", samples, 1)
+    check_int("seed", seed, 0)
+    output = check_output_path(output, overwrite=resume)
+    theta = sample_identified(structure, samples, spread, np.random.default_rng(seed))
+    full = full_vectors(structure, theta)
+    attrs = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "structure_toml": structure.to_toml(),
+             "parameter_names": json.dumps(identified_names(structure)), "spread": spread, "seed": seed,
+             "samples": samples, "data_file": data.source, "rtol": rtol, "package_version": __version__,
+             "command": command or " ".join(sys.argv)}
+    n_exp = data.amplitudes.size
+    arrays = {"amplitudes": data.amplitudes, "frequencies": data.frequencies, "parameters": theta,
+              "H_re": np.full((samples, n_exp), np.nan), "H_im": np.full((samples, n_exp), np.nan),
+              "dc": np.full((samples, n_exp), np.nan), "converged": np.zeros((samples, n_exp), np.uint8),
+              "done": np.zeros(samples, np.uint8)}
+    if resume and output.exists():
+        old = load_training_set(output)
+        same = (old.parameters.shape == theta.shape and np.array_equal(old.parameters, theta)
+                and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml())
+        if not same:
+            raise UserError(f"{output}: made with other arguments (structure, plan, samples, spread or seed); "
+                            "cannot resume it")
+        for k, v in (("H_re", old.H.real), ("H_im", old.H.imag), ("dc", old.dc),
+                     ("converged", old.converged.astype(np.uint8)), ("done", old.done.astype(np.uint8))):
+            arrays[k][...] = v
+    todo = np.flatnonzero(arrays["done"] == 0)
+    chunks = [todo[i:i + CHUNK] for i in range(0, len(todo), CHUNK)]
+    _write(output, arrays, attrs)
+    done = samples - len(todo)
+    if progress:
+        progress(done, samples)
+    workers = Workers(scheduler=scheduler, workers=0) if scheduler is None else Workers(scheduler=scheduler)
+    resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
+    items = [(full[rows], data.amplitudes, data.frequencies, rtol) for rows in chunks]
+    with workers:
+        for i, (H, dc, conv) in workers.imap(_simulate_chunk, items, resource=resource):
+            rows = chunks[i]
+            arrays["H_re"][rows], arrays["H_im"][rows], arrays["dc"][rows] = H.real, H.imag, dc
+            arrays["converged"][rows], arrays["done"][rows] = conv, 1
+            _write(output, arrays, attrs)
+            done += len(rows)
+            if progress:
+                progress(done, samples)
+    return load_training_set(output)

@@ -1,0 +1,433 @@
+"""Stepped-sine measurement of an FMU into a data file (docs/measurement.md).
+
+For every (amplitude m, frequency f) of the plan the FMU runs in Co-Simulation from rest with the input
+m·sin(2πft) until the response is periodic — detected from the signal: the first harmonic and the mean
+of the last periods change by less than ``threshold`` — and then for ``window_periods`` more periods,
+sampled finely, from which H = V1/U1, the DC component and the distortion are computed (servofmu.measurement.frf).
+
+Our FMUs have the excitation built in (parameters excitation_amplitude/excitation_frequency): the solver
+sees the exact sine.  Any other FMU is driven through its input port, held for one sample interval at a
+time (the value at the middle of the interval); U1 is then the first harmonic of that staircase and the
+stored ``hold_error`` is its relative deviation from the sine.
+
+Each worker extracts and instantiates the FMU once (FmuRunner) and resets it between experiments.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import platform
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..fileio import check_output_path
+from ..runtime import Progress, utc_now
+from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
+from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
+from ..simulation.parallel import WorkerResource, Workers
+from .datafile import ExperimentResult, Series, add_experiments, create_measurement, mark_complete, read_data_file
+from .excitation import DEFAULT_AMPLITUDES, ExperimentSpec, Plan, corner_frequency, default_frequencies
+from .frf import HARMONICS, SteadyStateDetector, harmonics
+
+__all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "estimate_bandwidth", "check_fmu"]
+
+SOLVER = "the FMU's own Co-Simulation solver (servofmu FMUs: adaptive RODAS4), driven through FMPy"
+REAL_TYPES = ("Real", "Float64")
+
+
+@dataclass(frozen=True)
+class MeasureOptions:
+    """How experiments are run and analysed (all stored in the file's provenance).
+
+    Parameters
+    ----------
+    input, output : str
+        The FMU's input variable (driven when the FMU has no built-in excitation) and output variable.
+    tolerance : float
+        Relative tolerance passed to the FMU's solver.
+    samples_per_period, settle_samples_per_period : int
+        Sampling of the analysed window (and of the input hold), and while waiting for steady state.
+    window_periods : int
+        Whole periods analysed after steady state.
+    threshold, consecutive, min_periods : float, int, int
+        Steady state: the first harmonic and mean change by less than ``threshold`` per period, for
+        ``consecutive`` periods in a row, after at least ``min_periods``.
+    max_time : float
+        Simulated seconds before an experiment counts as not settled.
+    harmonics : int
+        Highest harmonic kept for the distortion.
+    noise_snr_db, seed : float, int, optional
+        Measurement noise on v at this SNR (stored beside the clean signal), and its seed.
+    """
+
+    input: str = "u"                  # FMU input variable (driven when the FMU has no built-in excitation)
+    output: str = "v"                 # FMU output variable
+    tolerance: float = 1e-12          # relative tolerance passed to the FMU's solver
+    samples_per_period: int = 8192    # window sampling (and input hold) per period
+    settle_samples_per_period: int = 64  # sampling while waiting for steady state (built-in excitation)
+    window_periods: int = 1           # whole periods analysed after steady state
+    threshold: float = 1e-10          # steady state: relative change of S1 and mean per period below this ...
+    consecutive: int = 2              # ... for this many periods in a row
+    min_periods: int = 3
+    max_time: float = 60.0            # s of simulated time before giving up on a steady state
+    harmonics: int = HARMONICS
+    noise_snr_db: float | None = None  # optional measurement noise on v, stored beside the clean signal
+    seed: int | None = None
+
+    def validate(self) -> "MeasureOptions":
+        if not 0 < self.tolerance < 1:
+            raise UserError(f"tolerance must be in (0, 1), not {self.tolerance:g}")
+        if self.samples_per_period < 16 or self.settle_samples_per_period < 8:
+            raise UserError("samples per period must be at least 16 (window) and 8 (settling)")
+        if self.window_periods < 1 or self.consecutive < 1 or self.min_periods < 2:
+            raise UserError("window_periods and consecutive must be at least 1, min_periods at least 2")
+        if not self.threshold > 0:
+            raise UserError(f"threshold must be positive, not {self.threshold:g}")
+        if not (math.isfinite(self.max_time) and self.max_time > 0):
+            raise UserError(f"max_time must be a positive number of seconds, not {self.max_time:g}")
+        if self.noise_snr_db is not None and not math.isfinite(self.noise_snr_db):
+            raise UserError(f"noise_snr_db must be a finite number of dB, not {self.noise_snr_db}")
+        if self.seed is not None and self.seed < 0:
+            raise UserError(f"seed must be 0 or positive, not {self.seed}")
+        return self
+
+
+# ---------------------------------------------------------------------------
+# One experiment (runs in a worker)
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Job:
+    spec: ExperimentSpec
+    options: MeasureOptions
+
+
+class _Periods:
+    """Runs whole periods of one experiment on a started FMU and keeps the last output value."""
+
+    def __init__(self, runner: FmuRunner, spec: ExperimentSpec, opt: MeasureOptions):
+        self.runner, self.m, self.f = runner, spec.amplitude, spec.frequency
+        if runner.builtin:
+            self.settle_samples = opt.settle_samples_per_period
+            runner.start(opt.tolerance, {runner.input_name: 0.0, EXCITATION[0]: self.m, EXCITATION[1]: self.f})
+        else:
+            self.settle_samples = opt.samples_per_period  # the input is held per sample: one sampling throughout
+            runner.start(opt.tolerance, {runner.input_name: 0.0})
+        self.last = runner.value()
+
+    def times(self, period: int, i, n: int):
+        """Sample times from integers, so that period boundaries are the same number however they are reached."""
+        return (period + np.asarray(i) / n) / self.f
+
+    def excitation(self, t: np.ndarray, n: int) -> np.ndarray:
+        """Built-in: the exact sine; input port: the held value (the sine at the middle of the interval)."""
+        return self.m * np.sin(2 * np.pi * self.f * (t if self.runner.builtin else t + 0.5 / (n * self.f)))
+
+    def run(self, period: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Period ``period`` sampled ``n`` times: times and outputs (n + 1 values, both ends included)."""
+        t = self.times(period, np.arange(n + 1), n)
+        v = np.empty(n + 1)
+        v[0] = self.last
+        held = self.excitation(t, n)
+        for i in range(n):
+            if not self.runner.builtin:
+                self.runner.set_input(float(held[i]))
+            v[i + 1] = self.runner.step(t[i], t[i + 1] - t[i])
+        self.last = v[-1]
+        return t, v
+
+
+def _settle(periods: _Periods, opt: MeasureOptions) -> tuple[Series, int, SteadyStateDetector]:
+    """Periods until the response is periodic (or max_time); the decimated transient, the number of periods."""
+    n = periods.settle_samples
+    detector = SteadyStateDetector(periods.f, threshold=opt.threshold, consecutive=opt.consecutive)
+    max_periods = max(opt.min_periods, int(math.ceil(opt.max_time * periods.f)))
+    keep = max(1, n // opt.settle_samples_per_period)  # decimation of the stored transient
+    trans_t, trans_v = [np.array([0.0])], [np.array([periods.last])]
+    period = 0
+    while period < max_periods:
+        t, v = periods.run(period, n)
+        detector.add_period(t, v)
+        trans_t.append(t[keep::keep])
+        trans_v.append(v[keep::keep])
+        period += 1
+        if period >= opt.min_periods and detector.converged:
+            break
+    tt = np.concatenate(trans_t)
+    return Series(time=tt, u=periods.excitation(tt, n), v=np.concatenate(trans_v)), period, detector
+
+
+def _window(periods: _Periods, first: int, opt: MeasureOptions) -> Series:
+    """The analysed window: ``window_periods`` periods from period ``first``, finely sampled."""
+    n = opt.samples_per_period
+    window_t, window_v = [], []
+    for p in range(first, first + opt.window_periods):
+        t, v = periods.run(p, n)
+        window_t.append(t if not window_t else t[1:])
+        window_v.append(v if not window_v else v[1:])
+    wt = np.concatenate(window_t)
+    return Series(time=wt, u=periods.excitation(wt, n), v=np.concatenate(window_v))
+
+
+def run_experiment(runner: FmuRunner, job: Job) -> ExperimentResult:
+    """Run one experiment to steady state and analyse its window (a pure function of job and FMU)."""
+    spec, opt = job.spec, job.options
+    periods = _Periods(runner, spec, opt)
+    transient, settled_periods, detector = _settle(periods, opt)
+    window = _window(periods, settled_periods, opt)
+    runner.finish()
+    start = float(periods.times(settled_periods, 0, 1))
+    h = harmonics(window.time, window.v, spec.frequency, start=start, periods=opt.window_periods,
+                  n_harmonics=opt.harmonics)
+    if runner.builtin:
+        u1, hold_error = complex(spec.amplitude), 0.0
+    else:
+        # first harmonic of the midpoint-held staircase; its rms deviation from the sine, relative
+        sinc = float(np.sinc(1.0 / opt.samples_per_period))
+        u1, hold_error = complex(spec.amplitude * sinc), math.sqrt(2 * (1 - sinc))
+    noise = {}
+    if opt.noise_snr_db is not None:
+        transient, window, noise = _add_noise(transient, window, opt, spec, u1, start)
+    return ExperimentResult(
+        index=spec.index, amplitude=spec.amplitude, frequency=spec.frequency,
+        excitation="builtin" if runner.builtin else "input",
+        U1=u1, V1=h.first, H=h.first / u1, dc=h.dc, harmonics=h.phasors, distortion=h.distortion,
+        converged=detector.converged, settling_time=start, last_change=detector.last_change,
+        remaining_error=detector.remaining_error, window_start=start, window_periods=opt.window_periods,
+        samples_per_period=opt.samples_per_period, hold_error=hold_error, transient=transient, window=window,
+        **noise)
+
+
+def _add_noise(transient: Series, window: Series, opt: MeasureOptions, spec: ExperimentSpec, u1: complex,
+               start: float):
+    """White Gaussian noise on v at the given SNR (power of v's variation over the window / noise power);
+    the generator is seeded with (seed, experiment index), so the noise does not depend on which worker
+    runs the experiment."""
+    rng = np.random.default_rng([opt.seed or 0, spec.index])  # seed None (library use) means 0
+    sigma = math.sqrt(float(np.var(window.v)) / 10 ** (opt.noise_snr_db / 10))
+    tn = transient.v + sigma * rng.standard_normal(transient.v.shape)
+    wn = window.v + sigma * rng.standard_normal(window.v.shape)
+    h = harmonics(window.time, wn, spec.frequency, start=start, periods=opt.window_periods, n_harmonics=1)
+    return (Series(transient.time, transient.u, transient.v, v_noisy=tn),
+            Series(window.time, window.u, window.v, v_noisy=wn),
+            dict(noise_sigma=sigma, H_noisy=h.first / u1, dc_noisy=h.dc))
+
+
+def run_step_response(runner: FmuRunner, amplitude: float, tolerance: float, max_time: float = 1000.0):
+    """v(t) after a step of ``amplitude`` on the input at t = 0, long enough to be settled
+    (the horizon grows ×4 from 1 s until the last quarter varies by < 2 % and the 63 % point is early)."""
+    values = {runner.input_name: amplitude}
+    if runner.builtin:
+        values[EXCITATION[0]] = 0.0
+    runner.start(tolerance, values)
+    ts, vs = [0.0], [runner.value()]
+    horizon, t = 1.0, 0.0
+    while True:
+        grid = np.linspace(t, horizon, 1001)[1:]
+        for tn in grid:
+            vs.append(runner.step(t, tn - t))
+            ts.append(tn)
+            t = tn
+        tt, vv = np.asarray(ts), np.asarray(vs)
+        tail = vv[tt >= 0.75 * horizon]
+        final = float(np.mean(tail))
+        spread = float(np.max(tail) - np.min(tail))
+        early = np.any(np.abs(vv[tt <= 0.25 * horizon]) >= (1 - math.exp(-1)) * abs(final))
+        if abs(final) > 0 and spread < 0.02 * abs(final) and early:
+            runner.finish()
+            return tt, vv
+        if horizon >= max_time:
+            runner.finish()
+            raise UserError(f"{runner.name}: the step response of {runner.output_name!r} does not settle within "
+                            f"{max_time:g} s: cannot estimate the bandwidth (give the frequencies)")
+        horizon *= 4
+
+
+# ---------------------------------------------------------------------------
+# The whole measurement (main process)
+# ---------------------------------------------------------------------------
+def check_fmu(info: FmuInfo, options: MeasureOptions) -> None:
+    """The FMU can be measured: Co-Simulation, a real input and a real output of the given names."""
+    if "cs" not in info.interfaces:
+        raise UserError(f"{info.path}: the FMU has no Co-Simulation interface (measure needs one)")
+    for role, name in (("input", options.input), ("output", options.output)):
+        var = info.variables.get(name)
+        if var is None:
+            reals = sorted(n for n, v in info.variables.items()
+                           if v.type in REAL_TYPES and v.causality == role)
+            raise UserError(f"{info.path}: the FMU has no variable named {name!r} (its real {role}s: "
+                            f"{', '.join(reals) or 'none'})")
+        if var.type not in REAL_TYPES:
+            raise UserError(f"{info.path}: variable {name!r} is of type {var.type}, not a real number")
+        if role == "input" and var.causality != "input":
+            raise UserError(f"{info.path}: variable {name!r} has causality {var.causality}, not input")
+
+
+def fmu_parameters(info: FmuInfo) -> dict[str, float]:
+    """Start values of the FMU's real parameters (what it runs with unless measure sets them)."""
+    out = {}
+    for name, var in info.variables.items():
+        if var.causality == "parameter" and var.type in REAL_TYPES and var.start is not None:
+            try:
+                out[name] = float(var.start)
+            except (TypeError, ValueError):
+                continue
+    return out
+
+
+# Provenance entries that must agree for a resumed run to continue a file.
+RESUME_KEYS = ("fmu_sha256", "input", "output", "excitation", "tolerance", "samples_per_period",
+               "settle_samples_per_period", "window_periods", "threshold", "consecutive", "min_periods",
+               "max_time", "harmonics", "noise_snr_db", "seed")
+
+
+def provenance_for(info: FmuInfo, sha: str, options: MeasureOptions, command: str, frequency_source: str) -> dict:
+    import fmpy
+    import h5py
+
+    opts = asdict(options)
+    prov = {
+        "package": "servofmu", "package_version": __version__, "command": command,
+        "created": utc_now(), "fmu_file": info.path.name, "fmu_sha256": sha, "fmu_model_name": info.model_name,
+        "fmi_version": info.fmi_version, "interface": "CoSimulation", "solver": SOLVER,
+        "excitation": "builtin" if info.has_builtin_excitation else "input",
+        "frequency_source": frequency_source,
+        "python": platform.python_version(), "fmpy_version": fmpy.__version__, "numpy_version": np.__version__,
+        "h5py_version": h5py.__version__,
+    }
+    prov.update({k: v for k, v in opts.items() if v is not None})
+    return prov
+
+
+
+def _check_resume(path: Path, existing, prov: dict, plan: Plan) -> None:
+    if existing.kind != "measurement":
+        raise UserError(f"{path}: is a {existing.kind} file, not a measurement to resume")
+    for key in RESUME_KEYS:
+        old, new = existing.provenance.get(key), prov.get(key)
+        if isinstance(old, float) or isinstance(new, float):
+            same = old is not None and new is not None and float(old) == float(new)
+        else:
+            same = old == new
+        if not same:
+            what = "a different FMU" if key == "fmu_sha256" else f"{key} = {old}, not {new}"
+            raise UserError(f"{path}: cannot resume: it was measured with {what}")
+    if existing.plan != plan:
+        raise UserError(f"{path}: cannot resume: its plan is amplitudes {_fmt(existing.plan.amplitudes)} × "
+                        f"frequencies {_fmt(existing.plan.frequencies)}, not {_fmt(plan.amplitudes)} × "
+                        f"{_fmt(plan.frequencies)}")
+
+
+def _fmt(values) -> str:
+    return ",".join(f"{v:g}" for v in values)
+
+
+def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: float) -> float:
+    """The plant's bandwidth (Hz) from its step response (excitation.corner_frequency)."""
+    runner = factory()
+    try:
+        t, v = run_step_response(runner, amplitude, tolerance)
+    finally:
+        runner.close()
+    return corner_frequency(t, v)
+
+
+def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=None,
+            options: MeasureOptions | None = None, scheduler: str | None = None, workers: int | None = None,
+            resume: bool = False, command: str = "", progress: Progress | None = None,
+            warn: Callable[[str], None] | None = None):
+    """Stepped-sine measurement of an FMU into a data file.
+
+    For every (amplitude, frequency) the FMU runs in Co-Simulation from rest until its response is periodic; the
+    first harmonics of a finely sampled window are stored with the time series.
+
+    Parameters
+    ----------
+    fmu : str or Path
+        A Co-Simulation FMU with a real input and output (servofmu's or any other).
+    output : str or Path
+        The data file (HDF5) to write; it grows experiment by experiment, so a killed run loses little.
+    amplitudes : sequence of float, optional
+        Excitation amplitudes (N); default the paper's 2.0 and 0.6.
+    frequencies : sequence of float, optional
+        Frequencies (Hz); default a 1-2-5 grid around the bandwidth estimated from a step response (or, when
+        resuming, the file's).
+    options : MeasureOptions, optional
+        Variable names, tolerances, sampling, noise.
+    scheduler : str, optional
+        A Dask scheduler address; default local worker processes.
+    workers : int, optional
+        Local worker processes (default one per core; 0: this process).
+    resume : bool
+        Continue an existing ``output`` where an interrupted run stopped.
+    command : str
+        The command line, for provenance.
+    progress : Progress, optional
+        Called with (experiments stored, experiments) after every stored experiment.
+    warn : callable, optional
+        ``warn(text)`` for experiments that did not reach a steady state.
+
+    Returns
+    -------
+    DataFile
+        The data file read back.
+
+    Raises
+    ------
+    UserError
+        For an unusable FMU, bad options, an existing output (without ``resume``), or a failing simulation.
+    """
+    options = (options or MeasureOptions()).validate()
+    if options.noise_snr_db is not None and options.seed is None:
+        options = replace(options, seed=0)  # recorded in the provenance like a given seed
+    out = check_output_path(output)
+    existing = None
+    if out.exists():
+        if not resume:
+            raise UserError(f"{out}: exists already (resume it, or choose another name)")
+        existing = read_data_file(out)
+    info = read_fmu(fmu)
+    check_fmu(info, options)
+    data = info.path.read_bytes()
+    sha = hashlib.sha256(data).hexdigest()
+    factory = FmuRunnerFactory(data=data, name=info.path.name, input=options.input, output=options.output)
+
+    if amplitudes is None:
+        amplitudes = existing.plan.amplitudes if existing is not None and existing.plan else DEFAULT_AMPLITUDES
+    amplitudes = Plan(tuple(amplitudes), (1.0,)).amplitudes  # validates
+    if frequencies is not None:
+        source = "given"
+    elif existing is not None and existing.plan:
+        frequencies, source = existing.plan.frequencies, existing.provenance.get("frequency_source", "given")
+    else:
+        bandwidth = estimate_bandwidth(factory, max(amplitudes), options.tolerance)
+        frequencies = default_frequencies(bandwidth)
+        source = f"1-2-5 grid over 0.25..15 x the bandwidth {bandwidth:.6g} Hz estimated from a step response"
+    plan = Plan(tuple(amplitudes), tuple(frequencies))
+    prov = provenance_for(info, sha, options, command, source)
+    if existing is not None:
+        _check_resume(out, existing, prov, plan)
+    todo = existing.missing() if existing is not None else plan.experiments
+    total, done = len(plan), len(plan) - len(todo)
+    jobs = [Job(spec, options) for spec in todo]
+    resource = WorkerResource(key=f"fmu:{sha}:{options.input}:{options.output}", factory=factory)
+    with Workers(scheduler=scheduler, workers=workers) as pool:  # connects first: a bad scheduler writes nothing
+        if existing is None:
+            create_measurement(out, plan, prov, fmu_parameters(info))
+        if progress:
+            progress(done, total)
+        for _, result in pool.imap(run_experiment, jobs, resource=resource):
+            add_experiments(out, [result])
+            done += 1
+            if warn and not result.converged:
+                warn(f"experiment {result.index} (amplitude {result.amplitude:g}, frequency {result.frequency:g} Hz)"
+                     f" reached no steady state within {options.max_time:g} s (last change per period "
+                     f"{result.last_change:.2g}); it is stored with converged = false")
+            if progress:
+                progress(done, total)
+    mark_complete(out)
+    return read_data_file(out)

@@ -1,0 +1,282 @@
+"""Import records measured on a machine (CSV or MAT) into a data file.
+
+A record is a time column, the input force u and either the velocity or the position.  Position records
+(encoder counts converted to metres, quantised) get a velocity estimate kept beside the raw signal:
+a zero-phase 4th-order Butterworth low-pass (applied forward and backward) followed by a fourth-order
+central difference — no phase lag, and an amplitude error below 1e-5 for frequencies up to a fifth of
+the cut-off (docs/measurement.md).  Records whose input is a sinusoid get the first-harmonic analysis of
+measured experiments (servofmu.measurement.frf).
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..runtime import utc_now
+from .datafile import Record, RecordAnalysis, Series, read_data_file, write_records
+from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
+
+__all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
+           "KINDS"]
+
+KINDS = ("velocity", "position")
+MIN_SAMPLES = 10
+SINE_FRACTION = 0.8  # a record is sinusoidal when its input has at least this share of its AC power at one f
+MIN_PERIODS = 2
+
+
+# ---------------------------------------------------------------------------
+# Reading columns
+# ---------------------------------------------------------------------------
+def read_columns(path: str | Path, names: list[str]) -> dict[str, np.ndarray]:
+    """The named columns of a CSV (header row) or MAT file (variables), as float arrays of equal length."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == ".mat":
+        return _read_mat(path, names)
+    if suffix in (".csv", ".txt", ".tsv"):
+        return _read_csv(path, names)
+    raise UserError(f"{path}: unknown record format {path.suffix!r} (use .csv or .mat)")
+
+
+def _read_csv(path: Path, names: list[str]) -> dict[str, np.ndarray]:
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not a text (CSV) file") from exc
+    lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip() and not line.startswith("#")]
+    if not lines:
+        raise UserError(f"{path}: empty file")
+    try:
+        dialect = csv.Sniffer().sniff(lines[0][1], delimiters=",;\t ")
+        delimiter = dialect.delimiter
+    except csv.Error:
+        delimiter = ","
+    rows = list(csv.reader([line for _, line in lines], delimiter=delimiter, skipinitialspace=True))
+    header = [h.strip() for h in rows[0]]
+    missing = [n for n in names if n not in header]
+    if missing:
+        raise UserError(f"{path}: no column {missing[0]!r} (the header has {', '.join(header)})")
+    cols = [header.index(n) for n in names]
+    data = np.empty((len(rows) - 1, len(names)))
+    for r, (row, (lineno, _)) in enumerate(zip(rows[1:], lines[1:])):
+        for c, (name, col) in enumerate(zip(names, cols)):
+            try:
+                value = float(row[col])
+            except IndexError as exc:
+                raise UserError(f"{path}: line {lineno}: has no value for column {name!r}") from exc
+            except ValueError as exc:
+                raise UserError(f"{path}: line {lineno}: column {name!r} is not a number: {row[col]!r}") from exc
+            if not math.isfinite(value):
+                raise UserError(f"{path}: line {lineno}: column {name!r} is {row[col].strip()} (NaN or Inf)")
+            data[r, c] = value
+    out = {n: data[:, c] for c, n in enumerate(names)}
+    _line_of = {i: lineno for i, (lineno, _) in enumerate(lines[1:])}
+    _check_time(path, out[names[0]], names[0], lambda i: f"line {_line_of[i]}")
+    return out
+
+
+def _read_mat(path: Path, names: list[str]) -> dict[str, np.ndarray]:
+    from scipy.io import loadmat
+
+    try:
+        content = {k: v for k, v in loadmat(str(path), squeeze_me=True).items() if not k.startswith("__")}
+    except NotImplementedError:  # MATLAB v7.3 files are HDF5
+        content = _read_mat73(path)
+    except Exception as exc:  # scipy raises many types for damaged files (MatReadError, IndexError, ...)
+        raise UserError(f"{path}: not a readable MAT file ({(str(exc).splitlines() or ['damaged'])[0]})") from exc
+    out = {}
+    for n in names:
+        if n not in content:
+            raise UserError(f"{path}: no variable {n!r} (the file has {', '.join(sorted(content)) or 'none'})")
+        try:
+            values = np.asarray(content[n], dtype=float).ravel()
+        except (TypeError, ValueError) as exc:
+            raise UserError(f"{path}: variable {n!r} is not numeric") from exc
+        bad = np.nonzero(~np.isfinite(values))[0]
+        if len(bad):
+            raise UserError(f"{path}: variable {n!r}: sample {bad[0] + 1} is NaN or Inf")
+        out[n] = values
+    lengths = {n: len(v) for n, v in out.items()}
+    if len(set(lengths.values())) > 1:
+        raise UserError(f"{path}: variables have different lengths ({', '.join(f'{k}: {v}' for k, v in lengths.items())})")
+    _check_time(path, out[names[0]], names[0], lambda i: f"sample {i + 1}")
+    return out
+
+
+def _read_mat73(path: Path) -> dict:
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            return {k: np.asarray(v[()]) for k, v in f.items() if isinstance(v, h5py.Dataset)}
+    except OSError as exc:
+        raise UserError(f"{path}: not a readable MAT file") from exc
+
+
+def _check_time(path: Path, t: np.ndarray, name: str, where) -> None:
+    if len(t) < MIN_SAMPLES:
+        raise UserError(f"{path}: needs at least {MIN_SAMPLES} samples, has {len(t)}")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0)) + 1
+        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing ({t[i - 1]!r} then {t[i]!r})")
+
+
+# ---------------------------------------------------------------------------
+# Velocity from position
+# ---------------------------------------------------------------------------
+def velocity_from_position(t: np.ndarray, x: np.ndarray, cutoff: float) -> np.ndarray:
+    """Zero-phase low-pass (4th-order Butterworth at ``cutoff`` Hz, forward and backward) of the position,
+    then its derivative by the fourth-order central difference (second order at the two ends)."""
+    from scipy.signal import butter, filtfilt
+
+    dt = float(np.mean(np.diff(t)))
+    fs = 1.0 / dt
+    if not 0 < cutoff < fs / 2:
+        raise UserError(f"cutoff must be between 0 and half the sample rate ({fs / 2:g} Hz), not {cutoff:g}")
+    b, a = butter(4, cutoff, fs=fs)
+    xf = filtfilt(b, a, x)
+    v = np.gradient(xf, dt, edge_order=2)
+    v[2:-2] = (-xf[4:] + 8 * xf[3:-1] - 8 * xf[1:-3] + xf[:-4]) / (12 * dt)
+    return v
+
+
+def _is_uniform(t: np.ndarray, tolerance: float = 0.01) -> bool:
+    dt = np.diff(t)
+    return float(np.max(np.abs(dt - np.median(dt)))) <= tolerance * float(np.median(dt))
+
+
+# ---------------------------------------------------------------------------
+# Analysis of sinusoidal records
+# ---------------------------------------------------------------------------
+def analyse_record(t: np.ndarray, u: np.ndarray, v: np.ndarray, frequency: float | None = None
+                   ) -> tuple[RecordAnalysis | None, str]:
+    """The first-harmonic analysis when u is a sinusoid (or ``frequency`` is given), with a note why not."""
+    f_est, fraction = estimate_frequency(t, u)
+    if frequency is None:
+        if fraction < SINE_FRACTION:
+            return None, (f"input is not a sinusoid ({fraction:.0%} of its AC power at {f_est:.4g} Hz); "
+                          "no first-harmonic analysis")
+        frequency = f_est
+    else:
+        fraction = _fraction_at(t, u, frequency)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    n_harm = max(1, min(HARMONICS, int(fs / 2 // frequency)))
+    periods = int(math.floor((t[-1] - t[0]) * frequency * (1 + 1e-12)))
+    if periods < MIN_PERIODS:
+        return None, f"only {periods} whole periods of {frequency:.4g} Hz; no first-harmonic analysis"
+    settle = settle_noisy(t, v, frequency, float(t[0]))
+    start = float(t[0]) + settle.first_period / frequency
+    n = settle.periods - settle.first_period
+    hu = harmonics(t, u, frequency, start=start, periods=n, n_harmonics=1)
+    hv = harmonics(t, v, frequency, start=start, periods=n, n_harmonics=n_harm)
+    analysis = RecordAnalysis(frequency=frequency, sine_fraction=fraction, amplitude=abs(hu.first), U1=hu.first,
+                              V1=hv.first, H=hv.first / hu.first if hu.first != 0 else complex(math.nan, math.nan),
+                              dc_u=hu.dc, dc=hv.dc, harmonics=hv.phasors, distortion=hv.distortion,
+                              converged=settle.converged, settling_time=start - float(t[0]), window_start=start,
+                              window_periods=n)
+    note = "" if settle.converged else "the response did not settle over the first half of the record"
+    return analysis, note
+
+
+def _fraction_at(t, u, frequency) -> float:
+    periods = int(math.floor((t[-1] - t[0]) * frequency * (1 + 1e-12)))
+    if periods < 1:
+        return 0.0
+    h = harmonics(t, u, frequency, periods=periods, n_harmonics=1)
+    mask = t <= t[0] + periods / frequency
+    ac = float(np.var(u[mask]))
+    return (abs(h.first) ** 2 / 2) / ac if ac > 0 else 0.0
+
+
+# ---------------------------------------------------------------------------
+# Import
+# ---------------------------------------------------------------------------
+def load_record(path: str | Path, time: str, input: str, output: str, kind: str = "velocity",
+                cutoff: float | None = None, frequency: float | None = None, index: int = 0) -> Record:
+    """One record from a CSV or MAT file (columns/variables named ``time``, ``input``, ``output``)."""
+    path = Path(path)
+    if kind not in KINDS:
+        raise UserError(f"kind must be velocity or position, not {kind!r}")
+    if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
+        raise UserError(f"frequency must be positive, not {frequency:g}")
+    if len({time, input, output}) < 3:
+        raise UserError("the time, input and output columns must be three different columns")
+    cols = read_columns(path, [time, input, output])
+    t, u, y = cols[time], cols[input], cols[output]
+    fs = 1.0 / float(np.median(np.diff(t)))
+    position = None
+    if kind == "position":
+        if not _is_uniform(t):
+            raise UserError(f"{path}: the velocity estimate needs uniformly sampled time (steps vary by more "
+                            "than 1 %)")
+        cutoff = fs / 10 if cutoff is None else cutoff
+        position, v = y, velocity_from_position(t, y, cutoff)
+        how = (f"zero-phase 4th-order Butterworth low-pass at {cutoff:g} Hz (forward-backward) of position, "
+               "then 4th-order central difference")
+    else:
+        if cutoff is not None:
+            raise UserError("a velocity cutoff applies to position records only")
+        v, how = y, "measured"
+    analysis, note = analyse_record(t, u, v, frequency)
+    columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
+    return Record(index=index, name=path.stem, source=path.name,
+                  source_sha256=hashlib.sha256(path.read_bytes()).hexdigest(), kind=kind, columns=columns,
+                  series=Series(time=t, u=u, v=v, position=position), sample_rate=fs, velocity_estimate=how,
+                  velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note)
+
+
+def import_records(paths, output: str | Path, time: str, input: str, output_column: str, kind: str = "velocity",
+                   cutoff: float | None = None, frequency: float | None = None, append: bool = False,
+                   command: str = ""):
+    """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
+
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        The record files.
+    output : str or Path
+        The data file (HDF5) to write.
+    time, input, output_column : str
+        Names of the time (s), input force (N) and velocity (m/s) or position (m) columns.
+    kind : {"velocity", "position"}
+        What the output column is; a position gets a zero-phase velocity estimate beside it.
+    cutoff : float, optional
+        Low-pass cut-off (Hz) of that velocity estimate; default a tenth of the sample rate.
+    frequency : float, optional
+        The excitation frequency of sinusoidal records, when it is not to be detected.
+    append : bool
+        Add the records to an existing records file.
+    command : str
+        The command line, for provenance.
+
+    Returns
+    -------
+    DataFile
+        The data file read back.
+
+    Raises
+    ------
+    UserError
+        For unreadable files, missing columns, NaN or non-increasing time, an existing output (without
+        ``append``).
+    """
+    output = Path(output)
+    if output.exists() and not append:
+        raise UserError(f"{output}: exists already (append the records to it, or choose another name)")
+    offset = len(read_data_file(output).records) if append and output.exists() else 0
+    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i)
+               for i, p in enumerate(paths)]
+    provenance = {"package": "servofmu", "package_version": __version__, "command": command,
+                  "created": utc_now(), "sources": [r.source for r in records]}
+    write_records(output, records, provenance, append=append)
+    return read_data_file(output)
+

@@ -1,0 +1,371 @@
+"""Plant files (TOML) and the named parameter vector of a plant.
+
+A plant is G(s) (poles, zeros and a gain) plus a friction model.  The plant file
+format is documented in docs/plant-format.md.  Everything numerical downstream
+sees a plant as a *structure* (which roots are real or complex, which gain key,
+which friction model) plus a flat vector of named parameters; this module is
+the only place that maps between the two.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+
+__all__ = ["Plant", "Friction", "PlantError", "load_plant", "plant_from_dict", "resolve_plant_path",
+           "example_files", "parameter_info", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
+
+FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
+
+# Friction keys per model, in parameter-vector order.
+_FRICTION_KEYS = {
+    "coulomb": ("fc_pos", "fc_neg", "fv", "v_smooth"),
+    "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "fv", "v_smooth"),
+    "lugre": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "sigma0", "sigma1", "fv"),  # no tanh: no v_smooth
+}
+_FRICTION_DEFAULTS = {"fv": 0.0, "v_smooth": 1e-3}
+
+# name -> (unit, description) for every parameter a plant can have.
+PARAMETER_INFO = {
+    "dc_gain": ("1", "DC gain of G(s), G(0)"),
+    "gain": ("1", "numerator constant of G(s) (leading coefficient of the numerator)"),
+    "fc_pos": ("N", "Coulomb friction for v > 0"),
+    "fc_neg": ("N", "Coulomb friction for v < 0 (magnitude)"),
+    "fs_pos": ("N", "static (breakaway) friction for v > 0"),
+    "fs_neg": ("N", "static (breakaway) friction for v < 0 (magnitude)"),
+    "vs": ("m/s", "Stribeck velocity"),
+    "sigma0": ("N/m", "LuGre bristle stiffness"),
+    "sigma1": ("N.s/m", "LuGre bristle damping"),
+    "fv": ("N.s/m", "viscous friction coefficient"),
+    "v_smooth": ("m/s", "velocity scale of the tanh smoothing of sign(v)"),
+    "excitation_amplitude": ("N", "amplitude of the built-in sine excitation added to u"),
+    "excitation_frequency": ("Hz", "frequency of the built-in sine excitation"),
+}
+
+
+class PlantError(UserError):
+    """A plant file or plant description is invalid; the message names file and key."""
+
+
+@dataclass(frozen=True)
+class Friction:
+    model: str
+    fc_pos: float
+    fc_neg: float
+    fv: float = 0.0
+    v_smooth: float = 1e-3
+    fs_pos: float | None = None
+    fs_neg: float | None = None
+    vs: float | None = None
+    sigma0: float | None = None
+    sigma1: float | None = None
+
+    def keys(self) -> tuple[str, ...]:
+        return _FRICTION_KEYS[self.model]
+
+    def values(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in self.keys()}
+
+
+@dataclass(frozen=True)
+class Plant:
+    """A servo plant: G(s) = K·∏(s − zᵢ)/∏(s − pᵢ) in the forward path, friction in the feedback path.
+
+    Read one with :func:`load_plant`; ``parameter_names()`` and ``parameter_vector()`` give the flat vector
+    every numerical stage works with, ``with_parameters`` the plant of another vector.
+
+    Parameters
+    ----------
+    name : str
+        An identifier (letters, digits, underscores); names the FMU.
+    poles, zeros : tuple of complex
+        *Distinct roots* (rad/s): a real root as a real number, a complex pair once, as the root with positive
+        imaginary part.
+    friction : Friction
+        The friction model and its values.
+    dc_gain, gain : float, optional
+        Exactly one is set: G(0), or the numerator's leading coefficient K.
+    source : str
+        Where the plant was read from.
+    """
+
+    name: str
+    poles: tuple[complex, ...]
+    zeros: tuple[complex, ...]
+    friction: Friction
+    dc_gain: float | None = None
+    gain: float | None = None
+    source: str = field(default="<memory>", compare=False)
+
+    # ---- structure -------------------------------------------------------
+    @property
+    def order(self) -> int:
+        return sum(2 if r.imag != 0 else 1 for r in self.poles)
+
+    @property
+    def gain_key(self) -> str:
+        return "dc_gain" if self.dc_gain is not None else "gain"
+
+    def all_poles(self) -> list[complex]:
+        return _expand(self.poles)
+
+    def all_zeros(self) -> list[complex]:
+        return _expand(self.zeros)
+
+    def numerator_gain(self) -> float:
+        """K, the leading coefficient of the numerator."""
+        if self.gain is not None:
+            return float(self.gain)
+        den0 = np.prod([-p for p in self.all_poles()]).real
+        num0 = np.prod([-z for z in self.all_zeros()]).real if self.zeros else 1.0
+        return float(self.dc_gain * den0 / num0)
+
+    def transfer_function(self) -> tuple[np.ndarray, np.ndarray]:
+        """(num, den) polynomial coefficients, highest power first; den is monic."""
+        den = np.real(np.poly(self.all_poles())) if self.poles else np.array([1.0])
+        num = self.numerator_gain() * (np.real(np.poly(self.all_zeros())) if self.zeros else np.array([1.0]))
+        return num, den
+
+    def frequency_response(self, omega: np.ndarray) -> np.ndarray:
+        """G(jω) for angular frequencies ``omega`` (rad/s)."""
+        num, den = self.transfer_function()
+        s = 1j * np.asarray(omega, dtype=float)
+        return np.polyval(num, s) / np.polyval(den, s)
+
+    # ---- parameter vector --------------------------------------------------
+    def parameter_names(self) -> list[str]:
+        return root_names("pole", self.poles) + root_names("zero", self.zeros) + [self.gain_key] + list(
+            self.friction.keys()
+        )
+
+    def parameter_vector(self) -> np.ndarray:
+        values = []
+        for r in (*self.poles, *self.zeros):
+            values += [r.real, r.imag] if r.imag != 0 else [r.real]
+        values.append(self.dc_gain if self.dc_gain is not None else self.gain)
+        values += list(self.friction.values().values())
+        return np.array(values, dtype=float)
+
+    def parameters(self) -> dict[str, float]:
+        return dict(zip(self.parameter_names(), self.parameter_vector().tolist()))
+
+    def with_parameters(self, vector) -> "Plant":
+        """The same structure with the parameters of ``vector`` (order of parameter_names)."""
+        vector = np.asarray(vector, dtype=float).ravel()
+        if vector.size != len(self.parameter_names()):
+            raise PlantError(f"{self.name}: expected {len(self.parameter_names())} parameters, got {vector.size}")
+        it = iter(vector.tolist())
+
+        def roots(template):
+            return tuple(complex(next(it), next(it)) if r.imag != 0 else complex(next(it), 0.0) for r in template)
+
+        poles, zeros = roots(self.poles), roots(self.zeros)
+        k = next(it)
+        friction = replace(self.friction, **{key: next(it) for key in self.friction.keys()})
+        gains = {"dc_gain": k, "gain": None} if self.dc_gain is not None else {"dc_gain": None, "gain": k}
+        return replace(self, poles=poles, zeros=zeros, friction=friction, **gains)
+
+    def to_toml(self) -> str:
+        """The plant file text that ``load_plant`` reads back to this plant."""
+        def pairs(roots):
+            return "[" + ", ".join(f"[{r.real!r}, {r.imag!r}]" for r in _expand(roots)) + "]"
+
+        lines = [f'name = "{self.name}"', "", "[linear]", f"poles = {pairs(self.poles)}",
+                 f"zeros = {pairs(self.zeros)}", f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "",
+                 "[friction]", f'model = "{self.friction.model}"']
+        lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
+        return "\n".join(lines) + "\n"
+
+
+def root_names(prefix: str, roots) -> list[str]:
+    """Parameter names of distinct roots: ``pole1`` for a real one, ``pole1_re``/``pole1_im`` for a pair."""
+    names = []
+    for i, r in enumerate(roots, start=1):
+        names += [f"{prefix}{i}_re", f"{prefix}{i}_im"] if r.imag != 0 else [f"{prefix}{i}"]
+    return names
+
+
+def parameter_info(name: str) -> tuple[str, str]:
+    """(unit, description) of a parameter name."""
+    if name in PARAMETER_INFO:
+        return PARAMETER_INFO[name]
+    kind = "pole" if name.startswith("pole") else "zero"
+    part = " (real part)" if name.endswith("_re") else " (imaginary part, > 0; the conjugate is implied)" \
+        if name.endswith("_im") else ""
+    return "rad/s", f"{kind} {name[len(kind):].split('_')[0]} of G(s){part}"
+
+
+def _expand(roots) -> list[complex]:
+    out = []
+    for r in roots:
+        out += [r, r.conjugate()] if r.imag != 0 else [r]
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Reading plant files
+# ---------------------------------------------------------------------------
+def example_files() -> dict[str, Path]:
+    """The example files that ship with servofmu (package ``servofmu.fmu_models``): name -> path."""
+    from importlib.resources import as_file, files
+
+    out = {}
+    for entry in files("servofmu.fmu_models").iterdir():
+        if entry.name.endswith(".toml"):
+            with as_file(entry) as path:  # a real file in any installation that is not zipped
+                out[entry.name[:-5]] = Path(path)
+    return out
+
+
+def resolve_plant_path(plant: str | Path) -> Path:
+    """A path to a plant file, or the name of one of the example plants that ship with servofmu (``g1``...)."""
+    path = Path(plant)
+    if path.is_file():
+        return path
+    if path.suffix == "" and str(plant) in example_files():
+        return example_files()[str(plant)]
+    raise PlantError(f"{plant}: no such plant file (and no example plant of that name; examples: "
+                     f"{', '.join(sorted(example_files()))})")
+
+
+def load_plant(plant: str | Path) -> Plant:
+    """Read a plant file.
+
+    Parameters
+    ----------
+    plant : str or Path
+        A plant file (TOML, docs/plant-format.md) or the name of an example plant that ships with servofmu
+        (``"g1"``, ``"g2"``, ``"stribeck_servo"``, ``"lugre_servo"``).
+
+    Returns
+    -------
+    Plant
+        The plant: G(s) (poles, zeros, gain) and its friction model.
+
+    Raises
+    ------
+    PlantError
+        (a UserError) when the file is missing or invalid; the message names file and key.
+
+    Examples
+    --------
+    >>> from servofmu import load_plant
+    >>> g1 = load_plant("g1")
+    >>> g1.poles, g1.friction.fc_pos
+    (((-10+0j),), 0.5)
+    """
+    path = resolve_plant_path(plant)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise PlantError(f"{path}: not a valid TOML file ({exc})") from exc
+    return plant_from_dict(data, source=str(path))
+
+
+def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
+    def fail(key: str, why: str):
+        raise PlantError(f"{source}: {key}: {why}")
+
+    _check_keys(data, {"name", "linear", "friction"}, "", fail)
+    for section in ("linear", "friction"):
+        if not isinstance(data.get(section), dict):
+            fail(section, "missing section")
+    name = data.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name.replace("_", "").isalnum() or not name[:1].isalpha():
+        fail("name", "must be an identifier (letters, digits, underscores; starts with a letter)")
+
+    lin = data["linear"]
+    _check_keys(lin, {"poles", "zeros", "dc_gain", "gain"}, "linear.", fail)
+    poles = _read_roots(lin, "poles", fail, required=True)
+    zeros = _read_roots(lin, "zeros", fail, required=False)
+    for i, p in enumerate(_expand(poles)):
+        if p.real > 0:
+            fail("linear.poles", f"pole {p} has a positive real part (unstable plants are not supported)")
+    if len(_expand(zeros)) >= len(_expand(poles)):
+        fail("linear.zeros", "G(s) must be strictly proper (fewer zeros than poles)")
+    has_dc, has_gain = "dc_gain" in lin, "gain" in lin
+    if has_dc == has_gain:
+        fail("linear.dc_gain", "give exactly one of `dc_gain` and `gain`")
+    key = "linear.dc_gain" if has_dc else "linear.gain"
+    k = _number(lin["dc_gain" if has_dc else "gain"], key, fail)
+    if k == 0:
+        fail(key, "must not be zero")
+    if has_dc and any(p == 0 for p in poles):
+        fail("linear.dc_gain", "a pole at 0 has no finite DC gain: give `gain` instead")
+    if has_dc and any(z == 0 for z in zeros):
+        fail("linear.dc_gain", "a zero at 0 makes the DC gain 0: give `gain` instead")
+
+    fr = data["friction"]
+    model = fr.get("model")
+    if model not in FRICTION_MODELS:
+        fail("friction.model", f"must be one of {', '.join(FRICTION_MODELS)}, not {model!r}")
+    keys = _FRICTION_KEYS[model]
+    _check_keys(fr, {"model", *keys}, "friction.", fail)
+    values = {}
+    for k_ in keys:
+        if k_ not in fr:
+            if k_ in _FRICTION_DEFAULTS:
+                values[k_] = _FRICTION_DEFAULTS[k_]
+                continue
+            fail(f"friction.{k_}", f"missing (required by the {model} model)")
+        values[k_] = _number(fr[k_], f"friction.{k_}", fail)
+        if values[k_] < 0:
+            fail(f"friction.{k_}", "must not be negative")
+    for positive in ("v_smooth", "vs", "sigma0"):
+        if positive in values and values[positive] <= 0:
+            fail(f"friction.{positive}", "must be positive")
+    for side in ("pos", "neg"):
+        if f"fs_{side}" in values and values[f"fs_{side}"] < values[f"fc_{side}"]:
+            fail(f"friction.fs_{side}", f"static friction must not be below Coulomb friction fc_{side}")
+    if model == "lugre" and (values["fc_pos"] <= 0 or values["fc_neg"] <= 0):
+        fail("friction.fc_pos", "LuGre needs positive Coulomb friction on both sides")
+
+    return Plant(name=name, poles=poles, zeros=zeros, friction=Friction(model=model, **values),
+                 dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source)
+
+
+def _check_keys(table: dict, allowed: set, prefix: str, fail):
+    for key in table:
+        if key not in allowed:
+            fail(f"{prefix}{key}", "unknown key")
+
+
+def _number(value, key, fail) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        fail(key, f"must be a finite number, not {value!r}")
+    return float(value)
+
+
+def _read_roots(table, key, fail, required) -> tuple[complex, ...]:
+    if key not in table:
+        if required:
+            fail(f"linear.{key}", "missing")
+        return ()
+    raw = table[key]
+    if not isinstance(raw, list):
+        fail(f"linear.{key}", "must be a list of [re, im] pairs")
+    roots = []
+    for item in raw:
+        if not (isinstance(item, list) and len(item) == 2):
+            fail(f"linear.{key}", f"{item!r} is not a [re, im] pair")
+        roots.append(complex(_number(item[0], f"linear.{key}", fail), _number(item[1], f"linear.{key}", fail)))
+    if required and not roots:
+        fail(f"linear.{key}", "G(s) needs at least one pole")
+    # Pair up conjugates; keep each pair once as its upper-half-plane member.
+    distinct, unmatched = [], list(roots)
+    while unmatched:
+        r = unmatched.pop(0)
+        if r.imag == 0:
+            distinct.append(r)
+            continue
+        conj = r.conjugate()
+        if conj not in unmatched:
+            fail(f"linear.{key}", f"complex root {r} comes without its conjugate {conj}")
+        unmatched.remove(conj)
+        distinct.append(r if r.imag > 0 else conj)
+    return tuple(distinct)

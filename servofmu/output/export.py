@@ -1,0 +1,362 @@
+"""Exporting an identified model (docs/export.md): FMU with provenance, python-control, MATLAB, JSON, plant TOML.
+
+Every format carries the identified plant of a RESULT.h5 (servofmu.identification.results) and its provenance:
+how it was identified (method, fitness, 95 % intervals, the data file and its SHA-256, the identify command and
+date) and how it was exported (RESULT file and its SHA-256, command, date, package version).
+
+The FMU comes from the same generator as the plant FMUs (servofmu.fmu.build_fmu: ME + CS, the same variables) with
+the identified values as parameter start values; the plant TOML is the file `servofmu build` reads back to an
+FMU that responds identically.  :func:`remeasure` closes the loop: it exports the FMU, measures it with the plan
+of the data the model was identified from, and reports how well it reproduces that data's first harmonics.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..fileio import atomic_write, check_output_path
+from ..identification.results import Result, read_result, to_json
+from ..model.plant import Friction, Plant, plant_from_dict
+from ..runtime import utc_now
+from .formats import FORMATS, SUFFIX_FORMATS
+
+__all__ = ["export_result", "export_fmu", "export_control", "export_mat", "export_json", "export_toml",
+           "load_control", "identified_plant", "remeasure", "RoundTrip", "file_sha256", "format_of",
+           "toml_text", "linear_state_space", "ROUND_TRIP_TOLERANCE"]
+
+CONTROL_FORMAT = "servofmu-control"   # the `control` file: JSON read by load_control
+EXPORT_FORMAT = "servofmu-export"     # the `json` file
+SCHEMA_VERSION = 1
+NAME_SUFFIX = "_identified"
+# A round trip reproduces the data when its residual is at most the identification's fitness plus this: the
+# FMU measurement and the identifier's batch simulator agree on first harmonics to <= 5e-10 relative and on the
+# fitness to <= 1.3e-10 (docs/bench-export.md), so 1e-8 leaves a margin of about 20 to 80.
+ROUND_TRIP_TOLERANCE = 1e-8
+# Measurement settings taken over from the data file's provenance for the re-measurement.
+_MEASURE_KEYS = ("tolerance", "samples_per_period", "settle_samples_per_period", "window_periods", "threshold",
+                 "consecutive", "min_periods", "max_time", "harmonics")
+
+
+# ---------------------------------------------------------------------------
+# What every format carries
+# ---------------------------------------------------------------------------
+def identified_plant(result: Result, name: str | None = None) -> Plant:
+    """The identified plant under its export name (default ``<name>_identified``: not to be mistaken for the
+    plant it models)."""
+    plant = result.plant
+    if name is None:
+        name = plant.name if plant.name.endswith(NAME_SUFFIX) else plant.name + NAME_SUFFIX
+    # through the plant-file reader, so that a bad --name is reported like a bad plant file
+    data = tomllib.loads(plant.to_toml())
+    data["name"] = name
+    return plant_from_dict(data, source="the model name")
+
+
+def file_sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def intervals_text(result: Result) -> str:
+    return ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]" for n, (lo, hi) in zip(result.names, result.intervals))
+
+
+def export_provenance(result: Result, result_file: str | Path | None = None, command: str = "") -> dict[str, str]:
+    """Name/value pairs (strings) describing where the exported model comes from."""
+
+    prov = {"method": result.method, "fitness": f"{result.fitness:.6g} (RMS relative output error)",
+            "intervals_95": intervals_text(result)}
+    # the identification's own record (data file, its hash, ...); its command and date are named apart from
+    # the export's
+    renamed = {"command": "identify_command", "date": "identify_date"}
+    prov.update({renamed.get(str(k), str(k)): str(v) for k, v in result.provenance.items() if v not in (None, "")})
+    if result_file is not None:
+        prov["result_file"] = Path(result_file).name
+        prov["result_sha256"] = file_sha256(result_file)
+    prov.update({"export_command": command or "(library call)", "export_date": utc_now(),
+                 "package_version": __version__})
+    return prov
+
+
+def linear_state_space(plant: Plant) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, C, D) of G(s) from w = u − F(v) to v in the FMU's own realisation (states xi1..xin, v = xi1),
+    read off the CasADi model with the friction switched off."""
+    import casadi as ca
+
+    from ..model.symbolic import build_model
+
+    linear = replace(plant, friction=Friction(model="coulomb", fc_pos=0.0, fc_neg=0.0, fv=0.0))
+    model = build_model(linear)
+    n = plant.order  # xi1..xin come first in the state vector, v is the first output
+    jac = np.asarray(ca.DM(model.io_jacobian(0.0, np.zeros(model.nx), 0.0, model.parameter_start())))
+    nx = model.nx
+    return jac[:n, :n], jac[:n, nx:nx + 1], jac[nx:nx + 1, :n], jac[nx:nx + 1, nx:nx + 1]
+
+
+def _finite_or_none(obj):
+    """JSON without NaN/Infinity (not standard JSON): non-finite numbers become null."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+
+
+def _json_text(obj: dict) -> str:
+    return json.dumps(_finite_or_none(obj), indent=2, allow_nan=False) + "\n"
+
+
+def _pairs(roots) -> list[list[float]]:
+    return [[float(r.real), float(r.imag)] for r in roots]
+
+
+# ---------------------------------------------------------------------------
+# The formats
+# ---------------------------------------------------------------------------
+def export_fmu(result: Result, output: str | Path, fmi_version: int = 3, name: str | None = None,
+               provenance: dict | None = None) -> Path:
+    from ..fmu import build_fmu
+
+    return build_fmu(identified_plant(result, name), output, fmi_version=fmi_version,
+                     provenance=provenance if provenance is not None else export_provenance(result))
+
+
+def control_document(result: Result, name: str | None = None, provenance: dict | None = None) -> dict:
+    plant = identified_plant(result, name)
+    num, den = plant.transfer_function()
+    A, B, C, D = linear_state_space(plant)
+    return {"format": CONTROL_FORMAT, "schema_version": SCHEMA_VERSION, "name": plant.name,
+            "about": "G(s) = num(s)/den(s) from w = u - friction_force (N) to the velocity v (m/s); the friction "
+                     "acts in feedback: v = G(s)(u - F(v)). Coefficients highest power first.",
+            "num": num.tolist(), "den": den.tolist(), "poles": _pairs(plant.all_poles()),
+            "zeros": _pairs(plant.all_zeros()), "gain": plant.numerator_gain(),
+            "state_space": {"A": A.tolist(), "B": B.tolist(), "C": C.tolist(), "D": D.tolist(),
+                            "states": [f"xi{i + 1}" for i in range(plant.order)]},
+            "friction": {"model": plant.friction.model, **plant.friction.values()},
+            "provenance": provenance if provenance is not None else export_provenance(result)}
+
+
+def export_control(result: Result, output: str | Path, name: str | None = None,
+                   provenance: dict | None = None) -> Path:
+    return atomic_write(output, _json_text(control_document(result, name, provenance)))
+
+
+def load_control(path: str | Path, state_space: bool = False):
+    """(control.TransferFunction, friction dict) from a file of ``servofmu export --format control``.
+
+    ``state_space=True``: a control.StateSpace in the FMU's realisation (states xi1..xin) instead.
+    The friction dict holds ``model`` and the friction parameters of docs/plant-format.md.
+    """
+    import control
+
+    doc = _read_json(path)
+    if doc.get("format") != CONTROL_FORMAT:
+        raise UserError(f"{path}: not a servofmu control file (format {doc.get('format')!r})")
+    if doc.get("schema_version") != SCHEMA_VERSION:
+        raise UserError(f"{path}: control file schema version {doc.get('schema_version')!r} is not the supported "
+                        f"{SCHEMA_VERSION}")
+    try:
+        labels = dict(name=str(doc["name"]), inputs="w", outputs="v")
+        if state_space:
+            ss = doc["state_space"]
+            system = control.ss(np.array(ss["A"], dtype=float), np.array(ss["B"], dtype=float),
+                                np.array(ss["C"], dtype=float), np.array(ss["D"], dtype=float),
+                                states=list(ss["states"]), **labels)
+        else:
+            system = control.tf(np.array(doc["num"], dtype=float), np.array(doc["den"], dtype=float), **labels)
+        friction = dict(doc["friction"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"{path}: damaged control file ({type(exc).__name__}: {exc})") from exc
+    return system, friction
+
+
+def _read_json(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such file")
+    try:
+        doc = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: not a JSON file ({exc})") from exc
+    if not isinstance(doc, dict):
+        raise UserError(f"{path}: not a servofmu file (a JSON {type(doc).__name__}, not an object)")
+    return doc
+
+
+def export_mat(result: Result, output: str | Path, name: str | None = None, provenance: dict | None = None) -> Path:
+    """MATLAB .mat (v5): num, den, A, B, C, D, poles, zeros, gain, friction (struct), method, fitness,
+    parameter_names, theta, intervals, provenance (struct)."""
+    import scipy.io
+
+    doc = control_document(result, name, provenance)
+    ss = doc["state_space"]
+
+    def column(roots):
+        return np.array([complex(re, im) for re, im in roots], dtype=complex).reshape(-1, 1)
+
+    content = {
+        "name": doc["name"], "num": np.atleast_2d(doc["num"]), "den": np.atleast_2d(doc["den"]),
+        "A": np.array(ss["A"]), "B": np.array(ss["B"]), "C": np.array(ss["C"]), "D": np.array(ss["D"]),
+        "poles": column(doc["poles"]), "zeros": column(doc["zeros"]), "gain": doc["gain"],
+        "friction": doc["friction"], "method": result.method, "fitness": result.fitness,
+        "parameter_names": np.array(result.names, dtype=object), "theta": np.asarray(result.theta, dtype=float),
+        "intervals": np.asarray(result.intervals, dtype=float), "provenance": doc["provenance"],
+    }
+    buffer = io.BytesIO()
+    scipy.io.savemat(buffer, content, oned_as="row")
+    return atomic_write(output, buffer.getvalue())
+
+
+def export_json(result: Result, output: str | Path, name: str | None = None, provenance: dict | None = None) -> Path:
+    """The `--json` object of the identification plus the transfer function, all named parameters, the plant
+    file text and the provenance."""
+    plant = identified_plant(result, name)
+    num, den = plant.transfer_function()
+    doc = {"format": EXPORT_FORMAT, "schema_version": SCHEMA_VERSION, "name": plant.name, **to_json(result),
+           "transfer_function": {"num": num.tolist(), "den": den.tolist()},
+           "plant_parameters": plant.parameters(), "plant_toml": plant.to_toml(),
+           "provenance": provenance if provenance is not None else export_provenance(result)}
+    return atomic_write(output, _json_text(doc))
+
+
+def toml_text(result: Result, name: str | None = None, provenance: dict | None = None) -> str:
+    plant = identified_plant(result, name)
+    prov = provenance if provenance is not None else export_provenance(result)
+    head = ["# Identified plant, exported by servofmu; `servofmu build` turns it into an FMU.",
+            *(f"# {k} = {json.dumps(str(v), ensure_ascii=False)}" for k, v in prov.items()), ""]
+    return "\n".join(head) + plant.to_toml()
+
+
+def export_toml(result: Result, output: str | Path, name: str | None = None, provenance: dict | None = None) -> Path:
+    return atomic_write(output, toml_text(result, name, provenance))
+
+
+def format_of(output: str | Path, fmt: str | None) -> str:
+    """The export format: ``fmt`` if given, else from the output's suffix."""
+    if fmt is not None:
+        if fmt not in FORMATS:
+            raise UserError(f"unknown export format {fmt!r} (choose {', '.join(FORMATS)})")
+        return fmt
+    suffix = Path(output).suffix.lower()
+    if suffix not in SUFFIX_FORMATS:
+        raise UserError(f"{output}: cannot tell the format from the suffix {suffix or '(none)'!r}; give the format "
+                        f"({', '.join(FORMATS)})")
+    return SUFFIX_FORMATS[suffix]
+
+
+def export_result(result_file: str | Path, output: str | Path, fmt: str | None = None,
+                  fmi_version: int | None = None, name: str | None = None, command: str = "") -> tuple[Path, str]:
+    """Export an identified model to another tool, with its provenance.
+
+    Parameters
+    ----------
+    result_file : str or Path
+        A result file (RESULT.h5).
+    output : str or Path
+        The file to write.
+    fmt : {"fmu", "control", "mat", "json", "toml"}, optional
+        Default: from the suffix of ``output``.
+    fmi_version : {3, 2}, optional
+        FMI version of an FMU (default 3).
+    name : str, optional
+        Model name in the export (default: the plant's name + ``_identified``).
+    command : str
+        The command line, for provenance.
+
+    Returns
+    -------
+    tuple of (Path, str)
+        The file written and its format.
+
+    Raises
+    ------
+    UserError
+        For an unreadable result, an unknown format, or an output that cannot be written.
+
+    Notes
+    -----
+    Everything is checked before anything is written; a failure leaves ``output`` as it was.
+    """
+    fmt = format_of(output, fmt)
+    if fmi_version is not None and fmt != "fmu":
+        raise UserError(f"fmi_version applies to FMU export only, not to format {fmt}")
+    check_output_path(output)
+    result = read_result(result_file)
+    prov = export_provenance(result, result_file, command)
+    if fmt == "fmu":
+        return export_fmu(result, output, fmi_version or 3, name, prov), fmt
+    writer = {"control": export_control, "mat": export_mat, "json": export_json, "toml": export_toml}[fmt]
+    return writer(result, output, name, prov), fmt
+
+
+# ---------------------------------------------------------------------------
+# Round trip: measure the exported FMU with the plan of the data
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RoundTrip:
+    """The exported FMU measured with the plan of the data it was identified from.
+
+    ``residual_rms``: RMS of the identifier's residuals between the re-measurement and the data (what the
+    fitness measures); ``max_H_error``: max |H − H_data|/|H_data|; both over the ``compared`` experiments of the
+    data that reached a steady state; ``unsettled``: how many of those did not in the re-measurement.
+    """
+
+    fmu: Path
+    measured: object  # DataFile of the re-measurement
+    fitness: float
+    residual_rms: float
+    max_H_error: float
+    compared: int
+    unsettled: int
+
+    @property
+    def reproduces(self) -> bool:
+        """The exported model fits the data as well as the identification says (within ROUND_TRIP_TOLERANCE)."""
+        return self.unsettled == 0 and self.residual_rms <= self.fitness + ROUND_TRIP_TOLERANCE
+
+
+def remeasure(result: Result, data_file: str | Path, fmu_path: str | Path, measured_path: str | Path,
+              fmi_version: int = 3, name: str | None = None, result_file: str | Path | None = None,
+              command: str = "", workers: int | None = None, scheduler: str | None = None,
+              progress: Callable[[int, int], None] | None = None,
+              warn: Callable[[str], None] | None = None) -> RoundTrip:
+    """Export ``result`` as an FMU to ``fmu_path``, measure it into ``measured_path`` with the plan and the
+    measurement settings of ``data_file`` (the stepped-sine data it was identified from) and compare."""
+    from ..identification.criterion import sine_data, sine_residuals
+    from ..measurement.datafile import read_data_file
+    from ..measurement.measure import MeasureOptions, measure
+
+    ds = read_data_file(data_file)
+    if ds.kind != "measurement" or not ds.plan:
+        raise UserError(f"{data_file}: is a {ds.kind} file; the round trip needs stepped-sine measurements")
+    claimed = result.provenance.get("data_sha256")
+    if claimed and claimed != file_sha256(data_file):
+        raise UserError(f"{data_file}: is not the data file the result was identified from "
+                        f"({result.provenance.get('data_file', 'SHA-256 ' + claimed[:12])})")
+    data = sine_data(ds)
+    check_output_path(fmu_path)
+    check_output_path(measured_path, overwrite=False)
+    fmu = export_fmu(result, fmu_path, fmi_version, name, export_provenance(result, result_file, command))
+    options = MeasureOptions(**{k: ds.provenance[k] for k in _MEASURE_KEYS if k in ds.provenance})
+    measured = measure(fmu, measured_path, amplitudes=ds.plan.amplitudes, frequencies=ds.plan.frequencies,
+                       options=options, scheduler=scheduler, workers=workers, command=command, progress=progress,
+                       warn=warn)
+    again = [measured.experiment(m, f) for m, f in zip(data.amplitudes, data.frequencies)]
+    H = np.array([e.H for e in again], dtype=complex)
+    dc = np.array([e.dc for e in again], dtype=float)
+    r = sine_residuals(data, H, dc)
+    return RoundTrip(fmu=Path(fmu), measured=measured, fitness=result.fitness,
+                     residual_rms=float(np.sqrt(np.mean(r ** 2))),
+                     max_H_error=float(np.max(np.abs(H - data.H) / np.abs(data.H))), compared=len(again),
+                     unsettled=sum(not e.converged for e in again))

@@ -1,0 +1,29 @@
+"""The published numbers of Kiran, Sai Rama & Varadarajan (2013), Tables II and III, to set beside ours.
+
+Rows follow results.paper_rows: G1 (first order) as pole / constant / DC gain / Fc+ / Fc−, G2 as its roots /
+DC gain / Fc+ / Fc−.  Columns: the paper's target and the four methods it reports.
+"""
+
+__all__ = ["COLUMNS", "TABLES"]
+
+COLUMNS = ("target", "GA-ANN [31]", "existing technique [2]", "adaptive GA-ANN [35]", "PSO-ANN (paper)")
+
+TABLES = {
+    "g1": {
+        "pole": ("-10", "-10.2", "-10.1", "-10.0000", "-10.0006"),
+        "constant": ("10", "9.8", "10.1", "10.0004", "10.0000"),
+        "DC gain": ("1", "1.0", "0.9", "1.0000", "1.0008"),
+        "Fc+": ("0.5", "0.5", "0.4", "0.5", "0.4995"),
+        "Fc−": ("0.4", "0.3", "0.3", "0.4000", "0.4000"),
+    },
+    "g2": {
+        "root 1": ("-2.5 + 31.52j", "-2.5381 + 31.518j", "-2.5714 + 30.525j", "-2.5009 + 31.5200j",
+                   "-2.5004 + 31.5143j"),
+        "root 2": ("-2.5 − 31.52j", "-2.5381 − 31.518j", "-2.5714 − 30.525j", "-2.5011 − 31.5190j",
+                   "-2.501 − 31.5034j"),
+        "root 3": ("-10", "-10.0211", "-10.1138", "-10.0015", "-10.0002"),
+        "DC gain": ("1", "0.9989", "0.9903", "1.0000", "1.0000"),
+        "Fc+": ("0.5", "0.4968", "0.4951", "0.4992", "0.5000"),
+        "Fc−": ("0.4", "0.3957", "0.3941", "0.4000", "0.4000"),
+    },
+}

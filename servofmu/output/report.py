@@ -1,0 +1,537 @@
+"""`servofmu report`: one self-contained HTML page of an identification — tables and figures to send to a colleague.
+
+The page has no external resources: figures are PNG images embedded as data: URIs, the style sheet is inline and
+there is no script.  It is built from a list of labelled results that share one data file, so that a comparison
+of several methods renders the same way (one column per result in the tables, the results overlaid in the
+friction and convergence figures); a result file gives a list of one.
+
+What it shows (docs/report.md): the identified parameters with their 95 % intervals (and, with a true plant,
+its values and the relative errors), the paper's table layout (beside the paper's published numbers when the
+structure is one of the paper's plants), the fit at every experiment, the stages, the provenance; figures of the
+measured against the identified first-harmonic response at each excitation magnitude, of the measured responses
+against the identified linear G(jω), of the friction force against velocity, and of the PSO convergence.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..fileio import atomic_write, check_output_path
+from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_residuals, steady_state_options
+from ..identification.results import Result, paper_rows, read_results
+from ..measurement.datafile import DataFile, read_data_file
+from ..model.plant import Plant, load_plant, parameter_info
+from ..runtime import utc_now
+from ..simulation.batch import BatchSimulator
+from .export import file_sha256
+from .paper import COLUMNS as PAPER_COLUMNS
+from .paper import TABLES as PAPER_TABLES
+from .plots import MAX_PANELS, bode_figure, pyplot
+
+__all__ = ["make_report", "read_entries", "find_data", "compute_entries", "report_html", "steady_friction",
+           "model_sine", "velocity_range", "bode_figures", "records_figure", "friction_figure",
+           "convergence_figure", "Entry"]
+
+CURVE_POINTS = 40          # frequencies per magnitude of the identified model's Bode curve
+CURVE_RTOL = 1e-8          # integrator tolerance of that curve (a figure); the tables use the polish's
+FRICTION_POINTS = 2000     # velocities of the friction curve (an even number: v = 0 is not among them)
+DPI = 110
+
+
+# ---------------------------------------------------------------------------
+# Inputs
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Entry:
+    """One result on the page and what is computed from it against the data.
+
+    sine: the identified model's H and dc at the data's used experiments (None for records);
+    records: the identified model's v for each record (None for stepped-sine data).
+    """
+
+    label: str
+    result: Result
+    sine: tuple[np.ndarray, np.ndarray] | None = None
+    records: tuple[np.ndarray, ...] | None = None
+
+
+def read_entries(path: str | Path) -> list[tuple[str, Result]]:
+    """The labelled results of a report source: a result file gives one, a comparison file (`servofmu compare`)
+    one per method, labelled by the method.  Other files are refused (servofmu.identification.results.read_results)."""
+    return list(read_results(path).items())
+
+
+def find_data(results: Sequence[Result], source: Path, data: str | Path | None) -> Path:
+    """The data file the results were identified from: ``data`` if given, else the path their provenance
+    records (as given, then beside the result file).  Its SHA-256 must be the one the provenance records."""
+    recorded = {r.provenance.get("data_file", "") for r in results}
+    hashes = {r.provenance.get("data_sha256", "") for r in results}
+    if len(hashes) > 1:
+        raise UserError(f"{source}: its results were identified from different data files")
+    if data is None:
+        name = next(iter(recorded))
+        candidates = [Path(name), source.parent / name, source.parent / Path(name).name] if name else []
+        found = [c for c in candidates if c.is_file()]
+        if not found:
+            raise UserError(f"{source}: the data file it was identified from ({name or 'not recorded'}) is not "
+                            "found; give the data file")
+        data = found[0]
+    data = Path(data)
+    if not data.is_file():
+        raise UserError(f"{data}: no such file")
+    expected = next(iter(hashes))
+    if expected and file_sha256(data) != expected:
+        raise UserError(f"{data}: is not the data file {source} was identified from (its SHA-256 differs from the "
+                        "one recorded in the result)")
+    return data
+
+
+# ---------------------------------------------------------------------------
+# Numbers
+# ---------------------------------------------------------------------------
+def steady_friction(plant: Plant, v: np.ndarray) -> np.ndarray:
+    """Friction force F(v) (N) at constant velocities ``v`` (m/s, none zero), from the model's own friction
+    expression (servofmu.model.symbolic.friction_force); for LuGre with the bristles at rest (dz/dt = 0)."""
+    import casadi as ca
+
+    from ..model.symbolic import friction_force
+
+    v = np.asarray(v, dtype=float).ravel()
+    vel = ca.SX.sym("v")
+    z = ca.SX.sym("z") if plant.friction.model == "lugre" else None
+    force, dz = friction_force(plant, plant.parameters(), vel, z)
+    if dz is not None:
+        # dz/dt is linear in z: one Newton step from z = 0 lands on its root exactly (v ≠ 0)
+        z_rest = -ca.substitute(dz, z, 0) / ca.jacobian(dz, z)
+        force = ca.substitute(force, z, z_rest)
+    curve = ca.Function("friction", [vel], [force]).map(v.size)
+    return np.asarray(curve(v[None, :])).ravel()
+
+
+def model_sine(plant: Plant, amplitudes, frequencies, rtol: float = CURVE_RTOL):
+    """(H, dc, converged) of ``plant`` in steady state at each (amplitude, frequency) pair; the convergence test
+    as the identifier's (servofmu.identification.criterion.SineCriterion)."""
+    options = steady_state_options(rtol)
+    feats = BatchSimulator(plant).steady_state(plant.parameter_vector(), amplitudes, frequencies, options)
+    return feats.H[0], feats.dc[0], feats.converged[0]
+
+
+def _used_data(data_file: DataFile) -> SineData | None:
+    return sine_data(data_file) if data_file.kind == "measurement" else None
+
+
+def velocity_range(data_file: DataFile) -> float:
+    peaks = [np.max(np.abs(e.window.v)) for e in data_file.experiments if e.window.v.size]
+    peaks += [np.max(np.abs(r.series.v)) for r in data_file.records if r.series.v.size]
+    peak = max(peaks, default=0.0)
+    return 1.1 * peak if np.isfinite(peak) and peak > 0 else 1.0
+
+
+def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile) -> list[Entry]:
+    """Simulate each identified plant against the data: at the used experiments, or along each record."""
+    data = _used_data(data_file)
+    entries = []
+    for label, result in labelled:
+        if data is not None:
+            H, dc, _ = model_sine(result.plant, data.amplitudes, data.frequencies, rtol=POLISH_RTOL)
+            entries.append(Entry(label, result, sine=(H, dc)))
+        else:
+            sim = BatchSimulator(result.plant)
+            v = tuple(sim.simulate_record(result.plant.parameter_vector(), r.series.time, r.series.u)[0]
+                      for r in data_file.records)
+            entries.append(Entry(label, result, records=v))
+    return entries
+
+
+# ---------------------------------------------------------------------------
+# Figures (PNG bytes)
+# ---------------------------------------------------------------------------
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def _bode_png(data_file: DataFile, references: dict, title: str) -> bytes:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = bode_figure(data_file, Path(tmp) / "bode.png", references=references, title=title)
+        return path.read_bytes()
+
+
+def _fitted_data_file(data_file: DataFile, noisy: bool) -> DataFile:
+    """The data as fitted: the noisy first harmonics when the file has noise."""
+    if not noisy:
+        return data_file
+    return replace(data_file, experiments=tuple(replace(e, H=e.H_noisy) for e in data_file.experiments
+                                              if e.H_noisy is not None))
+
+
+def _segments(label: str, f: np.ndarray, H: np.ndarray, ok: np.ndarray) -> dict:
+    """The runs of consecutive frequencies where ``ok`` as separate curves, so that where the model reaches no
+    steady state the line has a gap (one NaN would spoil the unwrapped phase of the whole curve).  Only the
+    first carries the label: matplotlib leaves labels that start with "_" out of the legend."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    runs = [(a, b) for a, b in zip(edges[::2], edges[1::2])]
+    return {(label if i == 0 else f"_{label} {i}"): (f[a:b], H[a:b]) for i, (a, b) in enumerate(runs)}
+
+
+def bode_figures(entry: Entry, data_file: DataFile, data: SineData) -> list[tuple[str, bytes]]:
+    """(caption, PNG): measured against identified response at each magnitude, then all magnitudes against the
+    identified linear G(jω)."""
+    plant = entry.result.plant
+    fitted = _fitted_data_file(data_file, data.noisy)
+    f_lo, f_hi = data.frequencies.min(), data.frequencies.max()
+    grid = np.unique(np.concatenate([np.geomspace(f_lo, f_hi, CURVE_POINTS), data.frequencies]))
+    out = []
+    for m in sorted(set(data.amplitudes.tolist()), reverse=True):
+        H, _, ok = model_sine(plant, np.full(grid.size, m), grid)
+        one = replace(fitted, experiments=tuple(e for e in fitted.experiments if e.amplitude == m), records=())
+        title = f"{entry.label}: measured and identified response at {m:g} N"
+        png = _bode_png(one, _segments(f"identified model at {m:g} N", grid, H, ok), title)
+        note = "" if ok.all() else f" The identified model reaches no steady state at {np.sum(~ok)} of the " \
+                                   f"{grid.size} frequencies (gaps)."
+        out.append((f"{title}: points are the measured first harmonics H = V1/U1, the dashed line the identified "
+                     f"plant simulated to steady state at {grid.size} frequencies.{note}", png))
+    wide = np.geomspace(f_lo / 2, f_hi * 2, 200)
+    title = f"{entry.label}: every magnitude against the identified G(jω)"
+    png = _bode_png(fitted, {"identified linear G(jω), no friction": (wide, plant.frequency_response(2 * np.pi * wide))},
+                    title)
+    out.append((f"{title}: the spread between magnitudes is the friction's effect.", png))
+    return out
+
+
+def records_figure(entry: Entry, data_file: DataFile) -> tuple[str, bytes]:
+    """Measured v against the identified model's v for each record (at most MAX_PANELS)."""
+    plt = pyplot()
+    recs = data_file.records[:MAX_PANELS]
+    fig, axes = plt.subplots(len(recs), 1, figsize=(9, 2.8 * len(recs)), squeeze=False)
+    for ax, r, v_model in zip(axes[:, 0], recs, entry.records):
+        ax.plot(r.series.time, r.series.v, lw=1, label="measured v")
+        ax.plot(r.series.time, v_model, "k--", lw=1, label="identified model")
+        ax.set_title(f"{r.name} ({r.source})")
+        ax.set_ylabel("v [m/s]")
+        ax.set_xlabel("time [s]")
+        ax.grid(True, alpha=0.4)
+        ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    try:
+        png = _png(fig)
+    finally:
+        plt.close(fig)
+    more = f" (the first {MAX_PANELS} of {len(data_file.records)} records)" if len(data_file.records) > MAX_PANELS else ""
+    return f"{entry.label}: measured velocity and the identified model driven by the measured input{more}.", png
+
+
+def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float) -> tuple[str, bytes]:
+    """Friction force against velocity at constant velocity: each identified plant, and the true one if known.
+    Left: every velocity the data reached; right: near v = 0, where the Stribeck effect and the smoothing live."""
+    half = np.geomspace(v_max * 1e-4, v_max, FRICTION_POINTS // 2)
+    v = np.concatenate([-half[::-1], half])
+    plants = [e.result.plant for e in entries] + ([truth] if truth is not None else [])
+    stribeck = [p.friction.vs for p in plants if p.friction.vs]
+    v_zoom = min(v_max, 5 * max(stribeck) if stribeck else v_max / 20)
+    curves = [(f"identified ({e.label})", e.result.plant, "--" if truth is not None else "-", f"C{i}", 1.5)
+              for i, e in enumerate(entries)]
+    if truth is not None:
+        curves.insert(0, (f"true ({truth.name})", truth, "-", "0.6", 4))
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    for label, plant, style, color, width in curves:
+        force = steady_friction(plant, v)
+        for ax in axes:
+            ax.plot(v, force, style, color=color, lw=width, label=label)
+    axes[1].set_xlim(-v_zoom, v_zoom)
+    for ax, title in zip(axes, ("every velocity the data reached", f"near zero: |v| ≤ {v_zoom:.3g} m/s")):
+        ax.axhline(0, color="k", lw=0.5)
+        ax.axvline(0, color="k", lw=0.5)
+        ax.set_xlabel("velocity v [m/s]")
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, alpha=0.4)
+    axes[0].set_ylabel("friction force F(v) [N]")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("friction against velocity (steady sliding)")
+    fig.tight_layout()
+    try:
+        png = _png(fig)
+    finally:
+        plt.close(fig)
+    return ("Friction force against velocity at constant velocity, over the velocities the data reached "
+            f"(|v| ≤ {v_max:.3g} m/s)" + (", identified against true" if truth is not None else "") + ".", png)
+
+
+def convergence_figure(entries: Sequence[Entry]) -> tuple[str, bytes] | None:
+    """The swarm's best fitness per iteration, with each stage's final fitness as a level."""
+    if not any(e.result.history.size for e in entries):
+        return None
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for i, e in enumerate(entries):
+        h = e.result.history
+        if h.size:
+            ax.semilogy(np.arange(h.size), h, "-o", ms=3, color=f"C{i}", label=f"PSO best ({e.label})")
+        for j, stage in enumerate(e.result.stages):
+            if stage.name != "pso" and np.isfinite(stage.fitness) and stage.fitness > 0:
+                ax.axhline(stage.fitness, color=f"C{i}", ls=(":", "-.", "--")[j % 3], lw=1,
+                           label=f"after {stage.name} ({e.label}): {stage.fitness:.3g}")
+    ax.set_xlabel("PSO iteration (0: the initial swarm)")
+    ax.set_ylabel("fitness (RMS relative output error)")
+    ax.set_title("PSO convergence")
+    ax.grid(True, which="both", alpha=0.4)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    try:
+        png = _png(fig)
+    finally:
+        plt.close(fig)
+    return "Best fitness of the swarm at each iteration; lines mark the fitness after the other stages.", png
+
+
+# ---------------------------------------------------------------------------
+# HTML
+# ---------------------------------------------------------------------------
+STYLE = """
+body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
+h1 { font-size: 1.6em; } h2 { font-size: 1.25em; margin-top: 2em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; } div.scroll { overflow-x: auto; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
+th { background: #f2f2f2; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+figure { margin: 1.2em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption { font-size: 0.9em; color: #444; } p.note { font-size: 0.9em; color: #555; }
+code { font-size: 0.95em; }
+"""
+
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _num(x: float, fmt: str = ".8g") -> str:
+    return "—" if x is None or not np.isfinite(x) else format(float(x), fmt)
+
+
+def _table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_from: int = 1) -> str:
+    """An HTML table; cells from column ``numeric_from`` on are right-aligned."""
+    out = [f'<div class="scroll"><table id="{table_id}">', "<thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr></thead>",
+           "<tbody>"]
+    for row in rows:
+        cells = [f'<td class="num">{_e(c)}</td>' if i >= numeric_from else f"<td>{_e(c)}</td>"
+                 for i, c in enumerate(row)]
+        out.append("<tr>" + "".join(cells) + "</tr>")
+    out.append("</tbody></table></div>")
+    return "\n".join(out)
+
+
+def _figure(caption: str, png: bytes, alt: str) -> str:
+    src = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+    return f'<figure><img src="{src}" alt="{_e(alt)}"><figcaption>{_e(caption)}</figcaption></figure>'
+
+
+def relative_error(value: float, true: float) -> float:
+    return abs(value - true) / abs(true) if true != 0 else float("nan")
+
+
+def parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
+    names = list(dict.fromkeys(n for e in entries for n in e.result.names))
+    true = truth.parameters() if truth is not None else {}
+    head = ["parameter", "unit"]
+    for e in entries:
+        suffix = f" ({e.label})" if len(entries) > 1 else ""
+        head += [f"identified{suffix}", f"95 % low{suffix}", f"95 % high{suffix}"]
+    if truth is not None:
+        head.append("true")
+        head += [f"relative error{f' ({e.label})' if len(entries) > 1 else ''}" for e in entries]
+    rows = []
+    for n in names:
+        row = [n, parameter_info(n)[0]]
+        values = []
+        for e in entries:
+            if n in e.result.names:
+                i = e.result.names.index(n)
+                values.append(e.result.theta[i])
+                row += [_num(e.result.theta[i]), _num(e.result.intervals[i, 0]), _num(e.result.intervals[i, 1])]
+            else:
+                values.append(None)
+                row += ["—"] * 3
+        if truth is not None:
+            t = true.get(n)
+            row.append(_num(t) if t is not None else "—")
+            row += [_num(relative_error(v, t), ".3e") if v is not None and t is not None else "—" for v in values]
+        rows.append(row)
+    return _table("parameters", head, rows, numeric_from=2)
+
+
+def paper_table(entries: Sequence[Entry], truth: Plant | None) -> str:
+    """The paper's layout (Table II for a first-order G, III otherwise); the paper's published columns beside ours
+    when the structure is the paper's plant."""
+    ours = [dict(paper_rows(e.result.plant)) for e in entries]
+    labels = list(dict.fromkeys(label for e in entries for label, _ in paper_rows(e.result.plant)))
+    structure = entries[0].result.structure
+    published = PAPER_TABLES.get(structure.name)
+    if published is not None and not _is_packaged(structure):
+        published = None
+    head = ["parameter"] + [f"servofmu {e.label}" for e in entries]
+    if truth is not None:
+        truth_rows = dict(paper_rows(truth))
+        head.append(f"true ({truth.name})")
+    if published is not None:
+        head += [f"paper: {c}" for c in PAPER_COLUMNS]
+    rows = []
+    for label in labels:
+        row = [label] + [o.get(label, "—") for o in ours]
+        if truth is not None:
+            row.append(truth_rows.get(label, "—"))
+        if published is not None:
+            row += list(published.get(label, ("—",) * len(PAPER_COLUMNS)))
+        rows.append(row)
+    note = ""
+    if published is not None:
+        note = (f'<p class="note">The paper\'s columns are its published Tables II/III for {_e(structure.name)}; '
+                "its target is the plant the data was measured on.</p>")
+    return _table("paper", head, rows) + note
+
+
+def _is_packaged(structure: Plant) -> bool:
+    """Whether ``structure`` is the packaged plant of its name (the paper's g1/g2), not a namesake."""
+    try:
+        packaged = load_plant(structure.name)
+    except UserError:
+        return False
+    return (packaged.parameter_names() == structure.parameter_names()
+            and np.allclose(packaged.parameter_vector(), structure.parameter_vector()))
+
+
+def recomputed_fitness(entry: Entry, data: SineData) -> float:
+    """The fitness of the identified plant from the report's own simulations (the identification's criterion)."""
+    r = sine_residuals(data, *entry.sine)
+    return float(np.sqrt(np.mean(np.square(r))))
+
+
+def experiment_table(entries: Sequence[Entry], data: SineData) -> str:
+    """Measured (as fitted) against identified response at each used experiment."""
+    what = "measured (noisy)" if data.noisy else "measured"
+    head = ["amplitude [N]", "frequency [Hz]", f"|H| {what} [m/(N·s)]", f"∠H {what} [deg]", f"dc {what} [m/s]"]
+    for e in entries:
+        suffix = f" ({e.label})" if len(entries) > 1 else ""
+        head += [f"|H| model{suffix}", f"∠H model{suffix} [deg]", f"dc model{suffix} [m/s]", f"|ΔH|/|H|{suffix}"]
+    rows = []
+    for k in range(data.H.size):
+        row = [_num(data.amplitudes[k], "g"), _num(data.frequencies[k], "g"), _num(abs(data.H[k])),
+               _num(np.degrees(np.angle(data.H[k])), ".6f"), _num(data.dc[k], ".6g")]
+        for e in entries:
+            H, dc = e.sine[0][k], e.sine[1][k]
+            row += [_num(abs(H)), _num(np.degrees(np.angle(H)), ".6f"), _num(dc, ".6g"),
+                    _num(abs(H - data.H[k]) / abs(data.H[k]), ".3e")]
+        rows.append(row)
+    return _table("experiments", head, rows, numeric_from=0)
+
+
+def records_table(entries: Sequence[Entry], data_file: DataFile) -> str:
+    head = ["record", "source", "samples", "rms v [m/s]"]
+    head += [f"rms(v_model − v)/rms(v){f' ({e.label})' if len(entries) > 1 else ''}" for e in entries]
+    rows = []
+    for k, r in enumerate(data_file.records):
+        rms_v = float(np.sqrt(np.mean(r.series.v ** 2)))
+        row = [r.name, r.source, str(r.series.v.size), _num(rms_v, ".6g")]
+        row += [_num(float(np.sqrt(np.mean((e.records[k] - r.series.v) ** 2))) / rms_v, ".3e") for e in entries]
+        rows.append(row)
+    return _table("records", head, rows, numeric_from=2)
+
+
+def stage_table(entries: Sequence[Entry]) -> str:
+    head = (["result"] if len(entries) > 1 else []) + ["stage", "fitness", "seconds", "model evaluations"]
+    rows = []
+    for e in entries:
+        for s in e.result.stages:
+            rows.append(([e.label] if len(entries) > 1 else []) + [s.name, _num(s.fitness, ".3e"),
+                                                                   _num(s.seconds, ".3f"), str(s.evaluations)])
+        rows.append(([e.label] if len(entries) > 1 else []) + ["total", _num(e.result.fitness, ".3e"),
+                                                               _num(e.result.seconds, ".3f"),
+                                                               str(e.result.evaluations)])
+    return _table("stages", head, rows, numeric_from=len(head) - 3)
+
+
+def provenance_table(entries: Sequence[Entry], data_path: Path, source: Path) -> str:
+    keys = ["method", "data_file", "data_sha256", "structure_file", "ann_file", "command", "date"]
+    head = ["item"] + [e.label for e in entries]
+    rows = [["report source", *[str(source)] * len(entries)], ["data file read", *[str(data_path)] * len(entries)],
+            ["structure", *[e.result.structure.name for e in entries]]]
+    for k in keys:
+        values = [e.result.method if k == "method" else e.result.provenance.get(k, "") for e in entries]
+        if any(values):
+            rows.append([k, *[v or "—" for v in values]])
+    return _table("provenance", head, rows, numeric_from=len(head))
+
+
+def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | None = None,
+                source: Path = Path("RESULT.h5"), title: str | None = None) -> str:
+    """The whole page for ``entries`` (simulated against ``data_file`` by compute_entries)."""
+
+    if not entries:
+        raise UserError(f"{source}: holds no result to report")
+    data = _used_data(data_file)
+    structure = entries[0].result.structure
+    title = title or f"Identification of {structure.name}"
+    parts = [f"<h1>{_e(title)}</h1>"]
+    summary = "; ".join(f"{e.label}: fitness {e.result.fitness:.3e} in {e.result.seconds:.2f} s "
+                        f"({e.result.evaluations} model evaluations)" for e in entries)
+    parts.append(f'<p>Structure <code>{_e(structure.name)}</code> ({_e(structure.friction.model)} friction, '
+                 f"order {structure.order}) identified from <code>{_e(Path(data_file.path).name)}</code> "
+                 f"({len(data_file.experiments)} experiments, {len(data_file.records)} records). {_e(summary)}. "
+                 "Fitness: RMS of the relative output-error residuals.</p>")
+
+    parts += ["<h2>Identified parameters</h2>", parameter_table(entries, truth),
+              '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit. Parameters not '
+              "listed keep the structure file's values.</p>",
+              "<h2>The paper's table layout</h2>", paper_table(entries, truth)]
+
+    if data is not None:
+        skipped = f" {data.skipped} experiment(s) reached no steady state and were not used." if data.skipped else ""
+        refit = "; ".join(f"{e.label}: {recomputed_fitness(e, data):.3e} (stored {e.result.fitness:.3e})"
+                          for e in entries)
+        parts += ["<h2>Fit at each experiment</h2>", experiment_table(entries, data),
+                  f'<p class="note">The model columns simulate the identified plant to steady state at each '
+                  f"experiment of the plan (relative tolerance {POLISH_RTOL:g}). The fitness recomputed from them: "
+                  f'<span id="refit">{_e(refit)}</span>.{_e(skipped)}</p>']
+    else:
+        parts += ["<h2>Fit to each record</h2>", records_table(entries, data_file)]
+    parts += ["<h2>Stages</h2>", stage_table(entries)]
+
+    parts.append("<h2>Figures</h2>")
+    for e in entries:
+        figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e, data_file)]
+        parts += [_figure(caption, png, caption.split(":")[0]) for caption, png in figures]
+    caption, png = friction_figure(entries, truth, velocity_range(data_file))
+    parts.append(_figure(caption, png, "friction against velocity"))
+    convergence = convergence_figure(entries)
+    if convergence is not None:
+        parts.append(_figure(*convergence, "PSO convergence"))
+
+    parts += ["<h2>Provenance</h2>", provenance_table(entries, Path(data_file.path), source),
+              f'<p class="note">Made by servofmu {_e(__version__)} on {_e(utc_now())}.</p>']
+    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+            "<link rel=\"icon\" href=\"data:,\">\n"
+            f"<title>{_e(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n" + "\n".join(parts)
+            + "\n</body>\n</html>\n")
+
+
+def make_report(source: str | Path, output: str | Path, data: str | Path | None = None,
+                truth: str | Path | None = None) -> Path:
+    """Read a result or comparison file (and the data it was identified from), write the HTML report ``output``."""
+    output = check_output_path(output)
+    source = Path(source)
+    labelled = read_entries(source)
+    true_plant = load_plant(truth) if truth is not None else None
+    data_file = read_data_file(find_data([r for _, r in labelled], source, data))
+    entries = compute_entries(labelled, data_file)
+    page = report_html(entries, data_file, true_plant, source=source)
+    return atomic_write(output, page)

@@ -1,0 +1,374 @@
+"""Batch simulator: one plant structure, many parameter sets, compiled once.
+
+A :class:`BatchSimulator` generates C code for the plant's right-hand side and
+Jacobian from the same CasADi model as the FMU (``servofmu.model.symbolic``), and
+compiles it with a driver (``batch_c/batch_driver.c``) that uses the FMU core's
+RODAS4 integrator (``fmu/c/servo_core.c``) into a shared library, cached on disk
+by a hash of its sources (:func:`cache_dir`).  It then runs
+
+* :meth:`BatchSimulator.steady_state`: stepped-sine experiments.  Experiment k
+  is u = 0 plus the excitation m·sin(2πf t), all states zero at t = 0.  The
+  plant is integrated period by period until the first harmonic and the mean
+  of the velocity change from one period to the next by less than
+  max(``tol``, 3·``rtol``)·|S1| — steady periods integrated at rtol differ by
+  up to about 2·rtol (the step sequence may alternate from period to period) —
+  or ``max_time`` is reached; ``converged`` is then False and the features of
+  the last period are returned.  Per experiment:
+
+  - ``H`` = V1/U1 with S1 = j·(2/T)∫_period s(t)·exp(−j2πft) dt, so that
+    s ≈ |S1|·sin(2πft + arg S1); U1 = m;
+  - ``dc`` = mean of v over the period;
+  - ``distortion`` = sqrt(Σ_{k≥2}|V_k|²)/|V1| over all harmonics, from
+    Parseval: Σ_{k≥1}|V_k|²/2 = mean((v − dc)²) over the period.
+
+  The integrals are quadrature states of the integrator (q' = v, v·cos, v·sin,
+  v²), not sums over samples.  In steady state the features do not depend on
+  which period they come from, nor on how the transient was computed, so
+  three speed-ups leave them unchanged: the periods before the change per
+  period falls below 1e-2 are integrated at rtol = 1e-4 (only the last two
+  periods, at ``rtol``, decide convergence); ``accelerate`` extrapolates the
+  fixed point of the period map (minimal polynomial extrapolation, only to a
+  fixed point whose estimated multipliers lie within 0.99 — an orbit that is
+  not attracting is no steady state, a plain run never settles there — and
+  undone when near the integrator's scatter it makes the change grow); and
+  ``give_up_early`` stops an experiment whose period-to-period change does not
+  decay fast enough to converge within ``max_time`` (converged = False, as at
+  ``max_time``).  ``settle_time`` is the simulated time used, not that of a
+  plain run.
+
+* :meth:`BatchSimulator.simulate_record`: the response v at the sample times
+  to a sampled input u (linear between samples), all states zero at the first
+  sample, the model's own excitation off.
+
+Parameter vectors follow ``plant.parameter_names()``.  A parameter set that the
+plant file format would reject (non-finite, a pole with a positive real part,
+negative friction, ... see :func:`valid_parameter_sets`) or whose integration
+fails gives NaN results instead of an error.  Tasks (parameter set ×
+experiment) run on ``threads`` POSIX threads inside the library (default: the
+cores this process may use); results do not depend on the number of threads.
+Speed and accuracy per tolerance: docs/bench-batch.md.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..errors import UserError
+from ..fmu.sources import C_DIR, generate_sources
+from ..fmu.variables import state_nominals
+from ..model.plant import Plant
+from ..model.symbolic import SymbolicModel, build_model
+from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
+
+__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "valid_parameter_sets",
+           "batch_functions", "ModelStructureError"]
+
+DRIVER = Path(__file__).resolve().parent / "batch_c" / "batch_driver.c"
+EXTRA_CFLAGS = ("-pthread",)
+N_RESULTS = 8  # per sine task: re S1, im S1, DC, mean square, converged, settle time, steps, rejected steps
+H_START = 1e-4  # first step of every period, as a fraction of the period (the same each period: see the driver)
+
+
+class ModelStructureError(UserError):
+    """The plant's equations are not of the form the batch simulator integrates."""
+
+
+@dataclass(frozen=True)
+class SteadyStateOptions:
+    """How a stepped-sine experiment is run to periodic steady state.
+
+    ``rtol``: integrator relative tolerance; the absolute tolerance of each
+    state is ``rtol`` times the largest magnitude the state has reached, so the
+    features are accurate to a few ``rtol`` relative (docs/bench-batch.md).
+    ``tol``: converged when S1 and DC change by less than max(``tol``,
+    3·``rtol``)·|S1| from one period to the next, after at least
+    ``min_periods`` periods.  ``max_time`` (s): stop after the period that
+    reaches it.  ``max_steps``: integrator step budget per experiment
+    (exceeding it gives NaN).  ``accelerate``, ``give_up_early``: see the
+    module docstring.
+    """
+
+    rtol: float = 1e-8
+    tol: float = 1e-10
+    max_time: float = 60.0
+    min_periods: int = 2
+    max_steps: int = 5_000_000
+    accelerate: bool = True
+    give_up_early: bool = True
+
+    def __post_init__(self):
+        if not 0 < self.rtol < 1e-2:
+            raise UserError(f"rtol must be in (0, 0.01), not {self.rtol}")
+        if not 0 < self.tol < 1:
+            raise UserError(f"tol must be in (0, 1), not {self.tol}")
+        if not self.max_time > 0:
+            raise UserError(f"max_time must be positive, not {self.max_time}")
+        if self.min_periods < 2:
+            raise UserError(f"min_periods must be at least 2 (convergence compares two periods), "
+                            f"not {self.min_periods}")
+        if self.max_steps < 1:
+            raise UserError(f"max_steps must be positive, not {self.max_steps}")
+
+
+@dataclass(frozen=True)
+class SteadyStateFeatures:
+    """Features of N parameter sets × n_exp experiments (arrays of shape (N, n_exp)).
+
+    ``H`` (complex, m/s per N), ``dc`` (m/s), ``distortion`` (1), ``converged``
+    (bool), ``settle_time`` (s: the simulated time up to the end of the period
+    the features come from; NaN for an invalid set), ``steps`` (accepted
+    integrator steps, for benchmarks).
+    """
+
+    H: np.ndarray
+    dc: np.ndarray
+    distortion: np.ndarray
+    converged: np.ndarray
+    settle_time: np.ndarray
+    steps: np.ndarray
+
+
+
+class BatchSimulator:
+    """Simulator of the structure of ``plant`` (its nominal values only fix the model's state scaling).
+
+    ``threads``: worker threads per call (default: the cores this process may use; give 1 when several
+    processes simulate at once).  A simulator can be sent to worker processes: it is rebuilt there from the
+    plant (loading the compiled library from the cache).
+    """
+
+    def __init__(self, plant: Plant, threads: int | None = None):
+        if threads is not None and threads < 1:
+            raise UserError(f"threads must be at least 1, not {threads}")
+        self.plant = plant
+        self.threads = threads or available_cores()
+        self.parameter_names = plant.parameter_names()
+        self._lib = _library(plant)
+
+    def __reduce__(self):
+        return BatchSimulator, (self.plant, self.threads)
+
+    # ---- inputs ---------------------------------------------------------------------------------------------
+    def _parameter_sets(self, params) -> tuple[np.ndarray, np.ndarray]:
+        p = np.asarray(params, dtype=float)
+        if p.ndim == 1:
+            p = p[None, :]
+        if p.ndim != 2 or p.shape[1] != len(self.parameter_names):
+            raise UserError(f"parameter sets must have shape (N, {len(self.parameter_names)}) "
+                            f"({', '.join(self.parameter_names)}), not {np.shape(params)}")
+        p = np.ascontiguousarray(p)
+        return p, valid_parameter_sets(self.plant, p).astype(np.uint8)
+
+    # ---- stepped sine ---------------------------------------------------------------------------------------
+    def steady_state(self, params, amplitudes, frequencies, options: SteadyStateOptions = SteadyStateOptions(),
+                     progress=None) -> SteadyStateFeatures:
+        """Steady-state features of every parameter set (rows of ``params``) in every experiment.
+
+        ``amplitudes`` (N) and ``frequencies`` (Hz): one experiment per pair.
+        ``progress(done, total)``, if given, is called as parameter sets finish.
+        """
+        p, valid = self._parameter_sets(params)
+        amp = np.ascontiguousarray(np.asarray(amplitudes, dtype=float).ravel())
+        freq = np.ascontiguousarray(np.asarray(frequencies, dtype=float).ravel())
+        if amp.size != freq.size or amp.size == 0:
+            raise UserError(f"the plan needs as many amplitudes as frequencies (got {amp.size} and {freq.size})")
+        if not (np.all(np.isfinite(amp)) and np.all(amp > 0)):
+            raise UserError(f"excitation amplitudes must be positive and finite, not {amp.tolist()}")
+        if not (np.all(np.isfinite(freq)) and np.all(freq > 0)):
+            raise UserError(f"excitation frequencies must be positive and finite, not {freq.tolist()}")
+        n, n_exp = p.shape[0], amp.size
+        out = np.empty((n, n_exp, N_RESULTS))
+        for lo, hi in _chunks(n, progress):
+            rc = self._lib.sb_sine(hi - lo, p.shape[1], _ptr(p[lo:hi]), _uptr(valid[lo:hi]), n_exp, _ptr(amp),
+                                   _ptr(freq), options.rtol, options.tol, options.max_time, options.min_periods,
+                                   H_START, options.max_steps, int(options.accelerate),
+                                   int(options.give_up_early), self.threads, _ptr(out[lo:hi]))
+            if rc != 0:
+                raise RuntimeError(f"batch library rejected the call (code {rc})")
+            if progress is not None:
+                progress(hi, n)
+        s1 = out[..., 0] + 1j * out[..., 1]
+        dc, mean_square = out[..., 2], out[..., 3]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            harmonics = np.maximum(2 * (mean_square - dc ** 2) - np.abs(s1) ** 2, 0.0)
+            distortion = np.sqrt(harmonics) / np.abs(s1)
+        return SteadyStateFeatures(H=s1 / amp, dc=dc, distortion=distortion, converged=out[..., 4] == 1.0,
+                                   settle_time=out[..., 5], steps=out[..., 6].astype(np.int64))
+
+    # ---- records ----------------------------------------------------------------------------------------------
+    def simulate_record(self, params, time, u, rtol: float = 1e-8, max_steps: int = 50_000_000,
+                        progress=None) -> np.ndarray:
+        """v (m/s) at the sample times ``time`` (s) for the input ``u`` (N), linear between samples.
+
+        Returns shape (N, len(time)).  All states are zero at ``time[0]``; the model's built-in excitation is off.
+        """
+        p, valid = self._parameter_sets(params)
+        t = np.ascontiguousarray(np.asarray(time, dtype=float).ravel())
+        uu = np.ascontiguousarray(np.asarray(u, dtype=float).ravel())
+        if t.size != uu.size or t.size < 2:
+            raise UserError(f"a record needs at least two samples and as many times as inputs "
+                            f"(got {t.size} and {uu.size})")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(uu))):
+            raise UserError("the record contains NaN or Inf values")
+        if np.any(np.diff(t) <= 0):
+            raise UserError(f"record time is not strictly increasing (at sample {int(np.argmax(np.diff(t) <= 0)) + 1})")
+        if not 0 < rtol < 1e-2:
+            raise UserError(f"rtol must be in (0, 0.01), not {rtol}")
+        n = p.shape[0]
+        out = np.empty((n, t.size))
+        for lo, hi in _chunks(n, progress):
+            rc = self._lib.sb_record(hi - lo, p.shape[1], _ptr(p[lo:hi]), _uptr(valid[lo:hi]), t.size, _ptr(t),
+                                     _ptr(uu), rtol, H_START, max_steps, self.threads, _ptr(out[lo:hi]))
+            if rc != 0:
+                raise RuntimeError(f"batch library rejected the call (code {rc})")
+            if progress is not None:
+                progress(hi, n)
+        return out
+
+
+def valid_parameter_sets(plant: Plant, params) -> np.ndarray:
+    """Which rows of ``params`` (N × n_params) are plants that the plant file format accepts (docs/plant-format.md).
+
+    The rules of ``servofmu.model.plant.plant_from_dict``, vectorised: finite values; no pole with a positive real part;
+    a non-zero gain; with ``dc_gain``, no pole or zero at 0; friction values not negative, ``v_smooth``, ``vs`` and
+    ``sigma0`` positive, static friction not below Coulomb friction, and positive Coulomb friction for LuGre.
+    """
+    p = np.atleast_2d(np.asarray(params, dtype=float))
+    col = {name: p[:, i] for i, name in enumerate(plant.parameter_names())}
+    with np.errstate(invalid="ignore"):
+        ok = np.all(np.isfinite(p), axis=1)
+        for kind, roots in (("pole", plant.poles), ("zero", plant.zeros)):
+            for i, root in enumerate(roots, start=1):
+                re = col[f"{kind}{i}_re"] if root.imag != 0 else col[f"{kind}{i}"]
+                im = col[f"{kind}{i}_im"] if root.imag != 0 else np.zeros_like(re)
+                if kind == "pole":
+                    ok &= re <= 0
+                if plant.dc_gain is not None:
+                    ok &= (re != 0) | (im != 0)
+        ok &= col[plant.gain_key] != 0
+        fr = plant.friction
+        for key in fr.keys():
+            ok &= col[key] >= 0
+        for key in ("v_smooth", "vs", "sigma0"):
+            if key in col:
+                ok &= col[key] > 0
+        for side in ("pos", "neg"):
+            if f"fs_{side}" in col:
+                ok &= col[f"fs_{side}"] >= col[f"fc_{side}"]
+            if fr.model == "lugre":
+                ok &= col[f"fc_{side}"] > 0
+    return ok
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The compiled library
+# ---------------------------------------------------------------------------------------------------------------
+def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
+    """The right-hand side the driver integrates, from the plant's symbolic model.
+
+    ``sb_ode(x, u, p) -> xdot`` and ``sb_jac(x, u, p) -> (dxdot/dx, dxdot/du)`` (dense) for the states without
+    the position, the plant's parameters ``p`` and the model's own excitation removed (the driver puts the sine
+    into u).  Checks what the driver relies on: v is the first state and nothing depends on the position.
+    """
+    names = model.parameter_names
+    pos = model.state_names.index("position")
+    keep = [i for i in range(model.nx) if i != pos]
+    x = ca.vertcat(*[model.x[i] for i in keep])
+    n_plant = len(model.plant.parameter_names())
+    p = model.p[:n_plant]
+    xdot = ca.substitute(model.xdot, model.p[names.index("excitation_amplitude")], ca.SX(0))
+    xdot = ca.vertcat(*[xdot[i] for i in keep])
+    if not ca.is_equal(model.y[0], model.x[0]) or pos == 0:
+        raise ModelStructureError(f"{model.plant.name}: the batch simulator needs v as the first state")
+    if ca.jacobian(model.xdot, model.x[pos]).nnz() != 0 or ca.depends_on(xdot, model.t):
+        raise ModelStructureError(f"{model.plant.name}: the batch simulator needs equations that depend neither on the "
+                         "position nor, apart from the excitation, on time")
+    ode = ca.Function("sb_ode", [x, model.u, p], [ca.densify(xdot)], ["x", "u", "p"], ["xdot"])
+    jacobians = [ca.densify(ca.jacobian(xdot, x)), ca.densify(ca.jacobian(xdot, model.u))]
+    jac = ca.Function("sb_jac", [x, model.u, p], jacobians, ["x", "u", "p"], ["J", "B"])
+    return ode, jac
+
+
+def _write_batch_sources(model: SymbolicModel, src: Path) -> None:
+    """batch_eqs.c (CasADi) and batch_config.h (sizes) for the driver; the FMU's sources via generate_sources."""
+    generate_sources(model, src, model.plant.name)  # model_eqs.c, model_config.h: what servo_core.c needs
+    functions = batch_functions(model)
+    cg = ca.CodeGenerator("batch_eqs.c", {"with_header": False})
+    for fn in functions:
+        cg.add(fn)
+    cg.generate(str(src) + os.sep)
+    sizes = {k: max(getattr(f, k)() for f in functions) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
+    nominal = [n for i, n in enumerate(state_nominals(model)) if model.state_names[i] != "position"]
+    (src / "batch_config.h").write_text(
+        f"/* Sizes of the batch simulator of plant {model.plant.name}. */\n"
+        f"#define SB_NS {functions[0].size1_in(0)}\n#define SB_NP {functions[0].size1_in(2)}\n"
+        f"#define SB_SZ_ARG {max(sizes['sz_arg'], 3)}\n#define SB_SZ_RES {max(sizes['sz_res'], 2)}\n"
+        f"#define SB_SZ_IW {sizes['sz_iw']}\n#define SB_SZ_W {sizes['sz_w']}\n"
+        f"#define SB_X_NOMINAL {{{', '.join(repr(float(v)) for v in nominal)}}}\n")
+
+
+@functools.lru_cache(maxsize=None)
+def _library(plant: Plant) -> ctypes.CDLL:
+    model = build_model(plant)
+    with tempfile.TemporaryDirectory(prefix="servofmu-batch-") as tmp:
+        src = Path(tmp)
+        _write_batch_sources(model, src)
+        digest = hashlib.sha256(compiler_signature(EXTRA_CFLAGS).encode())
+        for path in (src / "model_eqs.c", src / "model_eqs.h", src / "model_config.h", src / "batch_eqs.c",
+                     src / "batch_config.h", C_DIR / "servo_core.c", C_DIR / "servo_core.h", DRIVER):
+            digest.update(path.read_bytes())
+        name = f"batch-{plant.name}-{digest.hexdigest()[:20]}.so"
+        target = cache_dir() / name
+        if not target.is_file():
+            built = src / name
+            # the driver's unit includes batch_eqs.c and servo_core.c; model_eqs.c serves servo_core.c
+            compile_shared([DRIVER, src / "model_eqs.c"], built, include=[src, C_DIR], extra_flags=EXTRA_CFLAGS,
+                           what="the batch simulator")
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                partial = target.with_name(f".{name}.{os.getpid()}.part")
+                partial.write_bytes(built.read_bytes())
+                os.replace(partial, target)  # atomic: concurrent builders all end with a complete file
+            except OSError:
+                target = built  # no writable cache: load from the temporary folder (the mapping outlives it)
+        lib = ctypes.CDLL(str(target))
+    _declare(lib)
+    ns, n_p, nf = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
+    lib.sb_sizes(ctypes.byref(ns), ctypes.byref(n_p), ctypes.byref(nf))
+    if (ns.value, n_p.value, nf.value) != (model.nx - 1, len(plant.parameter_names()), N_RESULTS):
+        raise ModelStructureError(f"{target}: compiled library does not match plant {plant.name}")
+    return lib
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
+    pu = ctypes.POINTER(ctypes.c_ubyte)
+    lib.sb_sizes.argtypes = [ctypes.POINTER(i)] * 3
+    lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, i, pd]
+    lib.sb_sine.restype = i
+    lib.sb_record.argtypes = [lng, i, pd, pu, lng, pd, pd, d, d, lng, i, pd]
+    lib.sb_record.restype = i
+
+
+def _ptr(a: np.ndarray):
+    assert a.flags.c_contiguous and a.dtype == np.float64  # internal invariant, not input validation
+    return a.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+
+
+def _uptr(mask: np.ndarray):
+    assert mask.flags.c_contiguous and mask.dtype == np.uint8
+    return mask.ctypes.data_as(ctypes.POINTER(ctypes.c_ubyte))
+
+
+def _chunks(n: int, progress) -> list[tuple[int, int]]:
+    """One call without progress reporting; about 50 calls with it (each call keeps all threads busy)."""
+    size = n if progress is None else max(1, -(-n // 50))
+    return [(lo, min(n, lo + size)) for lo in range(0, n, size)]

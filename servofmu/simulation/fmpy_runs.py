@@ -1,0 +1,170 @@
+"""Run an FMU in FMPy: the servo FMUs of this package or any FMU with a real input and output."""
+from __future__ import annotations
+
+import csv
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+
+__all__ = ["FmuInfo", "read_fmu", "read_input_csv", "simulate", "format_csv", "EXCITATION"]
+
+EXCITATION = ("excitation_amplitude", "excitation_frequency")
+
+
+@dataclass(frozen=True)
+class FmuInfo:
+    """What a caller needs to know about an FMU before running it."""
+
+    path: Path
+    fmi_version: str
+    model_name: str
+    interfaces: tuple[str, ...]          # subset of ("me", "cs")
+    variables: dict                      # name -> fmpy ScalarVariable
+    default_tolerance: float | None
+    default_step: float | None
+
+    @property
+    def has_builtin_excitation(self) -> bool:
+        return all(name in self.variables for name in EXCITATION)
+
+    def outputs(self) -> list[str]:
+        return [n for n, v in self.variables.items() if v.causality == "output"]
+
+    def require(self, *names: str) -> None:
+        for name in names:
+            if name not in self.variables:
+                raise UserError(f"{self.path}: the FMU has no variable named {name!r} "
+                                f"(it has {', '.join(sorted(self.variables)[:12])}...)")
+
+
+def read_fmu(path: str | Path) -> FmuInfo:
+    from fmpy import read_model_description
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such FMU file")
+    if not zipfile.is_zipfile(path):
+        raise UserError(f"{path}: not an FMU (not a zip archive)")
+    try:
+        md = read_model_description(str(path), validate=False)
+    except Exception as exc:  # fmpy raises plain Exceptions for any malformed FMU
+        raise UserError(f"{path}: not a readable FMU ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") \
+            from exc
+    interfaces = tuple(k for k, present in (("me", md.modelExchange), ("cs", md.coSimulation)) if present)
+    exp = md.defaultExperiment
+    return FmuInfo(path=path, fmi_version=md.fmiVersion, model_name=md.modelName, interfaces=interfaces,
+                   variables={v.name: v for v in md.modelVariables},
+                   default_tolerance=float(exp.tolerance) if exp and exp.tolerance else None,
+                   default_step=float(exp.stepSize) if exp and exp.stepSize else None)
+
+
+def read_input_csv(path: str | Path, input_name: str = "u") -> np.ndarray:
+    """A CSV with a header row `time,<input>`: an FMPy input signal (time strictly increasing, finite)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such input file")
+    with path.open(newline="") as fh:
+        reader = csv.reader(fh)
+        header = [h.strip() for h in next(reader, [])]
+        rows = list(reader)
+    for col in ("time", input_name):
+        if col not in header:
+            raise UserError(f"{path}: missing column {col!r} (header is {','.join(header) or 'empty'})")
+    it, iu = header.index("time"), header.index(input_name)
+    try:
+        data = np.array([(float(r[it]), float(r[iu])) for r in rows if r], dtype=float)
+    except (ValueError, IndexError) as exc:
+        raise UserError(f"{path}: a row is not numeric or is short") from exc
+    if len(data) < 2:
+        raise UserError(f"{path}: needs at least two rows")
+    if not np.all(np.isfinite(data)):
+        bad = int(np.argwhere(~np.isfinite(data))[0][0]) + 2
+        raise UserError(f"{path}: line {bad}: NaN or Inf value")
+    if np.any(np.diff(data[:, 0]) <= 0):
+        bad = int(np.argmax(np.diff(data[:, 0]) <= 0)) + 3
+        raise UserError(f"{path}: line {bad}: time is not strictly increasing")
+    signal = np.zeros(len(data), dtype=[("time", float), (input_name, float)])
+    signal["time"], signal[input_name] = data[:, 0], data[:, 1]
+    return signal
+
+
+def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me", amplitude: float | None = None,
+             frequency: float | None = None, input_signal: np.ndarray | None = None, output_interval: float | None = None,
+             relative_tolerance: float | None = None, outputs: list[str] | None = None,
+             start_values: dict | None = None) -> np.ndarray:
+    """Simulate an FMU in FMPy from 0 to ``stop_time``.
+
+    Parameters
+    ----------
+    fmu : str, Path or FmuInfo
+        Any FMU with Model Exchange or Co-Simulation.
+    stop_time : float
+        End of the simulation (s).
+    interface : {"me", "cs"}
+        Model Exchange (FMPy's solver) or Co-Simulation (the FMU's own).
+    amplitude, frequency : float, optional
+        The built-in sine excitation of servofmu FMUs (N, Hz).
+    input_signal : ndarray, optional
+        An FMPy input table (structured array with ``time`` and input names) for the input port.
+    output_interval : float, optional
+        Output interval (s); default: the FMU's step size, at most a hundredth of ``stop_time``.
+    relative_tolerance : float, optional
+        Solver tolerance; default: the FMU's.
+    outputs : list of str, optional
+        Variables to record; default: the outputs.
+    start_values : dict, optional
+        Start values by variable name.
+
+    Returns
+    -------
+    ndarray
+        FMPy's structured result: ``time`` and one field per recorded variable.
+
+    Raises
+    ------
+    UserError
+        For a file that is not an FMU, unknown variables, bad options or a failing simulation.
+    """
+    from fmpy import simulate_fmu
+
+    info = fmu if isinstance(fmu, FmuInfo) else read_fmu(fmu)
+    if interface not in ("me", "cs"):
+        raise UserError(f"interface must be me or cs, not {interface!r}")
+    if interface not in info.interfaces:
+        raise UserError(f"{info.path}: the FMU has no {'Model Exchange' if interface == 'me' else 'Co-Simulation'}"
+                        " interface")
+    if not stop_time > 0:
+        raise UserError(f"stop_time must be positive, not {stop_time}")
+    starts = dict(start_values or {})
+    if amplitude is not None or frequency is not None:
+        if not info.has_builtin_excitation:
+            raise UserError(f"{info.path}: the FMU has no built-in excitation parameters; drive its input with an input signal")
+        if amplitude is not None:
+            starts["excitation_amplitude"] = float(amplitude)
+        if frequency is not None:
+            if not frequency > 0:
+                raise UserError(f"frequency must be positive, not {frequency}")
+            starts["excitation_frequency"] = float(frequency)
+    info.require(*starts, *(outputs or []))
+    if input_signal is not None:
+        info.require(*[n for n in input_signal.dtype.names if n != "time"])
+    interval = output_interval or min(info.default_step or 1e-3, stop_time / 100)
+    try:
+        return simulate_fmu(str(info.path), fmi_type="ModelExchange" if interface == "me" else "CoSimulation",
+                            stop_time=stop_time, output_interval=interval, relative_tolerance=relative_tolerance,
+                            start_values=starts, input=input_signal, output=outputs)
+    except Exception as exc:  # a failing FMU: report it, not our stack
+        raise UserError(f"{info.path}: simulation failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") \
+            from exc
+
+
+def format_csv(result: np.ndarray) -> str:
+    """The result as CSV text with a header row of variable names."""
+    names = result.dtype.names
+    lines = [",".join(names)]
+    lines += [",".join(repr(float(row[n])) for n in names) for row in result]
+    return "\n".join(lines) + "\n"

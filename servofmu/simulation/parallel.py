@@ -1,0 +1,167 @@
+"""Run many independent tasks on local worker processes or on a Dask cluster, behind one interface.
+
+    with Workers(scheduler=None, workers=None) as pool:
+        for index, result in pool.imap(task, items, resource=WorkerResource(key, factory)):
+            ...
+
+``task(obj, item)`` is called once per item, in some worker; ``obj`` is what ``resource.factory()`` returned,
+made once per worker (per worker thread) and reused by every task that runs there: the way to extract and
+instantiate an FMU once and reset it between runs.  Results come back in completion order, with the
+item's index.  Tasks, items, the factory and results must be picklable (module-level functions and
+dataclasses); on a Dask cluster, servofmu must be installed on the workers.
+
+- ``scheduler=None`` (default): ``workers`` local processes (default: one per CPU core);
+  ``workers=0`` runs everything in this process, one task after the other.
+- ``scheduler="tcp://HOST:PORT"``: the tasks run on the Dask distributed cluster behind that scheduler;
+  the resource is sent to the workers once (scatter with broadcast).
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Sequence
+
+from ..errors import UserError
+from ..runtime import available_cores
+
+__all__ = ["Workers", "WorkerResource"]
+
+
+@dataclass(frozen=True)
+class WorkerResource:
+    """Something expensive every task in a worker needs (an instantiated FMU): made by ``factory()`` once
+    per worker thread and cached under ``key``."""
+
+    key: str
+    factory: Callable[[], Any]
+
+
+_local = threading.local()
+
+
+def _resource(resource: WorkerResource | None):
+    if resource is None:
+        return None
+    cache = getattr(_local, "objects", None)
+    if cache is None:
+        cache = _local.objects = {}
+    if resource.key not in cache:
+        cache[resource.key] = resource.factory()
+    return cache[resource.key]
+
+
+def _call(task, resource, item):
+    return task(_resource(resource), item)
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Local worker processes end when the process that started them is gone (e.g. killed with -9)."""
+    def watch():
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+class Workers:
+    """Local processes (default), this process (``workers=0``) or a Dask cluster (``scheduler``)."""
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None):
+        if workers is not None and workers < 0:
+            raise UserError(f"workers must be 0 or more, not {workers}")
+        self.scheduler = scheduler
+        self.workers = available_cores() if workers is None else workers
+        self._client = None
+        self._pool = None
+
+    @property
+    def description(self) -> str:
+        if self.scheduler:
+            return f"Dask scheduler {self.scheduler}"
+        return "this process" if self.workers == 0 else f"{self.workers} local worker processes"
+
+    def __enter__(self) -> "Workers":
+        if self.scheduler:
+            self._client = _connect(self.scheduler)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    def imap(self, task: Callable, items: Sequence, resource: WorkerResource | None = None
+             ) -> Iterator[tuple[int, Any]]:
+        """(index, task(resource object, items[index])) for every item, as the tasks finish."""
+        items = list(items)
+        if not items:
+            return iter(())
+        if self.scheduler:
+            return self._imap_dask(task, items, resource)
+        if self.workers == 0:
+            return ((i, _call(task, resource, item)) for i, item in enumerate(items))
+        return self._imap_local(task, items, resource)
+
+    def _imap_local(self, task, items, resource):
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)),
+                                             mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_exit_with_parent, initargs=(os.getpid(),))
+        futures = {self._pool.submit(_call, task, resource, item): i for i, item in enumerate(items)}
+        try:
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in sorted(done, key=futures.get):
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool as exc:
+                        raise UserError("a local worker process died (killed, or out of memory?)") from exc
+                    yield futures[fut], result
+        finally:
+            for fut in futures:
+                fut.cancel()
+
+    def _imap_dask(self, task, items, resource):
+        from distributed import as_completed
+
+        client = self._client
+        res = client.scatter(resource, broadcast=True, hash=False) if resource is not None else None
+        futures = [client.submit(_call, task, res, item, pure=False) for item in items]
+        index = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for fut in as_completed(futures):
+                try:
+                    result = fut.result()
+                except ImportError as exc:  # a worker without servofmu (or without one of its dependencies)
+                    raise UserError(f"Dask scheduler {self.scheduler}: a worker cannot import what the task needs "
+                                    f"({exc}); install servofmu on the workers") from exc
+                yield index[fut.key], result
+        finally:
+            client.cancel(futures)
+
+
+def _connect(address: str):
+    try:
+        from distributed import Client
+    except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
+        raise UserError("a Dask scheduler needs dask[distributed] installed") from exc
+    if "://" not in address:
+        raise UserError(f"Dask scheduler {address!r} is not a scheduler address like tcp://HOST:PORT")
+    try:
+        return Client(address, timeout=10)
+    except (OSError, TimeoutError) as exc:
+        raise UserError(f"Dask scheduler {address}: cannot connect ({str(exc).splitlines()[0]})") from exc

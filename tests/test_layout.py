@@ -1,0 +1,112 @@
+"""The package's floor plan, checked from its source with the ast module.
+
+Stages along the pipeline, lowest first; a module may import its own stage and the ones before it, never a
+later one.  No module (nor a script) imports a private name of another module.
+"""
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "servofmu"
+STAGES = [
+    {"servofmu.errors", "servofmu.runtime", "servofmu.fileio"},
+    {"servofmu.model", "servofmu.fmu_models"},
+    {"servofmu.fmu"},
+    {"servofmu.simulation"},
+    {"servofmu.measurement"},
+    {"servofmu.identification"},
+    {"servofmu.baselines"},
+    {"servofmu.control"},
+    {"servofmu.output"},
+    {"servofmu.cli", "servofmu.__main__"},
+]
+
+
+def stage_of(module: str) -> int | None:
+    """The stage of a module (by its longest matching prefix), None for the package root."""
+    for i, names in enumerate(STAGES):
+        if any(module == n or module.startswith(n + ".") for n in names):
+            return i
+    assert module == "servofmu", f"{module} is in no stage: add it to STAGES"
+    return None
+
+
+def module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path, root: Path = ROOT):
+    """(line, imported module, imported names) of every import in ``path``, relative ones resolved."""
+    tree = ast.parse(path.read_text())
+    package = module_name(path, root).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, []
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[:len(package) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            yield node.lineno, module, [a.name for a in node.names]
+
+
+def package_files():
+    return sorted(p for p in PACKAGE.rglob("*.py")) + sorted((ROOT / "fmu_models").glob("*.py"))
+
+
+def test_the_stage_order_is_stated_for_every_module():
+    for path in package_files():
+        if path.parent == ROOT / "fmu_models":
+            continue
+        stage_of(module_name(path))
+
+
+@pytest.mark.parametrize("path", package_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_module_imports_a_later_stage(path):
+    if path.parent == ROOT / "fmu_models":
+        return
+    here = module_name(path)
+    mine = stage_of(here)
+    if mine is None:  # the package root: the public API, which names every stage
+        return
+    for line, module, names in imports(path):
+        if not module.startswith("servofmu"):
+            continue
+        # from the package root: its dunders (the version) belong to no stage
+        targets = [f"{module}.{n}" for n in names if not n.startswith("__")] if module == "servofmu" else [module]
+        for target in targets:
+            theirs = stage_of(target)
+            if theirs is None:
+                continue
+            assert theirs <= mine, f"{path.relative_to(ROOT)}:{line}: {here} (stage {mine}) imports {target} " \
+                                   f"(stage {theirs}), a later stage"
+
+
+@pytest.mark.parametrize("path", package_files() + sorted((ROOT / "scripts").glob("*.py")),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_private_name_of_another_module_is_imported(path):
+    here = module_name(path) if path.is_relative_to(PACKAGE) else None
+    for line, module, names in imports(path):
+        if not module.startswith("servofmu") or module == here:
+            continue
+        private = [n for n in names if n.startswith("_") and not n.startswith("__")]
+        assert not private, f"{path.relative_to(ROOT)}:{line}: imports the private {', '.join(private)} of {module}"
+        assert not any(part.startswith("_") and not part.startswith("__") for part in module.split(".")), \
+            f"{path.relative_to(ROOT)}:{line}: imports the private module {module}"
+
+
+def test_the_checks_see_a_violation(tmp_path):
+    """The checks above can fail: a model module importing the output stage and a private name is caught."""
+    probe = tmp_path / "servofmu" / "model" / "probe.py"
+    probe.parent.mkdir(parents=True)
+    probe.write_text("from ..output.report import make_report\nfrom ..identification.criterion import _weighted\n")
+    found = [(m, names) for _, m, names in imports(probe, root=tmp_path)]
+    assert found == [("servofmu.output.report", ["make_report"]), ("servofmu.identification.criterion", ["_weighted"])]
+    assert stage_of(found[0][0]) > stage_of("servofmu.model.probe")
