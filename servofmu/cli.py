@@ -121,9 +121,9 @@ def cmd_import(args) -> None:
 
     data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output,
                           kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
-                          command=getattr(args, "command_line", ""))
+                          command=getattr(args, "command_line", ""), intersample=args.intersample)
     for r in data.records[-len(args.files):]:
-        line = f"{r.source}: {len(r.series.time)} samples at {r.sample_rate:.6g} Hz, {r.kind}"
+        line = f"{r.source}: {len(r.series.time)} samples at {r.sample_rate:.6g} Hz, {r.kind}, input {r.intersample}"
         if r.analysis is not None:
             a = r.analysis
             line += (f"; sine {a.frequency:.6g} Hz, |U1| {abs(a.U1):.4g} N, H = {abs(a.H):.4g} m/(N.s) "
@@ -187,7 +187,8 @@ def cmd_identify(args) -> None:
     from .runtime import utc_now
 
     structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann, args.method,
-                                                             command=getattr(args, "command_line", ""))
+                                                                  command=getattr(args, "command_line", ""),
+                                                                  skip=args.skip)
     check_output_path(args.output)
     bar = None if args.json else _ProgressBar("iteration")
     est = PSOANNIdentifier(structure, ann=ann, method=args.method, seed=args.seed, polish=not args.no_polish,
@@ -270,12 +271,26 @@ def cmd_compare(args) -> None:
 
 
 # ---------------------------------------------------------------------------
-# report
+# validate / report
 # ---------------------------------------------------------------------------
+def cmd_validate(args) -> None:
+    import json
+
+    from .output.validate import validate_files, validation_json, validation_text
+
+    v = validate_files(args.result, args.data, args.output, skip=args.skip)
+    if args.json:
+        print(json.dumps(validation_json(v), allow_nan=True))
+    else:
+        print(validation_text(v))
+        if args.output:
+            print(f"wrote {args.output}")
+
+
 def cmd_report(args) -> None:
     from .output.report import make_report
 
-    path = make_report(args.source, args.output, data=args.data, truth=args.truth)
+    path = make_report(args.source, args.output, data=args.data, truth=args.truth, validate=args.validate)
     print(f"wrote {path} (self-contained HTML: tables and figures)")
 
 
@@ -292,6 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .baselines import BASELINE_METHODS, BASELINE_NEEDS_ANN
     from .identification.methods import METHODS as IDENTIFY_METHODS
     from .identification.methods import NEEDS_ANN as IDENTIFY_NEEDS_ANN
+    from .model.signals import INTERSAMPLE
     from .output.formats import FORMATS as EXPORT_FORMATS
     from .output.formats import SUFFIX_FORMATS
 
@@ -347,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cutoff", type=float, help="low-pass cut-off (Hz) of the velocity estimate of position "
                                                 "records (default: a tenth of the sample rate)")
     p.add_argument("--frequency", type=float, help="excitation frequency (Hz), when it is not to be detected")
+    p.add_argument("--intersample", choices=INTERSAMPLE, default="zoh",
+                   help="the input between samples: zoh, held for one sample as a digital drive's command (default), "
+                        "or foh, linear; identify and validate replay the record so")
     p.add_argument("--append", action="store_true", help="add the records to an existing records file")
     p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
     p.set_defaults(func=cmd_import)
@@ -382,6 +401,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=IDENTIFY_METHODS, default="pso-ann",
                    help="pso-ann (default), pso (no ANN), ga-ann or aga-ann (the paper's GA comparators)")
     p.add_argument("--no-polish", action="store_true", help="skip the least-squares polish after the swarm")
+    p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
+                   help="records: leave the first SECONDS of every record out of the fit (the model starts at rest "
+                        "at the first sample; a record that does not start at rest is fitted after its initial "
+                        "state has died away)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-o", "--output", required=True, help="result file to write (HDF5)")
@@ -409,6 +432,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the table (.md) or every result (.h5, for `servofmu report`)")
     p.set_defaults(func=cmd_compare)
 
+    p = sub.add_parser("validate", help="simulate an identified model on other data: fit %% and residual tests")
+    p.add_argument("result", metavar="RESULT.h5", help="result file from `servofmu identify`")
+    p.add_argument("data", metavar="DATA.h5", help="data file (records or a measurement) it was not fitted to")
+    p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
+                   help="leave the first SECONDS of every record out (as identify --skip)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", dest="output", metavar="FILE.html|FILE.png", help="write a page or a figure")
+    p.set_defaults(func=cmd_validate)
+
     p = sub.add_parser("report", help="one self-contained HTML page of an identification: tables and figures")
     p.add_argument("source", metavar="RESULT.h5|COMPARE.h5",
                    help="result file from `servofmu identify` or comparison file from `servofmu compare`")
@@ -416,6 +448,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                      "its provenance records, or that name beside it)")
     p.add_argument("--truth", metavar="PLANT", help="the true plant (file or name in fmu_models/), when known: "
                                                     "drawn in the friction figure, relative errors in the table")
+    p.add_argument("--validate", metavar="DATA.h5", help="add the validation on another data file (fit %%, "
+                                                         "residual tests; see `servofmu validate`)")
     p.add_argument("-o", dest="output", metavar="REPORT.html", required=True, help="HTML file to write")
     p.set_defaults(func=cmd_report)
 

@@ -138,27 +138,8 @@ def test_train_refuses_a_file_that_is_not_a_training_set(g1_files, tmp_path):
     assert not (tmp_path / "ann.h5").exists()
 
 
-def test_machine_record_identified_in_the_time_domain(tmp_path):
-    """A record with an arbitrary (multi-sine) input, imported from CSV: simulated from the measured input, the
-    structure's output error brings back the plant.  The record is made by scipy's Radau on the equations."""
-    from reference import simulate_reference_input
-
-    t = np.arange(0.0, 4.0, 1e-3)
-    u = 1.5 * np.sin(2 * np.pi * 0.7 * t) + 0.8 * np.sin(2 * np.pi * 3.1 * t + 1) + 0.3 * np.sin(2 * np.pi * 9.3 * t)
-    v = simulate_reference_input([-10.0], [], 10.0, {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, t, u)
-    csv = tmp_path / "rec.csv"
-    np.savetxt(csv, np.column_stack([t, u, v]), delimiter=",", header="time,force,speed", comments="")
-    assert run("import", csv, "--time", "time", "--input", "force", "--output", "speed",
-               "-o", tmp_path / "rec.h5").returncode == 0
-    proc = run("identify", tmp_path / "rec.h5", "--structure", "g1", "--method", "pso", "--json",
-               "-o", tmp_path / "r.h5")
-    assert proc.returncode == 0, proc.stderr
-    obj = json.loads(proc.stdout)
-    assert np.isclose(obj["parameters"]["poles"][0][0], -10.0, rtol=1e-5)
-    assert np.isclose(obj["parameters"]["friction"]["fc_pos"], 0.5, rtol=1e-5)
-    assert np.isclose(obj["parameters"]["friction"]["fc_neg"], 0.4, rtol=1e-5)
-    # a network file that is not there is named
-    assert_one_line_error(run("identify", tmp_path / "rec.h5", "--structure", "g1", "--ann", "x.h5",
+def test_a_missing_network_file_is_named(tmp_path, g1_files):
+    assert_one_line_error(run("identify", g1_files["data"], "--structure", "g1", "--ann", tmp_path / "x.h5",
                               "-o", tmp_path / "r2.h5"), "x.h5")
 
 

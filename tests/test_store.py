@@ -64,7 +64,7 @@ def test_round_trip_and_plain_h5py_layout(tmp_path):
 
     # the same file through h5py alone, as docs/hdf5.md describes it
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "servofmu-data" and f.attrs["schema_version"] == 1
+        assert f.attrs["format"] == "servofmu-data" and f.attrs["schema_version"] == 2
         assert f.attrs["kind"] == "measurement" and bool(f.attrs["complete"])
         np.testing.assert_array_equal(f["plan/amplitude"][()], [2.0, 2.0, 0.6, 0.6])
         np.testing.assert_array_equal(f["plan/frequency"][()], [1.0, 5.0, 1.0, 5.0])

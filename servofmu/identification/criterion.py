@@ -4,10 +4,15 @@ A candidate plant is simulated under the data's own conditions and compared with
 
 - stepped-sine data (:class:`SineData`): per experiment the relative error of the first-harmonic response
   H = V1/U1 and of the mean velocity (:func:`sine_residuals`), from the batch simulator's periodic steady state;
-- time-domain records (:class:`RecordData`): the simulated velocity against the measured one at every sample.
+- time-domain records (:class:`RecordData`): the model driven by the recorded input (with the record's own
+  intersample behaviour) against the recorded output at every sample: the velocity of a velocity record, the raw
+  position of a position record (an encoder's counts are the measurement; the velocity estimated from them is
+  low-pass filtered and would bias the fit), with its unknown initial value projected out.
 
 The fitness is the RMS of the residuals (:func:`rms`).  The 95 % intervals of a fit come from the Gauss–Newton
-covariance of these residuals (:func:`intervals_from_jacobian`).
+covariance of these residuals (:func:`intervals_from_jacobian`); for records with a heteroscedasticity- and
+autocorrelation-consistent (Newey–West) estimate, so that residuals that are not white (a filtered signal, a
+small model error) do not make the intervals too narrow.
 """
 from __future__ import annotations
 
@@ -21,7 +26,8 @@ from ..model.plant import Plant
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from .prior import full_vectors
 
-__all__ = ["SineData", "RecordData", "sine_data", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
+__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "check_structure", "record_errors", "fit_percent",
+           "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
            "RecordCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
            "output_error_fitness", "SEARCH_RTOL", "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
@@ -61,11 +67,75 @@ class SineData:
 
 
 @dataclass(frozen=True)
-class RecordData:
-    """Time-domain records to identify from: per record time (s), input u (N) and measured velocity v (m/s)."""
+class RecordSeries:
+    """One record as it is fitted: time (s), input u (N), the measured output ``y`` — velocity (m/s) when
+    ``output`` is "v", position (m) when it is "position" — the input's ``hold`` between samples ("zoh" or "foh"),
+    and ``fitted``, the samples that enter the fit (all but a skipped settling segment)."""
 
-    records: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]
+    name: str
+    time: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    output: str
+    hold: str
+    fitted: np.ndarray
+
+
+@dataclass(frozen=True)
+class RecordData:
+    """Time-domain records to identify from, fitted jointly (see :class:`RecordCriterion` for the weights)."""
+
+    records: tuple[RecordSeries, ...]
     source: str
+
+
+def check_structure(structure: Plant, data: DataFile, what: str) -> None:
+    """Refuse a structure that does not match the plant the data was measured on (a measurement of a servofmu
+    FMU records its parameters; records of a machine say nothing, and any structure may be tried on them)."""
+    measured = [n for n in data.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain",
+                                                             "vs"))]
+    if measured and set(measured) - set(structure.parameter_names()):
+        raise UserError(f"{data.path}: {what} ({', '.join(structure.parameter_names())}) does not match the plant "
+                        f"the data was measured on ({', '.join(measured)})")
+
+
+def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
+    """The records of a records file as the criterion fits them.
+
+    Parameters
+    ----------
+    data : DataFile
+        A records file (``servofmu import``).
+    skip : float
+        Seconds at the start of every record left out of the fit: the model starts at rest at the first sample,
+        so a record that does not start at rest is fitted once the initial state has died away.
+
+    Returns
+    -------
+    RecordData
+        One RecordSeries per record: position records are fitted on their raw position, velocity records on
+        their velocity.
+
+    Raises
+    ------
+    UserError
+        For a file without records, a negative skip, or a skip that leaves fewer than 10 samples of a record.
+    """
+    if not data.records:
+        raise UserError(f"{data.path}: the file holds no records")
+    if not (np.isfinite(skip) and skip >= 0):
+        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
+    out = []
+    for r in data.records:
+        s = r.series
+        position = r.kind == "position" and s.position is not None
+        fitted = s.time >= s.time[0] + skip
+        if fitted.sum() < 10:
+            raise UserError(f"{data.path}: record {r.name} has {fitted.sum()} samples after skipping {skip:g} s; "
+                            "it needs at least 10")
+        out.append(RecordSeries(name=r.name, time=s.time, u=s.u, y=s.position if position else s.v,
+                                output="position" if position else "v", hold=r.intersample, fitted=fitted))
+    return RecordData(records=tuple(out), source=str(data.path))
 
 
 def sine_data(data: DataFile) -> SineData:
@@ -155,23 +225,63 @@ class SineCriterion:
         return r
 
 
+def record_errors(record: RecordSeries, response) -> np.ndarray:
+    """Model minus measurement at the record's fitted samples, for N responses (shape (N, fitted samples)).  For a
+    position the mean is removed: the encoder's zero is arbitrary, and the best constant offset is the mean."""
+    simulated = response.position if record.output == "position" else response.v
+    e = simulated[:, record.fitted] - record.y[record.fitted]
+    return e - e.mean(axis=1, keepdims=True) if record.output == "position" else e
+
+
+def fit_percent(y: np.ndarray, error: np.ndarray) -> float:
+    """The fit as MATLAB's ``compare`` defines it, 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖), from y and ŷ − y."""
+    return float(100.0 * (1.0 - np.linalg.norm(error) / np.linalg.norm(y - np.mean(y))))
+
+
 class RecordCriterion:
-    """Residuals of candidates against time-domain records: (v_model − v)/rms(v) at every sample."""
+    """Residuals of candidates against time-domain records, every record simulated with its own hold.
+
+    Weights: the residuals of record k are divided by ``scales[k]``, an estimate of its noise level, so that
+    every sample counts by how exactly it was measured — the maximum-likelihood weighting for records of
+    different signals (velocity, position), noise levels and lengths.  Before a fit the scale is the spread of
+    the record's signal (relative errors); :meth:`reweight` sets it to the RMS of the residuals of a fit, after
+    which the fit is repeated (feasible generalised least squares).
+    """
 
     def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
+        self.spreads = np.array([float(np.std(r.y[r.fitted])) or 1.0 for r in data.records])
+        self.scales = self.spreads.copy()
+        sizes = [int(r.fitted.sum()) for r in data.records]
+        self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
 
-    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
-        """(N, samples) residuals of the N candidates ``theta``, all records one after the other."""
+    def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+        """Per record, model minus measurement at its fitted samples for the N candidates ``theta``."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
         full = full_vectors(self.structure, theta)
-        parts = []
-        for t, u, v in self.data.records:
-            sim = self.simulator.simulate_record(full, t, u, rtol=rtol)
-            parts.append((sim - v) / np.sqrt(np.mean(v**2)))
-        return np.concatenate(parts, axis=1)
+        return [record_errors(r, self.simulator.simulate_record(full, r.time, r.u, hold=r.hold, rtol=rtol))
+                for r in self.data.records]
+
+    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
+        """(N, samples) weighted residuals of the N candidates ``theta``, all records one after the other."""
+        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
+
+    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
+        """The fitness of one candidate whatever the weights: RMS of every record's error relative to the spread
+        of its signal."""
+        return float(rms(np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1))[0])
+
+    def reweight(self, theta: np.ndarray, rtol: float) -> None:
+        """Scales from the residuals at ``theta``: each record's RMS error (its noise level, if the model fits)."""
+        for k, e in enumerate(self.errors(theta, rtol)):
+            noise = float(np.sqrt(np.mean(e[0] ** 2)))
+            self.scales[k] = max(noise, 1e-12 * self.spreads[k])
+
+    def fit_percent(self, theta: np.ndarray, rtol: float) -> list[float]:
+        """The fit (%) of every record at ``theta``."""
+        return [fit_percent(r.y[r.fitted], e[0]) for r, e in zip(self.data.records, self.errors(theta, rtol))]
 
 
 def rms(r: np.ndarray) -> np.ndarray:
@@ -197,15 +307,39 @@ def central_jacobian(crit: SineCriterion | RecordCriterion, theta: np.ndarray) -
     return ((r[:p] - r[p:]) / (2 * h[:, None])).T
 
 
-def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95) -> np.ndarray:
-    """(p, 2) intervals from the Gauss–Newton covariance s²(JᵀJ)⁻¹ with a Student t quantile."""
+def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95,
+                            blocks: list[slice] | None = None) -> np.ndarray:
+    """(p, 2) intervals with a Student t quantile, from the Gauss–Newton covariance s²(JᵀJ)⁻¹ or, with ``blocks``
+    (the residuals of each record, consecutive samples), from :func:`newey_west_covariance`."""
     from scipy.stats import t as student
 
     p = theta.size
     dof = max(r.size - p, 1)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
         return np.full((p, 2), np.nan)
-    s2 = float(r @ r) / dof
-    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    if blocks is None:
+        cov = float(r @ r) / dof * np.linalg.pinv(jac.T @ jac)
+    else:
+        cov = newey_west_covariance(r, jac, blocks) * r.size / dof
     half = student.ppf(0.5 + level / 2, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
     return np.stack([theta - half, theta + half], axis=1)
+
+
+def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice]) -> np.ndarray:
+    """The sandwich (JᵀJ)⁻¹ Ω (JᵀJ)⁻¹ of least squares whose residuals may be correlated in time within each block
+    (Newey & West 1987): Ω sums the scores g_t = J_t·r_t and their lagged products with Bartlett weights
+    1 − l/(L+1); the bandwidth L follows Andrews (1991) from the residuals' lag-1 autocorrelation ρ,
+    L = 1.1447·(α·n)^(1/3) with α = 4ρ²/((1−ρ)²(1+ρ)²).  For white residuals it is s²(JᵀJ)⁻¹."""
+    bread = np.linalg.pinv(jac.T @ jac)
+    omega = np.zeros_like(bread)
+    for block in blocks:
+        rb, g = r[block], jac[block] * r[block, None]
+        n = rb.size
+        rho = float(np.clip(rb[1:] @ rb[:-1] / max(rb @ rb, 1e-300), -0.97, 0.97))
+        alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+        lags = min(int(np.ceil(1.1447 * (alpha * n) ** (1 / 3))), n - 1)
+        omega += g.T @ g
+        for lag in range(1, lags + 1):
+            gamma = g[lag:].T @ g[:-lag]
+            omega += (1 - lag / (lags + 1)) * (gamma + gamma.T)
+    return bread @ omega @ bread

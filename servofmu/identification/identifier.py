@@ -36,7 +36,9 @@ from .criterion import (
     SineCriterion,
     SineData,
     central_jacobian,
+    check_structure,
     intervals_from_jacobian,
+    record_data,
     rms,
     sine_data,
 )
@@ -96,6 +98,10 @@ class PSOANNIdentifier:
         The identified plant.
     fitness_ : float
         RMS relative output error at ``theta_``.
+    data_ : SineData or RecordData
+        The data fitted.
+    fit_percent_ : list of float or None
+        For records: the fit of every record (%), as MATLAB's ``compare`` defines it.
     intervals_ : ndarray, shape (p, 2)
         95 % intervals.
     stages_ : list of Stage
@@ -190,6 +196,7 @@ class PSOANNIdentifier:
             plan or structure.
         """
         self._check(data)
+        self.data_ = data
         start = time.perf_counter()
         simulator = BatchSimulator(self.structure, threads=self.threads)
         crit = SineCriterion(self.structure, data, simulator) if isinstance(data, SineData) else \
@@ -217,18 +224,26 @@ class PSOANNIdentifier:
                             crit.evaluations - before))
         self.history_ = result.cost_history
 
+        records = isinstance(crit, RecordCriterion)
+        blocks = crit.blocks if records else None
         if self.polish:
             t0, before = time.perf_counter(), crit.evaluations
             y_best, jac_y = polish(crit, self._to_theta, y_best)
+            if records and len(data.records) > 1:  # weights from each record's noise, then the fit again
+                crit.reweight(self._to_theta(y_best[None]), POLISH_RTOL)
+                y_best, jac_y = polish(crit, self._to_theta, y_best)
             theta = self._to_theta(y_best[None])[0]
             r = crit.residuals(theta, POLISH_RTOL)[0]
-            stages.append(Stage("polish", theta, float(rms(r)), time.perf_counter() - t0, crit.evaluations - before))
+            fitness = crit.relative_rms(theta, POLISH_RTOL) if records else float(rms(r))
+            stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0, crit.evaluations - before))
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
-            self.intervals_ = intervals_from_jacobian(theta, r, jac_y @ target_jacobian(self.structure, y_best))
+            jac = jac_y @ target_jacobian(self.structure, y_best)
         else:
             theta = stages[-1].theta
             r = crit.residuals(theta, POLISH_RTOL)[0]
-            self.intervals_ = intervals_from_jacobian(theta, r, central_jacobian(crit, theta))
+            jac = central_jacobian(crit, theta)
+        self.intervals_ = intervals_from_jacobian(theta, r, jac, blocks=blocks)
+        self.fit_percent_ = crit.fit_percent(theta, POLISH_RTOL) if records else None
         self.theta_ = stages[-1].theta
         self.fitness_ = stages[-1].fitness
         self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
@@ -304,25 +319,22 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------------------
 # Reading what `servofmu identify` is given
 # ---------------------------------------------------------------------------
-def load_identification_inputs(data_path, structure_path, ann_path, method: str, command: str = ""):
+def load_identification_inputs(data_path, structure_path, ann_path, method: str, command: str = "",
+                               skip: float = 0.0):
     """(structure, SineData | RecordData, AnnModel | None, provenance) for an identification from files.
 
     Refuses a structure that does not match the plant the data was measured on (when the data file says which),
-    and a network trained for another plan or structure.
+    and a network trained for another plan or structure.  ``skip``: seconds left out at the start of every record.
     """
     check_method(method)
     structure = load_plant(structure_path)
     ds = read_data_file(data_path)
-    measured = [n for n in ds.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain"))]
-    if measured and set(measured) - set(structure.parameter_names()):
-        raise UserError(f"{structure_path}: the structure ({', '.join(identified_names(structure))}) does not match "
-                        f"the plant {data_path} was measured on ({', '.join(measured)})")
+    check_structure(structure, ds, f"the structure {structure_path}")
     if ds.kind == "records":
-        records = tuple((r.series.time, r.series.u, r.series.v) for r in ds.records)
-        if not records:
-            raise UserError(f"{data_path}: the file holds no records")
-        data = RecordData(records=records, source=str(data_path))
+        data = record_data(ds, skip)
     else:
+        if skip:
+            raise UserError(f"{data_path}: skip applies to records, not to stepped-sine experiments")
         if not ds.experiments:
             raise UserError(f"{data_path}: the file holds no experiments")
         data = sine_data(ds)
@@ -338,4 +350,6 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
     sha = hashlib.sha256(Path(data_path).read_bytes()).hexdigest()
     provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
                   "ann_file": str(ann_path) if ann_path else "", "command": command}
+    if skip:
+        provenance["skip"] = skip
     return structure, data, ann, provenance

@@ -55,6 +55,7 @@ class Result:
     stages: tuple[Stage, ...]
     history: np.ndarray
     provenance: dict
+    fit_percent: dict | None = None  # records: record name -> fit (%), as MATLAB's compare defines it
 
 
 def result_from_estimator(est, method: str, provenance: dict) -> Result:
@@ -63,6 +64,8 @@ def result_from_estimator(est, method: str, provenance: dict) -> Result:
                   theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
                   seconds=float(est.seconds_), evaluations=int(est.evaluations_),
                   stages=tuple(est.stages_),
+                  fit_percent=None if getattr(est, "fit_percent_", None) is None else
+                  dict(zip((r.name for r in est.data_.records), est.fit_percent_)),
                   history=np.asarray(est.history_), provenance=dict(provenance))
 
 
@@ -89,7 +92,7 @@ def to_json(result: Result) -> dict:
             "intervals": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(result.names, result.intervals)},
             "evaluations": result.evaluations,
             "stages": [{"stage": s.name, "fitness": s.fitness, "seconds": s.seconds, "evaluations": s.evaluations}
-                       for s in result.stages]}
+                       for s in result.stages], **({"fit_percent": result.fit_percent} if result.fit_percent else {})}
 
 
 def to_json_text(result: Result) -> str:
@@ -138,6 +141,9 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
     lines.append("")
     lines.append(f"method {result.method}; fitness (RMS relative output error) {result.fitness:.3e}; "
                  f"{result.seconds:.2f} s; {result.evaluations} model evaluations")
+    if result.fit_percent:
+        lines.append("fit (%, 100·(1 − ‖y − ŷ‖/‖y − mean y‖)): "
+                     + ", ".join(f"{name} {fit:.4f}" for name, fit in result.fit_percent.items()))
     for s in result.stages:
         lines.append(f"  stage {s.name:<7} fitness {s.fitness:.3e}  {s.seconds:7.3f} s  {s.evaluations} evaluations")
     lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
@@ -152,6 +158,8 @@ def _fill(group, result: Result) -> None:
     group.attrs.update({"method": result.method, "structure_toml": result.structure.to_toml(),
                         "plant_toml": result.plant.to_toml(), "fitness": result.fitness, "seconds": result.seconds,
                         "evaluations": result.evaluations, "provenance": json.dumps(result.provenance)})
+    if result.fit_percent:
+        group.attrs["fit_percent"] = json.dumps(result.fit_percent)
     group.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
     group.create_dataset("theta", data=result.theta)
     group.create_dataset("intervals", data=result.intervals)
@@ -213,9 +221,10 @@ def _read(group, path: Path) -> Result:
         raise UserError(f"{path}: parameter names do not match its structure")
     theta = np.asarray(group["theta"][()], dtype=float)
     plant = structure.with_parameters(full_vectors(structure, theta)[0])
-    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta, intervals=group["intervals"][()], fitness=float(a["fitness"]),
-                  seconds=float(a["seconds"]), evaluations=int(a["evaluations"]), stages=stages,
-                  history=group["history"][()], provenance=json.loads(a["provenance"]))
+    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta,
+                  intervals=group["intervals"][()], fitness=float(a["fitness"]), seconds=float(a["seconds"]), evaluations=int(a["evaluations"]), stages=stages,
+                  history=group["history"][()], provenance=json.loads(a["provenance"]),
+                  fit_percent=json.loads(a["fit_percent"]) if "fit_percent" in a else None)
 
 
 def read_results(path: str | Path) -> dict[str, Result]:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..fileio import check_format, check_output_path, hdf5_attr, open_hdf5, write_hdf5
+from ..model.signals import INTERSAMPLE
 from .excitation import ExperimentSpec, Plan
 
 __all__ = ["DataFile", "Series", "ExperimentResult", "RecordAnalysis", "Record", "read_data_file",
@@ -24,7 +25,9 @@ __all__ = ["DataFile", "Series", "ExperimentResult", "RecordAnalysis", "Record",
            "FORMAT", "SCHEMA_VERSION"]
 
 FORMAT = "servofmu-data"
-SCHEMA_VERSION = 1
+# 2: records carry their intersample behaviour ("intersample": "zoh" or "foh"); version 1 files are read as
+# "foh", what servofmu assumed when it wrote them (a version 1 file that is appended to is upgraded).
+SCHEMA_VERSION = 2
 KINDS = ("measurement", "records")
 
 SIGNAL_INFO = {
@@ -129,6 +132,7 @@ class Record:
     velocity_cutoff: float | None
     analysis: RecordAnalysis | None
     note: str = ""
+    intersample: str = "zoh"       # the input between samples: held ("zoh") or linear ("foh")
 
 
 @dataclass(frozen=True)
@@ -276,6 +280,10 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
             prov = f["provenance"]
             appended = json.loads(hdf5_attr(prov, "appended_by", "[]")) + [provenance.get("command", "")]
             _set_attrs(prov, {"appended_by": appended})
+            if hdf5_attr(f, "schema_version") < 2:  # upgrade: say what the old records meant
+                for g in f["records"].values():
+                    g.attrs["intersample"] = "foh"
+                f.attrs["schema_version"] = SCHEMA_VERSION
         recs = f["records"]
         for i, r in enumerate(records):
             g = recs.create_group(f"rec_{offset + i:04d}")
@@ -283,7 +291,7 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
                            "source_sha256": r.source_sha256, "kind": r.kind, "columns": r.columns,
                            "sample_rate": r.sample_rate, "velocity_estimate": r.velocity_estimate,
                            "velocity_cutoff": r.velocity_cutoff, "sinusoidal": r.analysis is not None,
-                           "note": r.note, "units": RESULT_UNITS})
+                           "note": r.note, "intersample": r.intersample, "units": RESULT_UNITS})
             if r.analysis is not None:
                 a = r.analysis
                 _set_attrs(g, {"frequency": a.frequency, "sine_fraction": a.sine_fraction, "amplitude": a.amplitude,
@@ -302,9 +310,20 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
 # Reading
 # ---------------------------------------------------------------------------
 def _read_series(g: h5py.Group) -> Series:
-    def get(name):
-        return np.asarray(g[name][()], dtype=float) if name in g else None
-    return Series(time=get("time"), u=get("u"), v=get("v"), v_noisy=get("v_noisy"), position=get("position"))
+    """The signals of a group: time, the input u and the velocity v are required (KeyError naming the missing one);
+    every signal has the length of time."""
+    def get(name, required=False):
+        if name not in g:
+            if required:
+                raise KeyError(f"signal {name!r} of {g.name}")
+            return None
+        values = np.asarray(g[name][()], dtype=float)
+        if name != "time" and values.shape != time.shape:
+            raise ValueError(f"signal {name!r} of {g.name}: {values.size} samples for {time.size} times")
+        return values
+
+    time = np.asarray(get("time", True))
+    return Series(time=time, u=get("u", True), v=get("v", True), v_noisy=get("v_noisy"), position=get("position"))
 
 
 def _read_experiment(g: h5py.Group) -> ExperimentResult:
@@ -322,7 +341,7 @@ def _read_experiment(g: h5py.Group) -> ExperimentResult:
         dc_noisy=hdf5_attr(g, "dc_noisy", None))
 
 
-def _read_record(g: h5py.Group) -> Record:
+def _read_record(g: h5py.Group, version: int) -> Record:
     analysis = None
     if bool(hdf5_attr(g, "sinusoidal")):
         analysis = RecordAnalysis(
@@ -338,7 +357,8 @@ def _read_record(g: h5py.Group) -> Record:
                   columns=json.loads(hdf5_attr(g, "columns")), series=_read_series(g),
                   sample_rate=float(hdf5_attr(g, "sample_rate")), velocity_estimate=str(hdf5_attr(g, "velocity_estimate")),
                   velocity_cutoff=None if cutoff is None else float(cutoff), analysis=analysis,
-                  note=str(hdf5_attr(g, "note", "")))
+                  note=str(hdf5_attr(g, "note", "")),
+                  intersample=str(hdf5_attr(g, "intersample")) if version >= 2 else "foh")
 
 
 def read_data_file(path: str | Path) -> DataFile:
@@ -379,7 +399,11 @@ def read_data_file(path: str | Path) -> DataFile:
                             tuple(float(x) for x in f["plan"].attrs["frequencies"]))
             experiments = tuple(sorted((_read_experiment(g) for g in f.get("experiments", {}).values()),
                                        key=lambda e: e.index))
-            records = tuple(sorted((_read_record(g) for g in f.get("records", {}).values()), key=lambda r: r.index))
+            records = tuple(sorted((_read_record(g, version) for g in f.get("records", {}).values()),
+                                   key=lambda r: r.index))
+            bad = [r.intersample for r in records if r.intersample not in INTERSAMPLE]
+            if bad:
+                raise ValueError(f"intersample {bad[0]!r}")
             prov = f["provenance"]
             provenance = {k: hdf5_attr(prov, k) for k in prov.attrs}
             parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import UserError
+from ..model.signals import INTERSAMPLE
 from ..runtime import utc_now
 from .datafile import Record, RecordAnalysis, Series, read_data_file, write_records
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
@@ -201,11 +202,14 @@ def _fraction_at(t, u, frequency) -> float:
 # Import
 # ---------------------------------------------------------------------------
 def load_record(path: str | Path, time: str, input: str, output: str, kind: str = "velocity",
-                cutoff: float | None = None, frequency: float | None = None, index: int = 0) -> Record:
+                cutoff: float | None = None, frequency: float | None = None, index: int = 0,
+                intersample: str = "zoh") -> Record:
     """One record from a CSV or MAT file (columns/variables named ``time``, ``input``, ``output``)."""
     path = Path(path)
     if kind not in KINDS:
         raise UserError(f"kind must be velocity or position, not {kind!r}")
+    if intersample not in INTERSAMPLE:
+        raise UserError(f"intersample must be one of {', '.join(INTERSAMPLE)}, not {intersample!r}")
     if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
         raise UserError(f"frequency must be positive, not {frequency:g}")
     if len({time, input, output}) < 3:
@@ -231,12 +235,13 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     return Record(index=index, name=path.stem, source=path.name,
                   source_sha256=hashlib.sha256(path.read_bytes()).hexdigest(), kind=kind, columns=columns,
                   series=Series(time=t, u=u, v=v, position=position), sample_rate=fs, velocity_estimate=how,
-                  velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note)
+                  velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note,
+                  intersample=intersample)
 
 
 def import_records(paths, output: str | Path, time: str, input: str, output_column: str, kind: str = "velocity",
                    cutoff: float | None = None, frequency: float | None = None, append: bool = False,
-                   command: str = ""):
+                   command: str = "", intersample: str = "zoh"):
     """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
 
     Parameters
@@ -255,6 +260,9 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
         The excitation frequency of sinusoidal records, when it is not to be detected.
     append : bool
         Add the records to an existing records file.
+    intersample : {"zoh", "foh"}
+        How the input behaves between samples: held (a digital drive's command; the default) or linear.  Every
+        replay of the record (identify, validate) applies it.
     command : str
         The command line, for provenance.
 
@@ -273,7 +281,8 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
     if output.exists() and not append:
         raise UserError(f"{output}: exists already (append the records to it, or choose another name)")
     offset = len(read_data_file(output).records) if append and output.exists() else 0
-    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i)
+    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
+                           intersample=intersample)
                for i, p in enumerate(paths)]
     provenance = {"package": "servofmu", "package_version": __version__, "command": command,
                   "created": utc_now(), "sources": [r.source for r in records]}

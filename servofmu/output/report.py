@@ -13,9 +13,6 @@ against the identified linear G(jω), of the friction force against velocity, an
 """
 from __future__ import annotations
 
-import base64
-import html
-import io
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -33,9 +30,12 @@ from ..model.plant import Plant, load_plant, parameter_info
 from ..runtime import utc_now
 from ..simulation.batch import BatchSimulator
 from .export import file_sha256
+from .html import escape, figure, number, page, png_bytes, table
 from .paper import COLUMNS as PAPER_COLUMNS
 from .paper import TABLES as PAPER_TABLES
 from .plots import MAX_PANELS, bode_figure, pyplot
+from .validate import Validation, validation_figure, validation_html
+from .validate import validate as validate_model
 
 __all__ = ["make_report", "read_entries", "find_data", "compute_entries", "report_html", "steady_friction",
            "model_sine", "velocity_range", "bode_figures", "records_figure", "friction_figure",
@@ -44,7 +44,6 @@ __all__ = ["make_report", "read_entries", "find_data", "compute_entries", "repor
 CURVE_POINTS = 40          # frequencies per magnitude of the identified model's Bode curve
 CURVE_RTOL = 1e-8          # integrator tolerance of that curve (a figure); the tables use the polish's
 FRICTION_POINTS = 2000     # velocities of the friction curve (an even number: v = 0 is not among them)
-DPI = 110
 
 
 # ---------------------------------------------------------------------------
@@ -55,13 +54,13 @@ class Entry:
     """One result on the page and what is computed from it against the data.
 
     sine: the identified model's H and dc at the data's used experiments (None for records);
-    records: the identified model's v for each record (None for stepped-sine data).
+    records: the identified model on every record it was fitted to (None for stepped-sine data).
     """
 
     label: str
     result: Result
     sine: tuple[np.ndarray, np.ndarray] | None = None
-    records: tuple[np.ndarray, ...] | None = None
+    records: Validation | None = None
 
 
 def read_entries(path: str | Path) -> list[tuple[str, Result]]:
@@ -144,23 +143,16 @@ def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile)
         if data is not None:
             H, dc, _ = model_sine(result.plant, data.amplitudes, data.frequencies, rtol=POLISH_RTOL)
             entries.append(Entry(label, result, sine=(H, dc)))
-        else:
-            sim = BatchSimulator(result.plant)
-            v = tuple(sim.simulate_record(result.plant.parameter_vector(), r.series.time, r.series.u)[0]
-                      for r in data_file.records)
-            entries.append(Entry(label, result, records=v))
+        else:  # the records replayed as identify fitted them: their holds, outputs and skipped segment
+            entries.append(Entry(label, result,
+                                 records=validate_model(result, data_file,
+                                                        float(result.provenance.get("skip", 0.0)))))
     return entries
 
 
 # ---------------------------------------------------------------------------
 # Figures (PNG bytes)
 # ---------------------------------------------------------------------------
-def _png(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
-    return buf.getvalue()
-
-
 def _bode_png(data_file: DataFile, references: dict, title: str) -> bytes:
     with tempfile.TemporaryDirectory() as tmp:
         path = bode_figure(data_file, Path(tmp) / "bode.png", references=references, title=title)
@@ -209,26 +201,12 @@ def bode_figures(entry: Entry, data_file: DataFile, data: SineData) -> list[tupl
     return out
 
 
-def records_figure(entry: Entry, data_file: DataFile) -> tuple[str, bytes]:
-    """Measured v against the identified model's v for each record (at most MAX_PANELS)."""
-    plt = pyplot()
-    recs = data_file.records[:MAX_PANELS]
-    fig, axes = plt.subplots(len(recs), 1, figsize=(9, 2.8 * len(recs)), squeeze=False)
-    for ax, r, v_model in zip(axes[:, 0], recs, entry.records):
-        ax.plot(r.series.time, r.series.v, lw=1, label="measured v")
-        ax.plot(r.series.time, v_model, "k--", lw=1, label="identified model")
-        ax.set_title(f"{r.name} ({r.source})")
-        ax.set_ylabel("v [m/s]")
-        ax.set_xlabel("time [s]")
-        ax.grid(True, alpha=0.4)
-        ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
-    try:
-        png = _png(fig)
-    finally:
-        plt.close(fig)
-    more = f" (the first {MAX_PANELS} of {len(data_file.records)} records)" if len(data_file.records) > MAX_PANELS else ""
-    return f"{entry.label}: measured velocity and the identified model driven by the measured input{more}.", png
+def records_figure(entry: Entry) -> tuple[str, bytes]:
+    """Measured against simulated output of every record it was fitted to, with the residual correlations."""
+    n = len(entry.records.records)
+    more = f" (the first {MAX_PANELS} of {n} records)" if n > MAX_PANELS else ""
+    return (f"{entry.label}: measured output and the identified model driven by the measured input{more}, with the "
+            "residuals' correlations and their joint 99 % bounds.", validation_figure(entry.records, "records"))
 
 
 def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float) -> tuple[str, bytes]:
@@ -261,7 +239,7 @@ def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float)
     fig.suptitle("friction against velocity (steady sliding)")
     fig.tight_layout()
     try:
-        png = _png(fig)
+        png = png_bytes(fig)
     finally:
         plt.close(fig)
     return ("Friction force against velocity at constant velocity, over the velocities the data reached "
@@ -289,7 +267,7 @@ def convergence_figure(entries: Sequence[Entry]) -> tuple[str, bytes] | None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     try:
-        png = _png(fig)
+        png = png_bytes(fig)
     finally:
         plt.close(fig)
     return "Best fitness of the swarm at each iteration; lines mark the fitness after the other stages.", png
@@ -298,43 +276,6 @@ def convergence_figure(entries: Sequence[Entry]) -> tuple[str, bytes] | None:
 # ---------------------------------------------------------------------------
 # HTML
 # ---------------------------------------------------------------------------
-STYLE = """
-body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
-h1 { font-size: 1.6em; } h2 { font-size: 1.25em; margin-top: 2em; border-bottom: 1px solid #ccc; }
-table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; } div.scroll { overflow-x: auto; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
-th { background: #f2f2f2; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
-figure { margin: 1.2em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
-figcaption { font-size: 0.9em; color: #444; } p.note { font-size: 0.9em; color: #555; }
-code { font-size: 0.95em; }
-"""
-
-
-def _e(text) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _num(x: float, fmt: str = ".8g") -> str:
-    return "—" if x is None or not np.isfinite(x) else format(float(x), fmt)
-
-
-def _table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_from: int = 1) -> str:
-    """An HTML table; cells from column ``numeric_from`` on are right-aligned."""
-    out = [f'<div class="scroll"><table id="{table_id}">', "<thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr></thead>",
-           "<tbody>"]
-    for row in rows:
-        cells = [f'<td class="num">{_e(c)}</td>' if i >= numeric_from else f"<td>{_e(c)}</td>"
-                 for i, c in enumerate(row)]
-        out.append("<tr>" + "".join(cells) + "</tr>")
-    out.append("</tbody></table></div>")
-    return "\n".join(out)
-
-
-def _figure(caption: str, png: bytes, alt: str) -> str:
-    src = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-    return f'<figure><img src="{src}" alt="{_e(alt)}"><figcaption>{_e(caption)}</figcaption></figure>'
-
-
 def relative_error(value: float, true: float) -> float:
     return abs(value - true) / abs(true) if true != 0 else float("nan")
 
@@ -357,16 +298,16 @@ def parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
             if n in e.result.names:
                 i = e.result.names.index(n)
                 values.append(e.result.theta[i])
-                row += [_num(e.result.theta[i]), _num(e.result.intervals[i, 0]), _num(e.result.intervals[i, 1])]
+                row += [number(e.result.theta[i]), number(e.result.intervals[i, 0]), number(e.result.intervals[i, 1])]
             else:
                 values.append(None)
                 row += ["—"] * 3
         if truth is not None:
             t = true.get(n)
-            row.append(_num(t) if t is not None else "—")
-            row += [_num(relative_error(v, t), ".3e") if v is not None and t is not None else "—" for v in values]
+            row.append(number(t) if t is not None else "—")
+            row += [number(relative_error(v, t), ".3e") if v is not None and t is not None else "—" for v in values]
         rows.append(row)
-    return _table("parameters", head, rows, numeric_from=2)
+    return table("parameters", head, rows, numeric_from=2)
 
 
 def paper_table(entries: Sequence[Entry], truth: Plant | None) -> str:
@@ -394,9 +335,9 @@ def paper_table(entries: Sequence[Entry], truth: Plant | None) -> str:
         rows.append(row)
     note = ""
     if published is not None:
-        note = (f'<p class="note">The paper\'s columns are its published Tables II/III for {_e(structure.name)}; '
+        note = (f'<p class="note">The paper\'s columns are its published Tables II/III for {escape(structure.name)}; '
                 "its target is the plant the data was measured on.</p>")
-    return _table("paper", head, rows) + note
+    return table("paper", head, rows) + note
 
 
 def _is_packaged(structure: Plant) -> bool:
@@ -424,26 +365,30 @@ def experiment_table(entries: Sequence[Entry], data: SineData) -> str:
         head += [f"|H| model{suffix}", f"∠H model{suffix} [deg]", f"dc model{suffix} [m/s]", f"|ΔH|/|H|{suffix}"]
     rows = []
     for k in range(data.H.size):
-        row = [_num(data.amplitudes[k], "g"), _num(data.frequencies[k], "g"), _num(abs(data.H[k])),
-               _num(np.degrees(np.angle(data.H[k])), ".6f"), _num(data.dc[k], ".6g")]
+        row = [number(data.amplitudes[k], "g"), number(data.frequencies[k], "g"), number(abs(data.H[k])),
+               number(np.degrees(np.angle(data.H[k])), ".6f"), number(data.dc[k], ".6g")]
         for e in entries:
             H, dc = e.sine[0][k], e.sine[1][k]
-            row += [_num(abs(H)), _num(np.degrees(np.angle(H)), ".6f"), _num(dc, ".6g"),
-                    _num(abs(H - data.H[k]) / abs(data.H[k]), ".3e")]
+            row += [number(abs(H)), number(np.degrees(np.angle(H)), ".6f"), number(dc, ".6g"),
+                    number(abs(H - data.H[k]) / abs(data.H[k]), ".3e")]
         rows.append(row)
-    return _table("experiments", head, rows, numeric_from=0)
+    return table("experiments", head, rows, numeric_from=0)
 
 
-def records_table(entries: Sequence[Entry], data_file: DataFile) -> str:
-    head = ["record", "source", "samples", "rms v [m/s]"]
-    head += [f"rms(v_model − v)/rms(v){f' ({e.label})' if len(entries) > 1 else ''}" for e in entries]
+def records_table(entries: Sequence[Entry]) -> str:
+    """Per record the fit (%) of every result and whether its residuals pass the tests of `servofmu validate`."""
+    first = entries[0].records.records
+    label = (lambda e: f" ({e.label})") if len(entries) > 1 else (lambda e: "")
+    head = ["record", "output", "input", "samples"]
+    head += [f"{what}{label(e)}" for e in entries for what in ("fit %", "residual tests")]
     rows = []
-    for k, r in enumerate(data_file.records):
-        rms_v = float(np.sqrt(np.mean(r.series.v ** 2)))
-        row = [r.name, r.source, str(r.series.v.size), _num(rms_v, ".6g")]
-        row += [_num(float(np.sqrt(np.mean((e.records[k] - r.series.v) ** 2))) / rms_v, ".3e") for e in entries]
+    for k, r in enumerate(first):
+        row = [r.name, r.output, r.hold, str(r.y.size)]
+        for e in entries:
+            check = e.records.records[k]
+            row += [number(check.fit, ".6f"), "passed" if check.residuals.passed else "failed"]
         rows.append(row)
-    return _table("records", head, rows, numeric_from=2)
+    return table("records", head, rows, numeric_from=3)
 
 
 def stage_table(entries: Sequence[Entry]) -> str:
@@ -451,12 +396,12 @@ def stage_table(entries: Sequence[Entry]) -> str:
     rows = []
     for e in entries:
         for s in e.result.stages:
-            rows.append(([e.label] if len(entries) > 1 else []) + [s.name, _num(s.fitness, ".3e"),
-                                                                   _num(s.seconds, ".3f"), str(s.evaluations)])
-        rows.append(([e.label] if len(entries) > 1 else []) + ["total", _num(e.result.fitness, ".3e"),
-                                                               _num(e.result.seconds, ".3f"),
+            rows.append(([e.label] if len(entries) > 1 else []) + [s.name, number(s.fitness, ".3e"),
+                                                                   number(s.seconds, ".3f"), str(s.evaluations)])
+        rows.append(([e.label] if len(entries) > 1 else []) + ["total", number(e.result.fitness, ".3e"),
+                                                               number(e.result.seconds, ".3f"),
                                                                str(e.result.evaluations)])
-    return _table("stages", head, rows, numeric_from=len(head) - 3)
+    return table("stages", head, rows, numeric_from=len(head) - 3)
 
 
 def provenance_table(entries: Sequence[Entry], data_path: Path, source: Path) -> str:
@@ -468,11 +413,12 @@ def provenance_table(entries: Sequence[Entry], data_path: Path, source: Path) ->
         values = [e.result.method if k == "method" else e.result.provenance.get(k, "") for e in entries]
         if any(values):
             rows.append([k, *[v or "—" for v in values]])
-    return _table("provenance", head, rows, numeric_from=len(head))
+    return table("provenance", head, rows, numeric_from=len(head))
 
 
 def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | None = None,
-                source: Path = Path("RESULT.h5"), title: str | None = None) -> str:
+                source: Path = Path("RESULT.h5"), title: str | None = None,
+                validation: Sequence[tuple[str, Validation]] | None = None) -> str:
     """The whole page for ``entries`` (simulated against ``data_file`` by compute_entries)."""
 
     if not entries:
@@ -480,12 +426,12 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
     data = _used_data(data_file)
     structure = entries[0].result.structure
     title = title or f"Identification of {structure.name}"
-    parts = [f"<h1>{_e(title)}</h1>"]
+    parts = [f"<h1>{escape(title)}</h1>"]
     summary = "; ".join(f"{e.label}: fitness {e.result.fitness:.3e} in {e.result.seconds:.2f} s "
                         f"({e.result.evaluations} model evaluations)" for e in entries)
-    parts.append(f'<p>Structure <code>{_e(structure.name)}</code> ({_e(structure.friction.model)} friction, '
-                 f"order {structure.order}) identified from <code>{_e(Path(data_file.path).name)}</code> "
-                 f"({len(data_file.experiments)} experiments, {len(data_file.records)} records). {_e(summary)}. "
+    parts.append(f'<p>Structure <code>{escape(structure.name)}</code> ({escape(structure.friction.model)} friction, '
+                 f"order {structure.order}) identified from <code>{escape(Path(data_file.path).name)}</code> "
+                 f"({len(data_file.experiments)} experiments, {len(data_file.records)} records). {escape(summary)}. "
                  "Fitness: RMS of the relative output-error residuals.</p>")
 
     parts += ["<h2>Identified parameters</h2>", parameter_table(entries, truth),
@@ -500,38 +446,43 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
         parts += ["<h2>Fit at each experiment</h2>", experiment_table(entries, data),
                   f'<p class="note">The model columns simulate the identified plant to steady state at each '
                   f"experiment of the plan (relative tolerance {POLISH_RTOL:g}). The fitness recomputed from them: "
-                  f'<span id="refit">{_e(refit)}</span>.{_e(skipped)}</p>']
+                  f'<span id="refit">{escape(refit)}</span>.{escape(skipped)}</p>']
     else:
-        parts += ["<h2>Fit to each record</h2>", records_table(entries, data_file)]
+        parts += ["<h2>Fit to each record</h2>", records_table(entries),
+                  '<p class="note">Fit: 100·(1 − ‖y − ŷ‖/‖y − mean y‖) on the signal each record measures (the '
+                  "velocity, or the position with its zero removed). Residual tests: see Validation.</p>"]
     parts += ["<h2>Stages</h2>", stage_table(entries)]
 
     parts.append("<h2>Figures</h2>")
     for e in entries:
-        figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e, data_file)]
-        parts += [_figure(caption, png, caption.split(":")[0]) for caption, png in figures]
+        figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e)]
+        parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
     caption, png = friction_figure(entries, truth, velocity_range(data_file))
-    parts.append(_figure(caption, png, "friction against velocity"))
+    parts.append(figure(caption, png, "friction against velocity"))
     convergence = convergence_figure(entries)
     if convergence is not None:
-        parts.append(_figure(*convergence, "PSO convergence"))
+        parts.append(figure(*convergence, "PSO convergence"))
 
+    for label, v in validation or ():
+        parts += [f"<h2>Validation on {escape(Path(v.data_file.path).name)}"
+                  + (f" ({escape(label)})" if len(validation) > 1 else "") + "</h2>", *validation_html(v)]
     parts += ["<h2>Provenance</h2>", provenance_table(entries, Path(data_file.path), source),
-              f'<p class="note">Made by servofmu {_e(__version__)} on {_e(utc_now())}.</p>']
-    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-            "<link rel=\"icon\" href=\"data:,\">\n"
-            f"<title>{_e(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n" + "\n".join(parts)
-            + "\n</body>\n</html>\n")
+              f'<p class="note">Made by servofmu {escape(__version__)} on {escape(utc_now())}.</p>']
+    return page(title, parts)
 
 
 def make_report(source: str | Path, output: str | Path, data: str | Path | None = None,
-                truth: str | Path | None = None) -> Path:
-    """Read a result or comparison file (and the data it was identified from), write the HTML report ``output``."""
+                truth: str | Path | None = None, validate: str | Path | None = None) -> Path:
+    """Read a result or comparison file (and the data it was identified from), write the HTML report ``output``;
+    with ``validate``, a data file to validate every result on (a section of `servofmu validate`)."""
     output = check_output_path(output)
     source = Path(source)
     labelled = read_entries(source)
     true_plant = load_plant(truth) if truth is not None else None
     data_file = read_data_file(find_data([r for _, r in labelled], source, data))
     entries = compute_entries(labelled, data_file)
-    page = report_html(entries, data_file, true_plant, source=source)
-    return atomic_write(output, page)
+    validation = None
+    if validate is not None:
+        other = read_data_file(validate)
+        validation = [(label, validate_model(result, other)) for label, result in labelled]
+    return atomic_write(output, report_html(entries, data_file, true_plant, source=source, validation=validation))

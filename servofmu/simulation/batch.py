@@ -36,9 +36,13 @@ by a hash of its sources (:func:`cache_dir`).  It then runs
   ``max_time``).  ``settle_time`` is the simulated time used, not that of a
   plain run.
 
-* :meth:`BatchSimulator.simulate_record`: the response v at the sample times
-  to a sampled input u (linear between samples), all states zero at the first
-  sample, the model's own excitation off.
+* :meth:`BatchSimulator.simulate_record`: the response (v and the position)
+  at the sample times to a sampled input u, held constant between samples
+  (``hold="zoh"``: a digital drive's command) or linear between them
+  (``"foh"``), all states zero at the first sample, the model's own excitation
+  off; every sample interval is integrated on its own, so that no step
+  straddles a jump of the input.  :meth:`BatchSimulator.simulate_sine` gives the
+  same response to the exact sine of a stepped-sine experiment.
 
 Parameter vectors follow ``plant.parameter_names()``.  A parameter set that the
 plant file format would reject (non-finite, a pole with a positive real part,
@@ -65,14 +69,16 @@ from ..errors import UserError
 from ..fmu.sources import C_DIR, generate_sources
 from ..fmu.variables import state_nominals
 from ..model.plant import Plant
+from ..model.signals import INTERSAMPLE
 from ..model.symbolic import SymbolicModel, build_model
 from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
 
-__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "valid_parameter_sets",
+__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "RecordResponse", "valid_parameter_sets",
            "batch_functions", "ModelStructureError"]
 
 DRIVER = Path(__file__).resolve().parent / "batch_c" / "batch_driver.c"
 EXTRA_CFLAGS = ("-pthread",)
+_HOLD_CODES = {"zoh": 0, "foh": 1, "sine": 2}  # the driver's HOLD_* values
 N_RESULTS = 8  # per sine task: re S1, im S1, DC, mean square, converged, settle time, steps, rejected steps
 H_START = 1e-4  # first step of every period, as a fraction of the period (the same each period: see the driver)
 
@@ -116,6 +122,15 @@ class SteadyStateOptions:
                             f"not {self.min_periods}")
         if self.max_steps < 1:
             raise UserError(f"max_steps must be positive, not {self.max_steps}")
+
+
+@dataclass(frozen=True)
+class RecordResponse:
+    """The response of N parameter sets at a record's sample times: ``v`` (m/s) and ``position`` (m, the integral
+    of v from 0 at the first sample), both of shape (N, samples); NaN where a set is invalid or failed."""
+
+    v: np.ndarray
+    position: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -204,34 +219,51 @@ class BatchSimulator:
                                    settle_time=out[..., 5], steps=out[..., 6].astype(np.int64))
 
     # ---- records ----------------------------------------------------------------------------------------------
-    def simulate_record(self, params, time, u, rtol: float = 1e-8, max_steps: int = 50_000_000,
-                        progress=None) -> np.ndarray:
-        """v (m/s) at the sample times ``time`` (s) for the input ``u`` (N), linear between samples.
+    def simulate_record(self, params, time, u, hold: str = "zoh", rtol: float = 1e-8, max_steps: int = 50_000_000,
+                        progress=None) -> RecordResponse:
+        """The response at the sample times ``time`` (s) to the input ``u`` (N) with the record's ``hold``.
 
-        Returns shape (N, len(time)).  All states are zero at ``time[0]``; the model's built-in excitation is off.
+        ``hold="zoh"``: u[i] on [time[i], time[i+1]) (a drive's command, held for one sample); ``"foh"``: linear
+        from u[i] to u[i+1].  All states are zero at ``time[0]``; the model's built-in excitation is off.
         """
+        if hold not in INTERSAMPLE:
+            raise UserError(f"intersample behaviour must be one of {', '.join(INTERSAMPLE)}, not {hold!r}")
+        uu = np.ascontiguousarray(np.asarray(u, dtype=float).ravel())
+        return self._record(params, time, uu, hold, 0.0, 0.0, rtol, max_steps, progress)
+
+    def simulate_sine(self, params, time, amplitude: float, frequency: float, rtol: float = 1e-8,
+                      max_steps: int = 50_000_000) -> RecordResponse:
+        """The response at the times ``time`` (s) to u = amplitude·sin(2π·frequency·(t − time[0])) from rest: a
+        stepped-sine experiment as a time series."""
+        if not (np.isfinite(amplitude) and np.isfinite(frequency) and frequency > 0):
+            raise UserError(f"a sine needs a finite amplitude and a positive frequency, not {amplitude}, {frequency}")
+        t = np.asarray(time, dtype=float).ravel()
+        return self._record(params, t, np.zeros_like(t), "sine", float(amplitude), 2 * np.pi * float(frequency),
+                            rtol, max_steps, None)
+
+    def _record(self, params, time, u, hold, m, omega, rtol, max_steps, progress) -> RecordResponse:
         p, valid = self._parameter_sets(params)
         t = np.ascontiguousarray(np.asarray(time, dtype=float).ravel())
-        uu = np.ascontiguousarray(np.asarray(u, dtype=float).ravel())
-        if t.size != uu.size or t.size < 2:
+        if t.size != u.size or t.size < 2:
             raise UserError(f"a record needs at least two samples and as many times as inputs "
-                            f"(got {t.size} and {uu.size})")
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(uu))):
+                            f"(got {t.size} and {u.size})")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
             raise UserError("the record contains NaN or Inf values")
         if np.any(np.diff(t) <= 0):
             raise UserError(f"record time is not strictly increasing (at sample {int(np.argmax(np.diff(t) <= 0)) + 1})")
         if not 0 < rtol < 1e-2:
             raise UserError(f"rtol must be in (0, 0.01), not {rtol}")
         n = p.shape[0]
-        out = np.empty((n, t.size))
+        out = np.empty((n, 2, t.size))
         for lo, hi in _chunks(n, progress):
             rc = self._lib.sb_record(hi - lo, p.shape[1], _ptr(p[lo:hi]), _uptr(valid[lo:hi]), t.size, _ptr(t),
-                                     _ptr(uu), rtol, H_START, max_steps, self.threads, _ptr(out[lo:hi]))
+                                     _ptr(u), _HOLD_CODES[hold], m, omega, rtol, H_START, max_steps, self.threads,
+                                     _ptr(out[lo:hi]))
             if rc != 0:
                 raise RuntimeError(f"batch library rejected the call (code {rc})")
             if progress is not None:
                 progress(hi, n)
-        return out
+        return RecordResponse(v=out[:, 0], position=out[:, 1])
 
 
 def valid_parameter_sets(plant: Plant, params) -> np.ndarray:
@@ -354,7 +386,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.sb_sizes.argtypes = [ctypes.POINTER(i)] * 3
     lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, i, pd]
     lib.sb_sine.restype = i
-    lib.sb_record.argtypes = [lng, i, pd, pu, lng, pd, pd, d, d, lng, i, pd]
+    lib.sb_record.argtypes = [lng, i, pd, pu, lng, pd, pd, i, d, d, d, d, lng, i, pd]
     lib.sb_record.restype = i
 
 

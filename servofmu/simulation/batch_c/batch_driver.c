@@ -8,7 +8,8 @@
  *     served by the FMU's model_eqs.c, linked beside).
  * What this driver adds to the FMU's integrator, for speed:
  *   - the input u(tau) is computed here (sine: m*sin(w*tau), one sincos per distinct stage time, shared with the
- *     quadratures; record: linear between samples); dxdot/dt = dxdot/du * du/dt;
+ *     quadratures; record: held (zero-order hold) or linear (first-order hold) between samples, or an exact sine);
+ *     dxdot/dt = dxdot/du * du/dt;
  *   - sine experiments run in phase time tau in [0, T) per period, with the same starting step size every
  *     period, so that in steady state every period is integrated alike and the period-to-period change of the
  *     harmonic measures the transient, not the integrator;
@@ -54,11 +55,15 @@ typedef struct {
     double p[SB_NP];
 } Eval;
 
+/* How a record's input behaves between its samples (servofmu.simulation.batch.HOLDS). */
+enum { HOLD_ZOH = 0, HOLD_FOH = 1, HOLD_SINE = 2 };
+
 /* The input and tolerances of one integration. */
 typedef struct {
-    int nq;            /* NQ: quadratures are error-controlled (sine); 0: they are not used (record) */
-    double m, omega;   /* sine: u = m*sin(omega*tau) */
-    double u0, slope;  /* record: u = u0 + slope*tau */
+    int nq;            /* quadratures under error control: NQ (sine experiment), 1 (record: the position), 0 */
+    int sine;          /* u = m*sin(omega*tau + phase), else u = u0 + slope*tau */
+    double m, omega, phase;
+    double u0, slope;
     double rtol, q_time;
     double scale[NS];  /* running maxima of |state|: absolute tolerance = rtol*scale */
     long steps, rejected, max_steps;
@@ -69,9 +74,9 @@ typedef struct { double u, du, c, s; } Input;
 
 static Input input(const Problem *pb, double tau) {
     Input in;
-    if (pb->nq) {
-        in.s = sin(pb->omega * tau);
-        in.c = cos(pb->omega * tau);
+    if (pb->sine) {
+        in.s = sin(pb->omega * tau + pb->phase);
+        in.c = cos(pb->omega * tau + pb->phase);
         in.u = pb->m * in.s;
         in.du = pb->m * pb->omega * in.c;
     } else {
@@ -314,6 +319,7 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
     int n_hist = 1, i, accelerate = (int)o->accelerate;
     problem_init(&pb, &ev, params, n_plant, tight_from < 0 ? LOOSE_RTOL : o->rtol, o->max_steps);
     pb.nq = NQ;
+    pb.sine = 1;
     pb.m = m;
     pb.omega = TWO_PI * f;
     pb.q_time = T;
@@ -381,35 +387,46 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
     out[7] = (double)pb.rejected;
 }
 
-/* v at the sample times t[0..n) for u linear between samples, all states zero at t[0]. */
-static void record_task(const double *params, int n_plant, long n, const double *t, const double *u, double rtol,
-                        double h_start, long max_steps, double *v) {
+/* v and the position (its integral, the first quadrature) at the sample times t[0..n), all states zero at t[0]:
+ * out[0..n) = v, out[n..2n) = position.  The input between t[i] and t[i+1] is u[i] (zero-order hold: a digital
+ * drive's command, held for one sample), linear from u[i] to u[i+1] (first-order hold), or m*sin(omega*t) (the
+ * built-in excitation of a stepped-sine experiment).  Each sample interval is integrated on its own: the last
+ * step lands on the sample time and the next interval starts there, so no step straddles a jump of the input. */
+static void record_task(const double *params, int n_plant, long n, const double *t, const double *u, int hold,
+                        double m, double omega, double rtol, double h_start, long max_steps, double *out) {
     Eval ev;
     Problem pb;
-    double y[NY] = {0}, h = h_start * (t[n - 1] - t[0]);
+    double y[NY] = {0}, h = h_start * (t[n - 1] - t[0]), *v = out, *x = out + n;
     long i;
     problem_init(&pb, &ev, params, n_plant, rtol, max_steps);
-    pb.nq = 0;
-    v[0] = 0.0;
+    pb.nq = 1;                    /* the position is error-controlled like a state ... */
+    pb.q_time = t[n - 1] - t[0];  /* ... on the scale of the record's duration times its largest velocity */
+    pb.sine = hold == HOLD_SINE;
+    pb.m = m;
+    pb.omega = omega;
+    v[0] = x[0] = 0.0;
     for (i = 0; i + 1 < n; ++i) {
         double dt = t[i + 1] - t[i];
+        if (pb.sine) pb.phase = omega * (t[i] - t[0]);
         pb.u0 = u[i];
-        pb.slope = (u[i + 1] - u[i]) / dt;
+        pb.slope = hold == HOLD_FOH ? (u[i + 1] - u[i]) / dt : 0.0;
         if (integrate(&ev, &pb, y, 0.0, dt, &h) != 0) {
-            for (; i + 1 < n; ++i) v[i + 1] = NAN;
+            for (; i + 1 < n; ++i) v[i + 1] = x[i + 1] = NAN;
             break;
         }
         v[i + 1] = y[0];
+        x[i + 1] = y[NS];
     }
 }
 
 /* ---- threads: tasks are handed out through an atomic counter ------------------------------------------- */
 typedef struct {
     long n_tasks, next;
-    int n_plant, n_exp;
+    int n_plant, n_exp, hold;
     const double *params, *amp, *freq, *t, *u;
     const unsigned char *valid;
     long n_samples;
+    double m, omega;
     SineOptions sine;
     double *out;
 } Job;
@@ -434,14 +451,14 @@ static void *record_worker(void *arg) {
     Job *job = (Job *)arg;
     long set;
     while ((set = __atomic_fetch_add(&job->next, 1, __ATOMIC_RELAXED)) < job->n_tasks) {
-        double *v = job->out + set * job->n_samples;
+        double *out = job->out + set * 2 * job->n_samples;
         if (!job->valid[set]) {
             long i;
-            for (i = 0; i < job->n_samples; ++i) v[i] = NAN;
+            for (i = 0; i < 2 * job->n_samples; ++i) out[i] = NAN;
             continue;
         }
-        record_task(job->params + set * job->n_plant, job->n_plant, job->n_samples, job->t, job->u,
-                    job->sine.rtol, job->sine.h_start, job->sine.max_steps, v);
+        record_task(job->params + set * job->n_plant, job->n_plant, job->n_samples, job->t, job->u, job->hold,
+                    job->m, job->omega, job->sine.rtol, job->sine.h_start, job->sine.max_steps, out);
     }
     return NULL;
 }
@@ -492,12 +509,12 @@ int sb_sine(long n_sets, int n_plant, const double *params, const unsigned char 
     return 0;
 }
 
-/* out has n_samples doubles per set. */
+/* out has 2*n_samples doubles per set: v, then the position.  hold: HOLD_ZOH, HOLD_FOH or HOLD_SINE (u = m*sin(omega*(t - t[0])), u unused). */
 int sb_record(long n_sets, int n_plant, const double *params, const unsigned char *valid, long n_samples,
-              const double *t, const double *u, double rtol, double h_start, long max_steps, int n_threads,
-              double *out) {
+              const double *t, const double *u, int hold, double m, double omega, double rtol, double h_start,
+              long max_steps, int n_threads, double *out) {
     Job job;
-    if (n_plant != SB_NP || n_samples < 2) return -1;
+    if (n_plant != SB_NP || n_samples < 2 || hold < HOLD_ZOH || hold > HOLD_SINE) return -1;
     memset(&job, 0, sizeof job);
     job.n_tasks = n_sets;
     job.n_plant = n_plant;
@@ -506,6 +523,9 @@ int sb_record(long n_sets, int n_plant, const double *params, const unsigned cha
     job.n_samples = n_samples;
     job.t = t;
     job.u = u;
+    job.hold = hold;
+    job.m = m;
+    job.omega = omega;
     job.sine.rtol = rtol;
     job.sine.h_start = h_start;
     job.sine.max_steps = max_steps;

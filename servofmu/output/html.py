@@ -1,0 +1,67 @@
+"""Self-contained HTML pages: inline style, PNG figures as data: URIs, no script (report and validate)."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["escape", "number", "table", "figure", "png_bytes", "page", "DPI"]
+
+DPI = 110
+STYLE = """
+body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
+h1 { font-size: 1.6em; } h2 { font-size: 1.25em; margin-top: 2em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; } div.scroll { overflow-x: auto; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
+th { background: #f2f2f2; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+figure { margin: 1.2em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figcaption { font-size: 0.9em; color: #444; } p.note { font-size: 0.9em; color: #555; }
+code { font-size: 0.95em; }
+"""
+
+
+def escape(text) -> str:
+    """Text for HTML (quotes too)."""
+    return html.escape(str(text), quote=True)
+
+
+def number(x: float | None, fmt: str = ".8g") -> str:
+    """A number for a table cell; a dash for None, NaN or Inf."""
+    return "—" if x is None or not np.isfinite(x) else format(float(x), fmt)
+
+
+def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_from: int = 1) -> str:
+    """An HTML table; cells from column ``numeric_from`` on are right-aligned."""
+    out = [f'<div class="scroll"><table id="{table_id}">',
+           "<thead><tr>" + "".join(f"<th>{escape(h)}</th>" for h in head) + "</tr></thead>", "<tbody>"]
+    for row in rows:
+        cells = [f'<td class="num">{escape(c)}</td>' if i >= numeric_from else f"<td>{escape(c)}</td>"
+                 for i, c in enumerate(row)]
+        out.append("<tr>" + "".join(cells) + "</tr>")
+    out.append("</tbody></table></div>")
+    return "\n".join(out)
+
+
+def png_bytes(fig) -> bytes:
+    """A matplotlib figure as PNG bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def figure(caption: str, image: bytes, alt: str) -> str:
+    """A PNG embedded as a data: URI, with its caption."""
+    src = "data:image/png;base64," + base64.b64encode(image).decode("ascii")
+    return f'<figure><img src="{src}" alt="{escape(alt)}"><figcaption>{escape(caption)}</figcaption></figure>'
+
+
+def page(title: str, parts: Sequence[str]) -> str:
+    """The whole document."""
+    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+            "<link rel=\"icon\" href=\"data:,\">\n"
+            f"<title>{escape(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n" + "\n".join(parts)
+            + "\n</body>\n</html>\n")
