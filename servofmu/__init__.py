@@ -47,22 +47,22 @@ _API = {
 __all__ = list(_API)
 
 if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by __getattr__
-    from .baselines.casadi_nls import fit_casadi_nls
-    from .baselines.chen2002 import fit_chen2002
-    from .errors import UserError
-    from .fmu.build import build_fmu
-    from .identification.ann import load_ann
-    from .identification.criterion import sine_data
-    from .identification.identifier import PSOANNIdentifier
-    from .identification.results import read_result, write_result
-    from .identification.train import train_from_file
-    from .identification.training_set import make_training_set
-    from .measurement.datafile import read_data_file
-    from .measurement.measure import MeasureOptions, measure
-    from .measurement.records import import_records
-    from .model.plant import Plant, load_plant
-    from .output.export import export_result
-    from .simulation.fmpy_runs import simulate
+    from .baselines.casadi_nls import fit_casadi_nls  # noqa: F401
+    from .baselines.chen2002 import fit_chen2002  # noqa: F401
+    from .errors import UserError  # noqa: F401
+    from .fmu.build import build_fmu  # noqa: F401
+    from .identification.ann import load_ann  # noqa: F401
+    from .identification.criterion import sine_data  # noqa: F401
+    from .identification.identifier import PSOANNIdentifier  # noqa: F401
+    from .identification.results import read_result, write_result  # noqa: F401
+    from .identification.train import train_from_file  # noqa: F401
+    from .identification.training_set import make_training_set  # noqa: F401
+    from .measurement.datafile import read_data_file  # noqa: F401
+    from .measurement.measure import MeasureOptions, measure  # noqa: F401
+    from .measurement.records import import_records  # noqa: F401
+    from .model.plant import Plant, load_plant  # noqa: F401
+    from .output.export import export_result  # noqa: F401
+    from .simulation.fmpy_runs import simulate  # noqa: F401
 
 
 def __getattr__(name: str):

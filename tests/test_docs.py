@@ -23,7 +23,8 @@ def test_readme_tour_runs(tmp_path):
         proc = subprocess.run([sys.executable, "-m", "servofmu", *argv[1:]], cwd=tmp_path, capture_output=True,
                               text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})
         assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
-    for name in ("g1.fmu", "g1.csv", "g1.h5", "g1-bode.png", "g1-ann.h5", "g1-result.h5", "g1-report.html",
+    for name in ("g1.fmu", "g1.csv", "g1.h5", "g1-bode.png", "g1-ann.h5", "g1-result.h5", "g1-validation.html",
+                 "g1-report.html",
                  "g1-compare.md", "g1-identified.fmu", "g1-identified.toml"):
         assert (tmp_path / name).stat().st_size > 0, name
     # the identified plant file rebuilds and is close to g1 (a 500-plant ANN, but PSO and polish finish the job)
