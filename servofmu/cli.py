@@ -295,6 +295,59 @@ def cmd_report(args) -> None:
 
 
 # ---------------------------------------------------------------------------
+# controller / system / cosim
+# ---------------------------------------------------------------------------
+def cmd_controller(args) -> None:
+    from .control.controller import friction_feedforward, load_controller
+    from .control.fmus import build_controller_fmu
+    from .model.plant import load_plant
+
+    spec = load_controller(args.controller)
+    provenance = None
+    if args.compensate:
+        source = Path(args.compensate)
+        if source.suffix == ".h5":
+            from .identification.results import read_result
+            plant = read_result(source).plant
+        else:
+            plant = load_plant(source)
+        spec = friction_feedforward(spec, plant)
+        provenance = {"friction_feedforward": f"{plant.friction.model} friction of {source.name}"}
+    output = Path(args.output) if args.output else Path(f"{spec.name}.fmu")
+    build_controller_fmu(spec, output, fmi_version=args.fmi_version, provenance=provenance)
+    print(f"wrote {output} (FMI {args.fmi_version}.0 Co-Simulation, sampled every {spec.sample_time:g} s"
+          + (f"; friction feed-forward from {args.compensate}" if args.compensate else "") + ")")
+
+
+def cmd_system(args) -> None:
+    from .control.fmus import read_reference_csv
+    from .control.system import controller_from_fmu, write_system
+
+    controller = controller_from_fmu(args.controller_fmu)
+    changes = {k: v for k, v in (("force_noise", args.force_noise), ("noise_seed", args.seed),
+                                 ("encoder_resolution", args.encoder)) if v is not None}
+    controller = controller.with_values(**changes) if changes else controller
+    path = write_system(args.plant_fmu, args.controller_fmu, read_reference_csv(args.reference), args.output,
+                        controller=controller)
+    print(f"wrote {path} (SSP: reference, controller and plant; controller parameters in resources/controller.ssv)")
+
+
+def cmd_cosim(args) -> None:
+    import numpy as np
+
+    from .control.cosim import cosimulate, write_cosim_records
+
+    check_output_path(args.output, overwrite=args.append)
+    result = cosimulate(args.system, args.stop_time, engine=args.engine)
+    data = write_cosim_records(result, args.system, args.output, command=getattr(args, "command_line", ""),
+                               append=args.append)
+    error = result["reference"] - result["position"]
+    print(f"wrote {args.output}: {len(data.records)} record(s); {result.engine}, {result.time.size - 1} steps of "
+          f"{result.time[1]:g} s; tracking error RMS {np.sqrt(np.mean(error ** 2)):.3g} m, peak "
+          f"{np.max(np.abs(error)):.3g} m")
+
+
+# ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
 def cmd_demo(args) -> None:
@@ -452,6 +505,34 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "residual tests; see `servofmu validate`)")
     p.add_argument("-o", dest="output", metavar="REPORT.html", required=True, help="HTML file to write")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("controller", help="a drive controller file (TOML) as a Co-Simulation FMU")
+    p.add_argument("controller", metavar="CTRL.toml", help="controller file, or the name of an example "
+                                                           "(axis_controller)")
+    p.add_argument("--fmi-version", type=int, choices=(2, 3), default=3)
+    p.add_argument("--compensate", metavar="RESULT.h5|PLANT.toml",
+                   help="feed forward the friction of an identified result or a plant file")
+    p.add_argument("-o", "--output", help="FMU file to write (default: NAME.fmu)")
+    p.set_defaults(func=cmd_controller)
+
+    p = sub.add_parser("system", help="plant + controller + reference as an SSP archive")
+    p.add_argument("plant_fmu", metavar="PLANT.fmu", help="plant FMU (FMI 2.0 Co-Simulation)")
+    p.add_argument("controller_fmu", metavar="CTRL.fmu", help="controller FMU from `servofmu controller`")
+    p.add_argument("--reference", required=True, metavar="REF.csv", help="reference trajectory: CSV with "
+                                                                         "columns time (s) and position (m)")
+    p.add_argument("--encoder", type=float, metavar="M", help="encoder resolution (m; default the controller's)")
+    p.add_argument("--force-noise", type=float, metavar="N", help="actuator noise, standard deviation (N)")
+    p.add_argument("--seed", type=int, help="seed of the actuator noise")
+    p.add_argument("-o", dest="output", metavar="AXIS.ssp", required=True, help="SSP archive to write")
+    p.set_defaults(func=cmd_system)
+
+    p = sub.add_parser("cosim", help="co-simulate an SSP system on libcosim or FMPy into a records file")
+    p.add_argument("system", metavar="AXIS.ssp")
+    p.add_argument("--stop-time", type=float, help="seconds (default: the system's default experiment)")
+    p.add_argument("--engine", choices=("libcosim", "fmpy"), default="libcosim")
+    p.add_argument("--append", action="store_true", help="add the run to an existing records file")
+    p.add_argument("-o", dest="output", metavar="RECORDS.h5", required=True, help="records file to write")
+    p.set_defaults(func=cmd_cosim)
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")

@@ -26,7 +26,7 @@ from . import description
 from .sources import C_DIR, generate_sources
 from .variables import Variable, fmu_variables
 
-__all__ = ["BuildError", "build_fmu", "platform_folder"]
+__all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT"]
 
 DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "tolerance": 1e-10, "stepSize": 1e-3}
 EQUATIONS = """u_total = u + excitation_amplitude*sin(2*pi*excitation_frequency*t)
@@ -91,36 +91,57 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     >>> build_fmu(load_plant("g1"), "g1.fmu")  # doctest: +SKIP
     PosixPath('g1.fmu')
     """
+    model = build_model(plant)
+
+    def write_sources(src: Path) -> str:
+        token = generate_sources(model, src, plant.name)  # model_eqs.c/.h, model_config.h
+        (src / "fmu_core.h").write_text('#include "servo_core.h"\n')
+        for name in ("servo_core.c", "servo_core.h"):
+            shutil.copy(C_DIR / name, src / name)
+        return token
+
+    return assemble_fmu(plant.name, output, fmi_version, fmu_variables(model), write_sources,
+                        list(description.SOURCE_FILES), _summary(plant, provenance), EQUATIONS, provenance,
+                        title=f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)")
+
+
+def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variables: list[Variable], write_sources,
+                 sources: list[str], summary: str, equations: str, provenance: dict | None = None,
+                 title: str | None = None, continuous: bool = True) -> Path:
+    """Write an FMU: ``write_sources(folder)`` fills sources/ (and returns the instantiation token); the C files
+    ``sources`` plus the FMI wrapper fmiN_api.c are compiled for this platform; the model description, a build
+    description and documentation/index.html are written; the archive replaces ``output`` atomically.
+    ``continuous=False``: a sampled component, Co-Simulation only."""
     if fmi_version not in (2, 3):
         raise BuildError(f"fmi_version must be 2 or 3, not {fmi_version}")
     output = check_output_path(output)
     find_compiler()  # before any work: a missing compiler is the commonest failure
     headers = fmi_header_dir()
-    model = build_model(plant)
-    variables = fmu_variables(model)
     with tempfile.TemporaryDirectory(prefix="servofmu-build-") as tmp:
         root = Path(tmp) / "fmu"
-        sources, token = _write_sources(model, root / "sources", plant.name, fmi_version)
-        summary = _summary(plant, provenance)
-        _write_descriptions(root, plant, fmi_version, token, variables, sources, summary, provenance)
+        src = root / "sources"
+        src.mkdir(parents=True)
+        token = write_sources(src)
+        api = f"fmi{fmi_version}_api.c"
+        shutil.copy(C_DIR / api, src / api)
+        sources = [*sources, api]
+        (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
+        info = {"description": summary, "generationTool": f"servofmu {__version__}",
+                "generationDateAndTime": utc_now()}
+        if fmi_version == 3:
+            md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                    provenance, continuous=continuous)
+        else:
+            md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                    sources, provenance, continuous=continuous)
+        (root / "modelDescription.xml").write_bytes(md)
+        _write_documentation(root, title or identifier, summary, equations, variables, provenance)
         bindir = root / "binaries" / platform_folder(fmi_version)
         bindir.mkdir(parents=True)
-        compile_shared([root / "sources" / s for s in sources], bindir / f"{plant.name}{_shared_suffix()}",
-                       include=[root / "sources", headers], what=f"the FMU of {plant.name}")
+        compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
+                       include=[src, headers], what=f"the FMU {identifier}")
         _pack(root, output)
     return output
-
-
-def _write_sources(model, src: Path, identifier: str, fmi_version: int) -> tuple[list[str], str]:
-    """The C sources and buildDescription.xml; returns the compiled source files' names and the token."""
-    src.mkdir(parents=True)
-    token = generate_sources(model, src, identifier)
-    api = f"fmi{fmi_version}_api.c"
-    for name in ("servo_core.c", "servo_core.h", api):
-        shutil.copy(C_DIR / name, src / name)
-    sources = [*description.SOURCE_FILES, api]
-    (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
-    return sources, token
 
 
 def _summary(plant: Plant, provenance: dict | None) -> str:
@@ -132,16 +153,8 @@ def _summary(plant: Plant, provenance: dict | None) -> str:
     return text
 
 
-def _write_descriptions(root: Path, plant: Plant, fmi_version: int, token: str, variables: list[Variable],
-                        sources: list[str], summary: str, provenance: dict | None) -> None:
-    """modelDescription.xml and documentation/index.html."""
-    info = {"description": summary, "generationTool": f"servofmu {__version__}", "generationDateAndTime": utc_now()}
-    if fmi_version == 3:
-        md = description.model_description_fmi3(plant.name, token, variables, info, DEFAULT_EXPERIMENT, provenance)
-    else:
-        md = description.model_description_fmi2(plant.name, token, variables, info, DEFAULT_EXPERIMENT, sources,
-                                                provenance)
-    (root / "modelDescription.xml").write_bytes(md)
+def _write_documentation(root: Path, title: str, summary: str, equations: str, variables: list[Variable],
+                         provenance: dict | None) -> None:
     docs = root / "documentation"
     docs.mkdir()
     extra = []
@@ -149,8 +162,7 @@ def _write_descriptions(root: Path, plant: Plant, fmi_version: int, token: str, 
         rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>"
                        for k, v in provenance.items())
         extra.append(("Provenance", f"<table>{rows}</table>"))
-    (docs / "index.html").write_text(description.documentation_html(
-        f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)", summary, EQUATIONS, variables, extra))
+    (docs / "index.html").write_text(description.documentation_html(title, summary, equations, variables, extra))
 
 
 def _pack(root: Path, output: Path) -> None:

@@ -18,6 +18,8 @@ BASE_UNITS = {
     "N/m": {"kg": 1, "s": -2},
     "N.s/m": {"kg": 1, "s": -1},
     "Hz": {"s": -1},
+    "1/s": {"s": -1},
+    "kg": {"kg": 1},
     "rad/s": {"rad": 1, "s": -1},
 }
 LOG_CATEGORIES = {
@@ -62,12 +64,15 @@ def _provenance_entries(parent: ET.Element, provenance: dict) -> None:
 
 
 def model_description_fmi3(identifier: str, token: str, variables: list[Variable], info: dict,
-                           experiment: dict, provenance: dict | None = None) -> bytes:
+                           experiment: dict, provenance: dict | None = None, continuous: bool = True) -> bytes:
+    """FMI 3.0 modelDescription.xml: Model Exchange and Co-Simulation of a plant, or (``continuous=False``) the
+    Co-Simulation of a sampled component, which has no states and no derivatives."""
     root = _common_root("3.0", {"modelName": identifier, "instantiationToken": token, **info,
                                 "variableNamingConvention": "flat"})
-    caps = {"modelIdentifier": identifier, "canGetAndSetFMUState": "true", "canSerializeFMUState": "true",
-            "providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true"}
-    ET.SubElement(root, "ModelExchange", {**caps, "needsCompletedIntegratorStep": "false"})
+    caps = {"modelIdentifier": identifier, "canGetAndSetFMUState": "true", "canSerializeFMUState": "true"}
+    if continuous:
+        caps.update({"providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true"})
+        ET.SubElement(root, "ModelExchange", {**caps, "needsCompletedIntegratorStep": "false"})
     ET.SubElement(root, "CoSimulation", {**caps, "canHandleVariableCommunicationStepSize": "true",
                                          "hasEventMode": "false"})
     _unit_definitions(root, variables)
@@ -103,13 +108,19 @@ def model_description_fmi3(identifier: str, token: str, variables: list[Variable
 
 
 def model_description_fmi2(identifier: str, guid: str, variables: list[Variable], info: dict,
-                           experiment: dict, sources: list[str], provenance: dict | None = None) -> bytes:
+                           experiment: dict, sources: list[str], provenance: dict | None = None,
+                           continuous: bool = True) -> bytes:
+    """FMI 2.0 modelDescription.xml (as model_description_fmi3).  FMI 2.0 needs no variable for the independent
+    variable, and importers built on the FMI Library reject one without a start value: time is left out."""
+    variables = [v for v in variables if v.causality != "independent"]
     root = _common_root("2.0", {"modelName": identifier, "guid": guid, **info,
                                 "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
-    caps = {"modelIdentifier": identifier, "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
-            "providesDirectionalDerivative": "true"}
-    for kind, extra in (("ModelExchange", {"completedIntegratorStepNotNeeded": "true"}),
-                        ("CoSimulation", {"canHandleVariableCommunicationStepSize": "true"})):
+    caps = {"modelIdentifier": identifier, "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"}
+    kinds = [("CoSimulation", {"canHandleVariableCommunicationStepSize": "true"})]
+    if continuous:
+        caps["providesDirectionalDerivative"] = "true"
+        kinds.insert(0, ("ModelExchange", {"completedIntegratorStepNotNeeded": "true"}))
+    for kind, extra in kinds:
         el = ET.SubElement(root, kind, {**caps, **extra})
         files = ET.SubElement(el, "SourceFiles")
         for name in sources:
@@ -137,18 +148,15 @@ def model_description_fmi2(identifier: str, guid: str, variables: list[Variable]
             real["derivative"] = str(index[v.derivative_of])
         ET.SubElement(sv, "Real", real)
     ms = ET.SubElement(root, "ModelStructure")
-    outputs = ET.SubElement(ms, "Outputs")
-    for v in variables:
-        if v.causality == "output":
-            ET.SubElement(outputs, "Unknown", index=str(index[v.vr]))
-    derivs = ET.SubElement(ms, "Derivatives")
-    for v in variables:
-        if v.derivative_of is not None:
-            ET.SubElement(derivs, "Unknown", index=str(index[v.vr]))
-    init = ET.SubElement(ms, "InitialUnknowns")
-    for v in variables:
-        if (v.causality == "output" and v.initial == "calculated") or v.derivative_of is not None:
-            ET.SubElement(init, "Unknown", index=str(index[v.vr]))
+    sections = {"Outputs": [v for v in variables if v.causality == "output"],
+                "Derivatives": [v for v in variables if v.derivative_of is not None],
+                "InitialUnknowns": [v for v in variables if (v.causality == "output" and v.initial == "calculated")
+                                    or v.derivative_of is not None]}
+    for tag, members in sections.items():
+        if members:  # an empty section is not allowed
+            section = ET.SubElement(ms, tag)
+            for v in members:
+                ET.SubElement(section, "Unknown", index=str(index[v.vr]))
     return _serialize(root)
 
 

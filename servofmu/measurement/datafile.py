@@ -37,6 +37,7 @@ SIGNAL_INFO = {
     "v": ("m/s", "velocity, the plant output"),
     "v_noisy": ("m/s", "v plus white Gaussian measurement noise (see noise_sigma)"),
     "position": ("m", "measured position (raw, as recorded)"),
+    "reference": ("m", "reference position of the drive's controller (closed-loop records)"),
 }
 RESULT_UNITS = {
     "amplitude": "N", "frequency": "Hz", "U1": "N", "V1": "m/s", "H": "m/(N.s)", "dc": "m/s", "dc_u": "N",
@@ -58,9 +59,11 @@ class Series:
     v: np.ndarray
     v_noisy: np.ndarray | None = None
     position: np.ndarray | None = None
+    reference: np.ndarray | None = None
 
     def signals(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in ("time", "u", "v", "v_noisy", "position") if getattr(self, k) is not None}
+        return {k: getattr(self, k) for k in ("time", "u", "v", "v_noisy", "position", "reference")
+                if getattr(self, k) is not None}
 
 
 @dataclass(frozen=True)
@@ -323,7 +326,8 @@ def _read_series(g: h5py.Group) -> Series:
         return values
 
     time = np.asarray(get("time", True))
-    return Series(time=time, u=get("u", True), v=get("v", True), v_noisy=get("v_noisy"), position=get("position"))
+    return Series(time=time, u=get("u", True), v=get("v", True), v_noisy=get("v_noisy"), position=get("position"),
+                  reference=get("reference"))
 
 
 def _read_experiment(g: h5py.Group) -> ExperimentResult:

@@ -3,7 +3,7 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
-#include "servo_core.h"
+#include "fmu_core.h" /* servo_core.h for a plant, sampled_core.h for a sampled component */
 
 typedef struct {
     SvInstance core; /* first member: an fmi2Component is an SvInstance* */

@@ -4,7 +4,7 @@
 #include <string.h>
 
 #include "fmi3Functions.h"
-#include "servo_core.h"
+#include "fmu_core.h" /* servo_core.h for a plant, sampled_core.h for a sampled component */
 
 typedef struct {
     SvInstance core; /* first member: an fmi3Instance is an SvInstance* */

@@ -1,0 +1,163 @@
+"""Co-simulation of an axis (an SSP archive of servofmu.control.system) on an existing engine, and its log as a
+records file.
+
+Engines: libcosim (through libcosimpy, ``CosimExecution.from_ssp_file``) and FMPy (``fmpy.ssp.simulation.
+simulate_ssp``).  Both step every FMU with the controller's sample time and pass the outputs of a step to the
+inputs of the next (a Jacobi scheme): the force computed from the measurement at t_k reaches the plant at t_k+1,
+which is the drive's one-sample computation delay.  Both start with every connection at 0 (a reference that
+starts at 0); they agree to rounding.
+
+The records file holds one record per run, sampled at the communication points t_0 … t_N−1: ``time``; ``u`` the
+force command applied from t_k on (zero-order hold, as the drive logs it); ``position`` the encoder reading the
+controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference position.
+"""
+from __future__ import annotations
+
+import hashlib
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import __version__
+from ..errors import UserError
+from ..fileio import check_output_path
+from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
+from ..runtime import utc_now
+from .system import COMPONENTS, read_system
+
+__all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
+
+ENGINES = ("libcosim", "fmpy")
+# (component, variable): what is recorded
+SIGNALS = {"reference": ("reference", "position_reference"), "force": ("controller", "force"),
+           "force_command": ("controller", "force_command"), "position_measured": ("controller", "position_measured"),
+           "position": ("plant", "position"), "v": ("plant", "v")}
+
+
+@dataclass(frozen=True)
+class CosimResult:
+    """Every signal of SIGNALS at the communication points (arrays of one length, ``time`` first)."""
+
+    engine: str
+    time: np.ndarray
+    signals: dict
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.signals[name]
+
+
+def _steps(stop_time: float, step: float) -> int:
+    n = int(round(stop_time / step))
+    if n < 2 or abs(n * step - stop_time) > 1e-9 * stop_time:
+        raise UserError(f"the stop time {stop_time:g} s is not a whole number (≥ 2) of communication steps of "
+                        f"{step:g} s")
+    return n
+
+
+def _run_libcosim(folder: Path, ssp: Path, n: int, step: float) -> dict:
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    log_output_level(CosimLogLevel.ERROR)  # libcosim logs every FMU load at debug level on stderr otherwise
+
+    try:
+        execution = CosimExecution.from_ssp_file(str(ssp), step_size=int(round(step * 1e9)))
+    except AssertionError as exc:
+        raise UserError(f"{ssp}: libcosim cannot load the system") from exc
+    index = {info.name.decode(): info.index for info in execution.slave_infos()}
+    refs = {}
+    for name, (component, variable) in SIGNALS.items():
+        variables = {v.name.decode(): v.reference for v in execution.slave_variables(index[component])}
+        refs[name] = (index[component], variables[variable])
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    out = {name: np.zeros(n + 1) for name in SIGNALS}
+    for k in range(1, n + 1):
+        if not execution.step():
+            raise UserError(f"{ssp}: libcosim failed at step {k} (t = {k * step:g} s)")
+        for name, (slave, vr) in refs.items():
+            out[name][k] = observer.last_real_values(slave, [vr])[0]
+    return out
+
+
+def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict) -> dict:
+    from fmpy.ssp.simulation import simulate_ssp
+
+    # FMPy applies one parameter set, named by component path, to the components it instantiates
+    parameter_set = SimpleNamespace(parameters=[SimpleNamespace(name=f"controller.{k}", value=v)
+                                                for k, v in parameters.items()])
+    result = simulate_ssp(str(ssp), start_time=0.0, stop_time=n * step - step / 2, step_size=step,
+                          parameter_set=parameter_set)
+    out = {name: np.zeros(n + 1) for name in SIGNALS}
+    for name, (component, variable) in SIGNALS.items():
+        # FMPy labels a row with the start of the step whose outputs it holds
+        out[name][1:] = np.asarray(result[f"{component}.{variable}"])[:n]
+    return out
+
+
+def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "libcosim") -> CosimResult:
+    """Run an axis archive on a co-simulation engine.
+
+    Parameters
+    ----------
+    ssp : str or Path
+        An archive written by :func:`servofmu.control.system.write_system` (``servofmu system``).
+    stop_time : float, optional
+        Seconds to simulate (default: the system's default experiment, the reference's duration).
+    engine : {"libcosim", "fmpy"}
+        libcosim through libcosimpy, or FMPy's SSP runner.
+
+    Returns
+    -------
+    CosimResult
+        Every recorded signal at the communication points 0, Ts, …, stop_time.
+
+    Raises
+    ------
+    UserError
+        For an unknown engine, a damaged archive, a stop time that is no whole number of steps, a failing FMU.
+    """
+    if engine not in ENGINES:
+        raise UserError(f"engine must be one of {', '.join(ENGINES)}, not {engine!r}")
+    ssp = Path(ssp)
+    with tempfile.TemporaryDirectory(prefix="servofmu-cosim-") as tmp:
+        system = read_system(ssp, tmp)
+        stop = system.stop_time if stop_time is None else float(stop_time)
+        n = _steps(stop, system.step_size)
+        try:
+            if engine == "libcosim":
+                out = _run_libcosim(Path(tmp), ssp, n, system.step_size)
+            else:
+                out = _run_fmpy(Path(tmp), ssp, n, system.step_size, system.controller)
+        except UserError:
+            raise
+        except Exception as exc:  # an engine's own error: the first line names it
+            raise UserError(f"{ssp}: {engine} failed: {(str(exc).splitlines() or [type(exc).__name__])[0]}") \
+                from exc
+    return CosimResult(engine=engine, time=np.arange(n + 1) * system.step_size, signals=out)
+
+
+def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path, command: str = "",
+                        append: bool = False) -> DataFile:
+    """The run as a records file: one record (see the module docstring), the input held between samples."""
+    output = check_output_path(output, overwrite=False) if not append else Path(output)
+    t = result.time[:-1]
+    series = Series(time=t, u=result["force_command"][:-1], v=result["v"][:-1],
+                    position=result["position_measured"][1:], reference=result["reference"][:-1])
+    existing = len(read_data_file(output).records) if append and output.exists() else 0
+    record = Record(index=existing, name=f"{Path(ssp).stem}-{result.engine}-{existing}", source=Path(ssp).name,
+                    source_sha256=hashlib.sha256(Path(ssp).read_bytes()).hexdigest(), kind="position",
+                    columns={"time": "communication points", "u": "controller.force_command",
+                             "position": "controller.position_measured", "v": "plant.v",
+                             "reference": "reference.position_reference"},
+                    series=series, sample_rate=1.0 / float(t[1] - t[0]),
+                    velocity_estimate="the plant FMU's output v", velocity_cutoff=None, analysis=None,
+                    note=f"co-simulated on {result.engine}", intersample="zoh")
+    provenance = {"package": "servofmu", "package_version": __version__, "command": command, "created": utc_now(),
+                  "sources": [Path(ssp).name], "engine": result.engine, "components": list(COMPONENTS)}
+    write_records(output, [record], provenance, append=append)
+    return read_data_file(output)

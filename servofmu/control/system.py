@@ -1,0 +1,211 @@
+"""An axis as a system of FMUs in a standard SSP archive (SSP 1.0): reference source → controller ⇄ plant.
+
+The archive holds SystemStructure.ssd, the three FMUs under resources/, and the controller's parameter values in
+resources/controller.ssv (a ParameterBinding of the controller component).  The default experiment carries the
+controller's sample time as the fixed communication step, in the annotation libcosim reads
+(com.opensimulationplatform FixedStepAlgorithm).  Connections:
+
+    reference.position_reference → controller.position_reference
+    plant.position               → controller.position
+    controller.force             → plant.u
+
+libcosim and FMPy's SSP runner use FMI 2.0 Co-Simulation, so the FMUs of a system are FMI 2.0 (docs/control.md).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..fileio import check_output_path, partial_path
+from ..simulation.fmpy_runs import read_fmu
+from .controller import PARAMETERS, ControllerSpec
+from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
+
+__all__ = ["System", "write_system", "read_system", "controller_from_fmu", "COMPONENTS"]
+
+SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
+SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
+SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+COMPONENTS = ("reference", "controller", "plant")
+CONNECTIONS = (("reference", "position_reference", "controller", "position_reference"),
+               ("plant", "position", "controller", "position"),
+               ("controller", "force", "plant", "u"))
+PLANT_CONNECTORS = (("u", "input"), ("v", "output"), ("position", "output"))
+
+
+@dataclass(frozen=True)
+class System:
+    """What an axis archive holds: its folder once extracted, the controller's parameter values, the
+    communication step (the sample time) and the reference's duration."""
+
+    folder: Path
+    controller: dict
+    step_size: float
+    stop_time: float
+
+    def fmu(self, component: str) -> Path:
+        return self.folder / "resources" / f"{component}.fmu"
+
+
+def _tag(ns: str, name: str) -> str:
+    return f"{{{ns}}}{name}"
+
+
+def controller_from_fmu(path: str | Path) -> ControllerSpec:
+    """The controller an FMU built by servofmu was made of (its parameters' start values)."""
+    info = read_fmu(path)
+    missing = [p.name for p in PARAMETERS if p.name not in info.variables]
+    missing += [n for n, _, _ in CONTROLLER_INPUTS + CONTROLLER_OUTPUTS if n not in info.variables]
+    if missing:
+        raise UserError(f"{path}: not a servofmu controller FMU (it has no variable {missing[0]!r})")
+    return ControllerSpec(info.model_name, tuple(float(info.variables[p.name].start) for p in PARAMETERS),
+                          str(path))
+
+
+def _check_fmi2_cs(path: Path, role: str) -> None:
+    info = read_fmu(path)
+    if not info.fmi_version.startswith("2") or "cs" not in info.interfaces:
+        raise UserError(f"{path}: the {role} of a system must be an FMI 2.0 Co-Simulation FMU (libcosim and FMPy's "
+                        f"SSP runner use FMI 2.0), not FMI {info.fmi_version}")
+    return info
+
+
+def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict) -> bytes:
+    ET.register_namespace("ssd", SSD)
+    ET.register_namespace("ssc", SSC)
+    ET.register_namespace("osp", OSP)
+    root = ET.Element(_tag(SSD, "SystemStructureDescription"), {"name": "servofmu-axis", "version": "1.0"})
+    system = ET.SubElement(root, _tag(SSD, "System"), {"name": "axis", "description":
+                                                       "reference source, drive controller and plant"})
+    elements = ET.SubElement(system, _tag(SSD, "Elements"))
+    for name in COMPONENTS:
+        comp = ET.SubElement(elements, _tag(SSD, "Component"), {"name": name, "source": f"resources/{name}.fmu",
+                                                                 "type": "application/x-fmu-sharedlibrary"})
+        conns = ET.SubElement(comp, _tag(SSD, "Connectors"))
+        for connector, kind in connectors[name]:
+            ET.SubElement(ET.SubElement(conns, _tag(SSD, "Connector"), {"name": connector, "kind": kind}),
+                          _tag(SSC, "Real"))
+        if name == "controller":
+            bindings = ET.SubElement(comp, _tag(SSD, "ParameterBindings"))
+            ET.SubElement(bindings, _tag(SSD, "ParameterBinding"), {"source": "resources/controller.ssv",
+                                                                    "type": "application/x-ssp-parameter-set"})
+    connections = ET.SubElement(system, _tag(SSD, "Connections"))
+    for a, ac, b, bc in CONNECTIONS:
+        ET.SubElement(connections, _tag(SSD, "Connection"), {"startElement": a, "startConnector": ac,
+                                                             "endElement": b, "endConnector": bc})
+    experiment = ET.SubElement(root, _tag(SSD, "DefaultExperiment"), {"startTime": "0.0",
+                                                                      "stopTime": repr(float(stop_time))})
+    annotation = ET.SubElement(ET.SubElement(experiment, _tag(SSD, "Annotations")), _tag(SSC, "Annotation"),
+                               {"type": "com.opensimulationplatform"})
+    ET.SubElement(ET.SubElement(annotation, _tag(OSP, "Algorithm")), _tag(OSP, "FixedStepAlgorithm"),
+                  {"baseStepSize": repr(float(controller.sample_time))})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
+
+
+def _ssv(values: dict) -> bytes:
+    ET.register_namespace("ssv", SSV)
+    root = ET.Element(_tag(SSV, "ParameterSet"), {"version": "1.0", "name": "controller"})
+    params = ET.SubElement(root, _tag(SSV, "Parameters"))
+    for name, value in values.items():
+        ET.SubElement(ET.SubElement(params, _tag(SSV, "Parameter"), {"name": name}), _tag(SSV, "Real"),
+                      {"value": repr(float(value))})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
+
+
+def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: tuple[np.ndarray, np.ndarray],
+                 output: str | Path, controller: ControllerSpec | None = None) -> Path:
+    """Write the SSP archive of an axis.
+
+    Parameters
+    ----------
+    plant_fmu, controller_fmu : str or Path
+        FMI 2.0 Co-Simulation FMUs: a plant (input ``u``, outputs ``v``, ``position``) and a servofmu controller.
+    reference : tuple of ndarray
+        The reference trajectory: times (s) and positions (m); it sets the system's duration.
+    output : str or Path
+        The .ssp archive to write (atomically).
+    controller : ControllerSpec, optional
+        The controller parameter values to bind (default: the controller FMU's own).
+
+    Returns
+    -------
+    Path
+        The archive written.
+
+    Raises
+    ------
+    UserError
+        For FMUs that are not FMI 2.0 Co-Simulation, a plant without ``u``/``v``/``position``, a bad reference.
+    """
+    output = check_output_path(output)
+    plant_fmu, controller_fmu = Path(plant_fmu), Path(controller_fmu)
+    plant = _check_fmi2_cs(plant_fmu, "plant")
+    plant.require(*(n for n, _ in PLANT_CONNECTORS))
+    _check_fmi2_cs(controller_fmu, "controller")
+    controller = controller or controller_from_fmu(controller_fmu)
+    time, position = reference
+    connectors = {"reference": [(REFERENCE_OUTPUT[0], "output")],
+                  "controller": [(n, "input") for n, _, _ in CONTROLLER_INPUTS]
+                  + [(n, "output") for n, _, _ in CONTROLLER_OUTPUTS],
+                  "plant": list(PLANT_CONNECTORS)}
+    with tempfile.TemporaryDirectory(prefix="servofmu-ssp-") as tmp:
+        ref_fmu = build_reference_fmu(time, position, Path(tmp) / "reference.fmu", fmi_version=2)
+        part = partial_path(output)
+        try:
+            with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+                zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors))
+                zf.writestr("resources/controller.ssv", _ssv(dict(zip((p.name for p in PARAMETERS),
+                                                                     controller.values))))
+                for name, path in (("reference", ref_fmu), ("controller", controller_fmu), ("plant", plant_fmu)):
+                    zf.write(path, f"resources/{name}.fmu")
+            os.replace(part, output)
+        except OSError as exc:
+            part.unlink(missing_ok=True)
+            raise UserError(f"{output}: cannot write ({exc.strerror})") from exc
+    return output
+
+
+def read_system(path: str | Path, folder: str | Path) -> System:
+    """Extract an axis archive into ``folder`` and read what running it needs; a damaged archive, a missing FMU
+    or an archive that is not an axis of servofmu's layout is a UserError naming it."""
+    path, folder = Path(path), Path(folder)
+    if not path.is_file():
+        raise UserError(f"{path}: no such SSP file")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(folder)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise UserError(f"{path}: not an SSP archive ({exc})") from exc
+    ssd = folder / "SystemStructure.ssd"
+    try:
+        root = ET.parse(ssd).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise UserError(f"{path}: no readable SystemStructure.ssd ({exc})") from exc
+    sources = {c.get("name"): c.get("source") for c in root.iter(_tag(SSD, "Component"))}
+    for name in COMPONENTS:
+        if name not in sources:
+            raise UserError(f"{path}: the system has no component {name!r}")
+        if not (folder / sources[name]).is_file():
+            raise UserError(f"{path}: the component {name!r} names a missing FMU ({sources[name]})")
+    step = root.find(f".//{_tag(OSP, 'FixedStepAlgorithm')}")
+    experiment = root.find(_tag(SSD, "DefaultExperiment"))
+    if step is None or experiment is None or experiment.get("stopTime") is None:
+        raise UserError(f"{path}: the system has no default experiment with a fixed step")
+    values = {}
+    ssv = folder / "resources" / "controller.ssv"
+    if ssv.is_file():
+        for p in ET.parse(ssv).getroot().iter(_tag(SSV, "Parameter")):
+            real = p.find(_tag(SSV, "Real"))
+            values[p.get("name")] = float(real.get("value"))
+    return System(folder=folder, controller=values, step_size=float(step.get("baseStepSize")),
+                  stop_time=float(experiment.get("stopTime")))
