@@ -186,12 +186,22 @@ def cmd_identify(args) -> None:
     from .identification.results import result_from_estimator, table_text, to_json_text, write_result
     from .runtime import utc_now
 
-    structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann, args.method,
-                                                                  command=getattr(args, "command_line", ""),
-                                                                  skip=args.skip)
+    method = args.method or ("pso-ann" if args.ann else "pso")
+    command = getattr(args, "command_line", "")
+    if args.closed_loop:
+        from .control.closed_loop import load_closed_loop_inputs
+
+        if method != "pso" or args.ann:
+            raise UserError("a closed-loop identification searches with the swarm alone (--method pso, no --ann)")
+        structure, data, provenance = load_closed_loop_inputs(args.data, args.structure, args.closed_loop,
+                                                              command=command, skip=args.skip)
+        ann = None
+    else:
+        structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann, method,
+                                                                      command=command, skip=args.skip)
     check_output_path(args.output)
     bar = None if args.json else _ProgressBar("iteration")
-    est = PSOANNIdentifier(structure, ann=ann, method=args.method, seed=args.seed, polish=not args.no_polish,
+    est = PSOANNIdentifier(structure, ann=ann, method=method, seed=args.seed, polish=not args.no_polish,
                            progress=bar.update if bar else None)
     try:
         est.fit(data)
@@ -199,7 +209,7 @@ def cmd_identify(args) -> None:
         if bar:
             bar.close()
     provenance["date"] = utc_now()
-    result = result_from_estimator(est, args.method, provenance)
+    result = result_from_estimator(est, method, provenance)
     write_result(args.output, result)
     if args.json:
         print(to_json_text(result))
@@ -347,6 +357,20 @@ def cmd_cosim(args) -> None:
           f"{np.max(np.abs(error)):.3g} m")
 
 
+def cmd_compensate(args) -> None:
+    import json
+
+    from .output.compensation import compensate_files, compensation_json, compensation_text
+
+    runs = compensate_files(args.result, args.axis, truth=args.truth, output=args.output, engine=args.engine)
+    if args.json:
+        print(json.dumps(compensation_json(runs), allow_nan=True))
+    else:
+        print(compensation_text(runs))
+        if args.output:
+            print(f"wrote {args.output}")
+
+
 # ---------------------------------------------------------------------------
 # demo
 # ---------------------------------------------------------------------------
@@ -451,8 +475,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", help="data file (HDF5) from `servofmu measure` or `servofmu import`")
     p.add_argument("--structure", required=True, help="plant file giving the structure (order, friction model)")
     p.add_argument("--ann", help="trained network (HDF5) from `servofmu train`")
-    p.add_argument("--method", choices=IDENTIFY_METHODS, default="pso-ann",
-                   help="pso-ann (default), pso (no ANN), ga-ann or aga-ann (the paper's GA comparators)")
+    p.add_argument("--method", choices=IDENTIFY_METHODS,
+                   help="pso-ann (the default with --ann), pso (the default without: no ANN), ga-ann or aga-ann (the "
+                        "paper's GA comparators)")
+    p.add_argument("--closed-loop", metavar="CTRL.toml", help="the records are closed-loop logs of this "
+                   "controller: every candidate is simulated in the loop from the recorded reference")
     p.add_argument("--no-polish", action="store_true", help="skip the least-squares polish after the swarm")
     p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
                    help="records: leave the first SECONDS of every record out of the fit (the model starts at rest "
@@ -533,6 +560,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--append", action="store_true", help="add the run to an existing records file")
     p.add_argument("-o", dest="output", metavar="RECORDS.h5", required=True, help="records file to write")
     p.set_defaults(func=cmd_cosim)
+
+    p = sub.add_parser("compensate", help="the axis with and without feed-forward of the identified friction")
+    p.add_argument("result", metavar="RESULT.h5", help="result file from `servofmu identify`")
+    p.add_argument("--axis", required=True, metavar="AXIS.ssp", help="the axis from `servofmu system` (its "
+                                                                      "reference should reverse the velocity)")
+    p.add_argument("--truth", metavar="PLANT", help="the true plant, when known: a third run with its friction")
+    p.add_argument("--engine", choices=("libcosim", "fmpy"), default="libcosim")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", dest="output", metavar="REPORT.html", help="HTML page to write")
+    p.set_defaults(func=cmd_compensate)
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")

@@ -17,7 +17,7 @@ from ..errors import UserError
 from ..model.plant import Plant
 
 __all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
-           "controller_from_dict", "friction_feedforward", "params_header"]
+           "controller_from_dict", "friction_feedforward", "viscous_damping", "params_header"]
 
 
 @dataclass(frozen=True)
@@ -201,19 +201,30 @@ def load_controller(path: str | Path) -> ControllerSpec:
     return controller_from_dict(data, source=str(path))
 
 
+def viscous_damping(plant: Plant) -> float:
+    """The viscous friction a first-order G holds in its pole: G = K/(s − p) is a mass 1/K with damping −p/K
+    (viscous friction cannot be told apart from G, so a structure file fixes fv and the pole takes it up).
+    0 for other G."""
+    if plant.order == 1 and not plant.zeros:
+        return float(-plant.all_poles()[0].real / plant.numerator_gain())
+    return 0.0
+
+
 def friction_feedforward(controller: ControllerSpec, plant: Plant, share: float = 1.0) -> ControllerSpec:
     """The controller with the feed-forward of ``plant``'s friction switched on (``share`` of it).
 
-    The feed-forward is the plant model's steady friction curve F(v) (Coulomb: fs = fc; LuGre: its steady state),
-    evaluated by the controller at the reference velocity — known ahead and free of the encoder's noise, where
-    the measured velocity would feed quantisation noise back and chatter around the reversals.  The tanh sign is
-    smoothed by the plant's v_smooth (LuGre, which has none: the controller file's, default 1e-3 m/s)."""
+    The feed-forward is the plant model's steady friction curve F(v) (Coulomb: fs = fc; LuGre: its steady state)
+    plus the viscous friction in a first-order G's pole (:func:`viscous_damping`), evaluated by the controller at
+    the reference velocity — known ahead and free of the encoder's noise, where the measured velocity would feed
+    quantisation noise back and chatter around the reversals.  The tanh sign is smoothed by the plant's v_smooth
+    (LuGre, which has none: the controller file's, default 1e-3 m/s)."""
     fr = plant.friction
     fs_pos = fr.fs_pos if fr.fs_pos is not None else fr.fc_pos
     fs_neg = fr.fs_neg if fr.fs_neg is not None else fr.fc_neg
     smooth = fr.v_smooth if fr.model != "lugre" else controller["ff_v_smooth"]
     return controller.with_values(friction_feedforward=share, ff_fc_pos=fr.fc_pos, ff_fc_neg=fr.fc_neg,
-                                  ff_fs_pos=fs_pos, ff_fs_neg=fs_neg, ff_vs=fr.vs or 1.0, ff_fv=fr.fv,
+                                  ff_fs_pos=fs_pos, ff_fs_neg=fs_neg, ff_vs=fr.vs or 1.0,
+                                  ff_fv=fr.fv + viscous_damping(plant),
                                   ff_v_smooth=smooth)
 
 

@@ -28,7 +28,7 @@ from ..simulation.fmpy_runs import read_fmu
 from .controller import PARAMETERS, ControllerSpec
 from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
 
-__all__ = ["System", "write_system", "read_system", "controller_from_fmu", "COMPONENTS"]
+__all__ = ["System", "write_system", "read_system", "controller_from_fmu", "parameter_set_xml", "COMPONENTS"]
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -111,7 +111,8 @@ def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict) -> byte
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
 
 
-def _ssv(values: dict) -> bytes:
+def parameter_set_xml(values: dict) -> bytes:
+    """An SSP parameter set (.ssv) of Real values by name."""
     ET.register_namespace("ssv", SSV)
     root = ET.Element(_tag(SSV, "ParameterSet"), {"version": "1.0", "name": "controller"})
     params = ET.SubElement(root, _tag(SSV, "Parameters"))
@@ -164,7 +165,7 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
         try:
             with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
                 zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors))
-                zf.writestr("resources/controller.ssv", _ssv(dict(zip((p.name for p in PARAMETERS),
+                zf.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
                                                                      controller.values))))
                 for name, path in (("reference", ref_fmu), ("controller", controller_fmu), ("plant", plant_fmu)):
                     zf.write(path, f"resources/{name}.fmu")

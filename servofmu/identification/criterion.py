@@ -208,7 +208,15 @@ def steady_state_options(rtol: float) -> SteadyStateOptions:
 
 
 class SineCriterion:
-    """Residuals of candidates (rows of identified parameters) against stepped-sine data."""
+    """Residuals of candidates (rows of identified parameters) against stepped-sine data.
+
+    What the identifier needs of a criterion: ``residuals(theta, rtol)`` (N candidates → (N, m)) and
+    ``evaluations``.  Time-domain criteria (RecordCriterion, and the closed loop's) also give ``blocks`` (slices
+    of residuals that are consecutive samples of one signal, for the Newey–West intervals), ``reweight``,
+    ``relative_rms`` and ``fit_percent``.
+    """
+
+    blocks = None
 
     def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
@@ -279,9 +287,9 @@ class RecordCriterion:
             noise = float(np.sqrt(np.mean(e[0] ** 2)))
             self.scales[k] = max(noise, 1e-12 * self.spreads[k])
 
-    def fit_percent(self, theta: np.ndarray, rtol: float) -> list[float]:
-        """The fit (%) of every record at ``theta``."""
-        return [fit_percent(r.y[r.fitted], e[0]) for r, e in zip(self.data.records, self.errors(theta, rtol))]
+    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
+        """The fit (%) of every record at ``theta``, by record name."""
+        return {r.name: fit_percent(r.y[r.fitted], e[0]) for r, e in zip(self.data.records, self.errors(theta, rtol))}
 
 
 def rms(r: np.ndarray) -> np.ndarray:

@@ -49,7 +49,7 @@ from .prior import canonical_order, full_vectors, identified_names
 from .pso import PsoOptions, minimize_pso
 from .results import Result, Stage, result_from_estimator
 
-__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs"]
+__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance"]
 
 MAX_POLISH_ITERATIONS = 20
 
@@ -100,8 +100,8 @@ class PSOANNIdentifier:
         RMS relative output error at ``theta_``.
     data_ : SineData or RecordData
         The data fitted.
-    fit_percent_ : list of float or None
-        For records: the fit of every record (%), as MATLAB's ``compare`` defines it.
+    fit_percent_ : dict or None
+        For records: the fit of every record (%), as MATLAB's ``compare`` defines it, by record (and signal).
     intervals_ : ndarray, shape (p, 2)
         95 % intervals.
     stages_ : list of Stage
@@ -173,16 +173,25 @@ class PSOANNIdentifier:
         check_method(self.method)
         if self.method in NEEDS_ANN and self.ann is None:
             raise UserError(f"method {self.method} needs a trained network (see `servofmu train`)")
-        if self.method in NEEDS_ANN and isinstance(data, RecordData):
+        if self.method in NEEDS_ANN and not isinstance(data, SineData):
             raise UserError("the ANN works on stepped-sine data; identify records with method pso")
+
+    def _criterion(self, data):
+        """What candidates are scored by: the data's own criterion when it brings one (closed-loop records)."""
+        if isinstance(data, SineData):
+            return SineCriterion(self.structure, data, BatchSimulator(self.structure, threads=self.threads))
+        if isinstance(data, RecordData):
+            return RecordCriterion(self.structure, data, BatchSimulator(self.structure, threads=self.threads))
+        return data.criterion(self.structure, self.threads)
 
     def fit(self, data: SineData | RecordData) -> "PSOANNIdentifier":
         """Identify the structure's parameters from ``data``.
 
         Parameters
         ----------
-        data : SineData or RecordData
-            Stepped-sine data (:func:`servofmu.sine_data`) or time-domain records.
+        data : SineData, RecordData or ClosedLoopData
+            Stepped-sine data (:func:`servofmu.sine_data`), time-domain records, or closed-loop records with their
+            controller (servofmu.control.closed_loop), which bring their own criterion.
 
         Returns
         -------
@@ -198,9 +207,7 @@ class PSOANNIdentifier:
         self._check(data)
         self.data_ = data
         start = time.perf_counter()
-        simulator = BatchSimulator(self.structure, threads=self.threads)
-        crit = SineCriterion(self.structure, data, simulator) if isinstance(data, SineData) else \
-            RecordCriterion(self.structure, data, simulator)
+        crit = self._criterion(data)
         self.names_ = identified_names(self.structure)
 
         def cost(y):
@@ -224,17 +231,16 @@ class PSOANNIdentifier:
                             crit.evaluations - before))
         self.history_ = result.cost_history
 
-        records = isinstance(crit, RecordCriterion)
-        blocks = crit.blocks if records else None
+        time_domain = crit.blocks is not None
         if self.polish:
             t0, before = time.perf_counter(), crit.evaluations
             y_best, jac_y = polish(crit, self._to_theta, y_best)
-            if records and len(data.records) > 1:  # weights from each record's noise, then the fit again
+            if time_domain and len(crit.blocks) > 1:  # weights from each signal's noise, then the fit again
                 crit.reweight(self._to_theta(y_best[None]), POLISH_RTOL)
                 y_best, jac_y = polish(crit, self._to_theta, y_best)
             theta = self._to_theta(y_best[None])[0]
             r = crit.residuals(theta, POLISH_RTOL)[0]
-            fitness = crit.relative_rms(theta, POLISH_RTOL) if records else float(rms(r))
+            fitness = crit.relative_rms(theta, POLISH_RTOL) if time_domain else float(rms(r))
             stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0, crit.evaluations - before))
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
             jac = jac_y @ target_jacobian(self.structure, y_best)
@@ -242,8 +248,8 @@ class PSOANNIdentifier:
             theta = stages[-1].theta
             r = crit.residuals(theta, POLISH_RTOL)[0]
             jac = central_jacobian(crit, theta)
-        self.intervals_ = intervals_from_jacobian(theta, r, jac, blocks=blocks)
-        self.fit_percent_ = crit.fit_percent(theta, POLISH_RTOL) if records else None
+        self.intervals_ = intervals_from_jacobian(theta, r, jac, blocks=crit.blocks)
+        self.fit_percent_ = crit.fit_percent(theta, POLISH_RTOL) if time_domain else None
         self.theta_ = stages[-1].theta
         self.fitness_ = stages[-1].fitness
         self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
@@ -347,9 +353,16 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
         if list(ann.layout.parameter_names) != identified_names(structure):
             raise UserError(f"{ann_path} estimates {', '.join(ann.layout.parameter_names)}; the structure "
                             f"{structure_path} has {', '.join(identified_names(structure))}")
+    return structure, data, ann, identification_provenance(data_path, structure_path, command, ann_path, skip)
+
+
+def identification_provenance(data_path, structure_path, command: str, ann_path=None, skip: float = 0.0,
+                              **extra) -> dict:
+    """What a result records of its inputs: the data file and its SHA-256, the structure, the network, the
+    command, the skipped seconds and ``extra`` entries."""
     sha = hashlib.sha256(Path(data_path).read_bytes()).hexdigest()
     provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
-                  "ann_file": str(ann_path) if ann_path else "", "command": command}
+                  "ann_file": str(ann_path) if ann_path else "", "command": command, **extra}
     if skip:
         provenance["skip"] = skip
-    return structure, data, ann, provenance
+    return provenance

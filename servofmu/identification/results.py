@@ -64,8 +64,7 @@ def result_from_estimator(est, method: str, provenance: dict) -> Result:
                   theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
                   seconds=float(est.seconds_), evaluations=int(est.evaluations_),
                   stages=tuple(est.stages_),
-                  fit_percent=None if getattr(est, "fit_percent_", None) is None else
-                  dict(zip((r.name for r in est.data_.records), est.fit_percent_)),
+                  fit_percent=getattr(est, "fit_percent_", None),
                   history=np.asarray(est.history_), provenance=dict(provenance))
 
 

@@ -74,7 +74,8 @@ from ..model.symbolic import SymbolicModel, build_model
 from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
 
 __all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "RecordResponse", "valid_parameter_sets",
-           "batch_functions", "ModelStructureError"]
+           "batch_functions", "ModelStructureError", "compiled_driver", "write_batch_sources", "H_START",
+           "c_doubles", "c_mask"]
 
 DRIVER = Path(__file__).resolve().parent / "batch_c" / "batch_driver.c"
 EXTRA_CFLAGS = ("-pthread",)
@@ -166,10 +167,15 @@ class BatchSimulator:
         self.plant = plant
         self.threads = threads or available_cores()
         self.parameter_names = plant.parameter_names()
-        self._lib = _library(plant)
+        self._lib = self._load(plant)
+
+    @staticmethod
+    def _load(plant: Plant) -> ctypes.CDLL:
+        """The compiled library (a subclass with a driver of its own loads that)."""
+        return _library(plant)
 
     def __reduce__(self):
-        return BatchSimulator, (self.plant, self.threads)
+        return type(self), (self.plant, self.threads)
 
     # ---- inputs ---------------------------------------------------------------------------------------------
     def _parameter_sets(self, params) -> tuple[np.ndarray, np.ndarray]:
@@ -202,10 +208,11 @@ class BatchSimulator:
         n, n_exp = p.shape[0], amp.size
         out = np.empty((n, n_exp, N_RESULTS))
         for lo, hi in _chunks(n, progress):
-            rc = self._lib.sb_sine(hi - lo, p.shape[1], _ptr(p[lo:hi]), _uptr(valid[lo:hi]), n_exp, _ptr(amp),
-                                   _ptr(freq), options.rtol, options.tol, options.max_time, options.min_periods,
+            rc = self._lib.sb_sine(hi - lo, p.shape[1], c_doubles(p[lo:hi]), c_mask(valid[lo:hi]), n_exp,
+                                   c_doubles(amp), c_doubles(freq), options.rtol, options.tol, options.max_time,
+                                   options.min_periods,
                                    H_START, options.max_steps, int(options.accelerate),
-                                   int(options.give_up_early), self.threads, _ptr(out[lo:hi]))
+                                   int(options.give_up_early), self.threads, c_doubles(out[lo:hi]))
             if rc != 0:
                 raise RuntimeError(f"batch library rejected the call (code {rc})")
             if progress is not None:
@@ -256,9 +263,9 @@ class BatchSimulator:
         n = p.shape[0]
         out = np.empty((n, 2, t.size))
         for lo, hi in _chunks(n, progress):
-            rc = self._lib.sb_record(hi - lo, p.shape[1], _ptr(p[lo:hi]), _uptr(valid[lo:hi]), t.size, _ptr(t),
-                                     _ptr(u), _HOLD_CODES[hold], m, omega, rtol, H_START, max_steps, self.threads,
-                                     _ptr(out[lo:hi]))
+            rc = self._lib.sb_record(hi - lo, p.shape[1], c_doubles(p[lo:hi]), c_mask(valid[lo:hi]), t.size,
+                                     c_doubles(t), c_doubles(u), _HOLD_CODES[hold], m, omega, rtol, H_START,
+                                     max_steps, self.threads, c_doubles(out[lo:hi]))
             if rc != 0:
                 raise RuntimeError(f"batch library rejected the call (code {rc})")
             if progress is not None:
@@ -329,7 +336,7 @@ def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
     return ode, jac
 
 
-def _write_batch_sources(model: SymbolicModel, src: Path) -> None:
+def write_batch_sources(model: SymbolicModel, src: Path) -> None:
     """batch_eqs.c (CasADi) and batch_config.h (sizes) for the driver; the FMU's sources via generate_sources."""
     generate_sources(model, src, model.plant.name)  # model_eqs.c, model_config.h: what servo_core.c needs
     functions = batch_functions(model)
@@ -347,23 +354,25 @@ def _write_batch_sources(model: SymbolicModel, src: Path) -> None:
         f"#define SB_X_NOMINAL {{{', '.join(repr(float(v)) for v in nominal)}}}\n")
 
 
-@functools.lru_cache(maxsize=None)
-def _library(plant: Plant) -> ctypes.CDLL:
+def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = None) -> ctypes.CDLL:
+    """The shared library of a driver C file compiled with the plant's batch sources (write_batch_sources) and
+    ``extra`` generated files (name -> text), cached on disk by a hash of all sources (cache_dir())."""
     model = build_model(plant)
     with tempfile.TemporaryDirectory(prefix="servofmu-batch-") as tmp:
         src = Path(tmp)
-        _write_batch_sources(model, src)
+        write_batch_sources(model, src)
+        for name, text in (extra or {}).items():
+            (src / name).write_text(text)
         digest = hashlib.sha256(compiler_signature(EXTRA_CFLAGS).encode())
-        for path in (src / "model_eqs.c", src / "model_eqs.h", src / "model_config.h", src / "batch_eqs.c",
-                     src / "batch_config.h", C_DIR / "servo_core.c", C_DIR / "servo_core.h", DRIVER):
-            digest.update(path.read_bytes())
-        name = f"batch-{plant.name}-{digest.hexdigest()[:20]}.so"
+        for path in sorted(src.iterdir()) + [C_DIR / "servo_core.c", C_DIR / "servo_core.h", DRIVER, driver]:
+            digest.update(path.name.encode() + path.read_bytes())
+        name = f"{driver.stem}-{plant.name}-{digest.hexdigest()[:20]}.so"
         target = cache_dir() / name
         if not target.is_file():
             built = src / name
             # the driver's unit includes batch_eqs.c and servo_core.c; model_eqs.c serves servo_core.c
-            compile_shared([DRIVER, src / "model_eqs.c"], built, include=[src, C_DIR], extra_flags=EXTRA_CFLAGS,
-                           what="the batch simulator")
+            compile_shared([driver, src / "model_eqs.c"], built, include=[src, C_DIR, DRIVER.parent, driver.parent],
+                           extra_flags=EXTRA_CFLAGS, what=f"the {driver.stem} of {plant.name}")
             try:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 partial = target.with_name(f".{name}.{os.getpid()}.part")
@@ -380,6 +389,11 @@ def _library(plant: Plant) -> ctypes.CDLL:
     return lib
 
 
+@functools.lru_cache(maxsize=None)
+def _library(plant: Plant) -> ctypes.CDLL:
+    return compiled_driver(plant, DRIVER)
+
+
 def _declare(lib: ctypes.CDLL) -> None:
     d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
     pu = ctypes.POINTER(ctypes.c_ubyte)
@@ -390,12 +404,12 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.sb_record.restype = i
 
 
-def _ptr(a: np.ndarray):
+def c_doubles(a: np.ndarray):
     assert a.flags.c_contiguous and a.dtype == np.float64  # internal invariant, not input validation
     return a.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
 
 
-def _uptr(mask: np.ndarray):
+def c_mask(mask: np.ndarray):
     assert mask.flags.c_contiguous and mask.dtype == np.uint8
     return mask.ctypes.data_as(ctypes.POINTER(ctypes.c_ubyte))
 

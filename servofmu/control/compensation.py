@@ -1,0 +1,93 @@
+"""Friction compensation measured: the axis run on its co-simulation engine without friction feed-forward, with
+the identified friction, and with the true one when known — the paper's "velocity performance" made a number.
+
+Each run is the axis archive with the controller's feed-forward parameters replaced in its parameter set
+(resources/controller.ssv); nothing else changes.  Per run: the tracking error e = r − x (RMS and peak), and the
+velocity's harmonic distortion over the reference's whole periods (when the reference is periodic).
+"""
+from __future__ import annotations
+
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..measurement.frf import estimate_frequency, harmonics
+from ..model.plant import Plant
+from .controller import PARAMETERS, ControllerSpec, friction_feedforward
+from .cosim import CosimResult, cosimulate
+from .system import parameter_set_xml, read_system
+
+__all__ = ["TrackingRun", "run_variant", "compare_compensation", "reconstructed_friction"]
+
+
+@dataclass(frozen=True)
+class TrackingRun:
+    """One run of the axis: its label, the co-simulation, and its tracking figures."""
+
+    label: str
+    result: CosimResult
+    rms_error: float
+    peak_error: float
+    distortion: float  # sqrt(Σ_{k≥2}|V_k|²)/|V_1| of the velocity; NaN for a reference that is not periodic
+
+    @property
+    def error(self) -> np.ndarray:
+        return self.result["reference"] - self.result["position"]
+
+
+def _distortion(result: CosimResult) -> float:
+    t, r, v = result.time, result["reference"], result["v"]
+    frequency, share = estimate_frequency(t, r)
+    periods = int(np.floor((t[-1] - t[0]) * frequency))
+    if share < 0.8 or periods < 2:
+        return float("nan")
+    start = t[-1] - (periods - 1) / frequency  # the last whole periods: the start's transient left out
+    return float(harmonics(t, v, frequency, start=start, periods=periods - 1).distortion)
+
+
+def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine: str = "libcosim") -> TrackingRun:
+    """The axis archive run with ``controller``'s parameter values bound in place of its own."""
+    with tempfile.TemporaryDirectory(prefix="servofmu-compensate-") as tmp:
+        variant = Path(tmp) / f"{Path(ssp).stem}.ssp"
+        with zipfile.ZipFile(ssp) as src, zipfile.ZipFile(variant, "w", zipfile.ZIP_DEFLATED) as dst:
+            for item in src.infolist():
+                if item.filename != "resources/controller.ssv":
+                    dst.writestr(item, src.read(item.filename))
+            dst.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
+                                                                                 controller.values))))
+        result = cosimulate(variant, engine=engine)
+    e = result["reference"] - result["position"]
+    return TrackingRun(label, result, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), _distortion(result))
+
+
+def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None = None,
+                         engine: str = "libcosim") -> list[TrackingRun]:
+    """Runs without friction feed-forward, with the identified friction, and (given) with the true friction."""
+    with tempfile.TemporaryDirectory(prefix="servofmu-compensate-") as tmp:
+        system = read_system(ssp, tmp)
+    missing = [p.name for p in PARAMETERS if p.name not in system.controller]
+    if missing:
+        raise UserError(f"{ssp}: the controller's parameter set has no {missing[0]!r}")
+    base = ControllerSpec("controller", tuple(system.controller[p.name] for p in PARAMETERS), str(ssp))
+    runs = [run_variant(ssp, base.with_values(friction_feedforward=0.0), "no compensation", engine),
+            run_variant(ssp, friction_feedforward(base, identified), "identified friction", engine)]
+    if truth is not None:
+        runs.append(run_variant(ssp, friction_feedforward(base, truth), "true friction", engine))
+    return runs
+
+
+def reconstructed_friction(run: TrackingRun, plant: Plant) -> tuple[np.ndarray, np.ndarray] | None:
+    """(velocity, friction force) points reconstructed from a run through the identified linear part, where G is
+    first order without zeros: G = K/(s − p) is a mass 1/K, so everything but inertia, u − (dv/dt)/K, is friction
+    — the viscous part b·v = −p·v/K included, as in the feed-forward.  The force held on [t_i, t_i+1) is paired
+    with the mean velocity and the velocity difference of that interval.  None for other G."""
+    if plant.order != 1 or plant.zeros:
+        return None
+    t, u, v = run.result.time, run.result["force"], run.result["v"]
+    return (v[:-1] + v[1:]) / 2, u[:-1] - np.diff(v) / np.diff(t) / plant.numerator_gain()
+
+
