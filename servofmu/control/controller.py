@@ -133,7 +133,7 @@ def controller_from_dict(data: dict, source: str = "<memory>") -> ControllerSpec
 
     values = {p.name: p.default for p in PARAMETERS}
     given = set()
-    name = data.get("name", Path(source).stem)
+    name = data.get("name", Path(source).stem if source != "<memory>" else "controller")
     if not isinstance(name, str) or not name.replace("_", "").isalnum() or not name[:1].isalpha():
         fail("name", "must be an identifier (letters, digits, underscores; starts with a letter)")
     for key, value in data.items():
