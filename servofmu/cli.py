@@ -288,7 +288,7 @@ def cmd_validate(args) -> None:
 
     from .output.validate import validate_files, validation_json, validation_text
 
-    v = validate_files(args.result, args.data, args.output, skip=args.skip)
+    v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop)
     if args.json:
         print(json.dumps(validation_json(v), allow_nan=True))
     else:
@@ -517,6 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("data", metavar="DATA.h5", help="data file (records or a measurement) it was not fitted to")
     p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
                    help="leave the first SECONDS of every record out (as identify --skip)")
+    p.add_argument("--closed-loop", metavar="CTRL.toml", help="closed-loop records of this controller: replayed in "
+                                                              "the loop from their reference")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", dest="output", metavar="FILE.html|FILE.png", help="write a page or a figure")
     p.set_defaults(func=cmd_validate)

@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from .. import __version__
+from ..control.controller import load_controller
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path
 from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_residuals, steady_state_options
@@ -135,6 +136,12 @@ def velocity_range(data_file: DataFile) -> float:
     return 1.1 * peak if np.isfinite(peak) and peak > 0 else 1.0
 
 
+def _loop_of(result: Result):
+    """The controller of a closed-loop identification (its file, as the provenance names it), else None."""
+    path = result.provenance.get("controller_file")
+    return load_controller(path) if path else None
+
+
 def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile) -> list[Entry]:
     """Simulate each identified plant against the data: at the used experiments, or along each record."""
     data = _used_data(data_file)
@@ -143,10 +150,10 @@ def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile)
         if data is not None:
             H, dc, _ = model_sine(result.plant, data.amplitudes, data.frequencies, rtol=POLISH_RTOL)
             entries.append(Entry(label, result, sine=(H, dc)))
-        else:  # the records replayed as identify fitted them: their holds, outputs and skipped segment
+        else:  # the records replayed as identify fitted them: their holds, outputs, skipped segment and loop
             entries.append(Entry(label, result,
-                                 records=validate_model(result, data_file,
-                                                        float(result.provenance.get("skip", 0.0)))))
+                                 records=validate_model(result, data_file, float(result.provenance.get("skip", 0.0)),
+                                                        _loop_of(result))))
     return entries
 
 
@@ -386,7 +393,7 @@ def records_table(entries: Sequence[Entry]) -> str:
         row = [r.name, r.output, r.hold, str(r.y.size)]
         for e in entries:
             check = e.records.records[k]
-            row += [number(check.fit, ".6f"), "passed" if check.residuals.passed else "failed"]
+            row += [number(check.fit, ".6f"), "passed" if check.passed else "failed"]
         rows.append(row)
     return table("records", head, rows, numeric_from=3)
 
@@ -484,5 +491,5 @@ def make_report(source: str | Path, output: str | Path, data: str | Path | None 
     validation = None
     if validate is not None:
         other = read_data_file(validate)
-        validation = [(label, validate_model(result, other)) for label, result in labelled]
+        validation = [(label, validate_model(result, other, controller=_loop_of(result))) for label, result in labelled]
     return atomic_write(output, report_html(entries, data_file, true_plant, source=source, validation=validation))

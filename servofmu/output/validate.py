@@ -136,6 +136,12 @@ class RecordValidation:
     y_model: np.ndarray
     fit: float
     residuals: ResidualTest
+    closed_loop: bool = False  # the disturbances reach the outputs through the loop: residuals are not white
+
+    @property
+    def passed(self) -> bool:
+        """The residual tests that apply: independence from the input always, whiteness for open-loop records."""
+        return self.residuals.independent if self.closed_loop else self.residuals.passed
 
 
 @dataclass(frozen=True)
@@ -166,7 +172,7 @@ class Validation:
     @property
     def passed(self) -> bool:
         """Every record's residuals within their bounds (stepped-sine experiments have no residual test)."""
-        return all(r.residuals.passed for r in self.records)
+        return all(r.passed for r in self.records)
 
 
 def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float):
@@ -183,6 +189,29 @@ def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFi
     return out
 
 
+def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, controller, skip: float):
+    """Closed-loop records replayed in the loop from their reference: the position and the force command, each
+    with its residuals tested against the reference (the loop's input)."""
+    from ..control.closed_loop import LoopSimulator, closed_loop_data
+
+    data = closed_loop_data(data_file, controller, skip)
+    sim = LoopSimulator(structure)
+    out = []
+    for rec in data.records:
+        loop = sim.simulate_loop(params[None], rec.time, rec.reference, data.controller, rtol=POLISH_RTOL)
+        f, r = rec.fitted, rec.reference[rec.fitted]
+        for output, y, y_model in (("position", rec.position, loop.position[0]), ("force", rec.command,
+                                                                                  loop.command[0])):
+            e = y_model[f] - y[f]
+            if not np.all(np.isfinite(e)):
+                raise UserError(f"{data_file.path}: the identified model cannot be simulated in the loop of "
+                                f"record {rec.name}")
+            out.append(RecordValidation(name=rec.name, output=output, hold="zoh", time=rec.time[f], u=r, y=y[f],
+                                        y_model=y_model[f], fit=fit_percent(y[f], e),
+                                        residuals=residual_test(e, r, y[f]), closed_loop=True))
+    return out
+
+
 def _validate_experiment(sim: BatchSimulator, params: np.ndarray, e: ExperimentResult) -> ExperimentValidation:
     grid = np.union1d(e.transient.time, e.window.time)
     response = sim.simulate_sine(params[None], grid, e.amplitude, e.frequency, rtol=POLISH_RTOL)
@@ -196,7 +225,7 @@ def _validate_experiment(sim: BatchSimulator, params: np.ndarray, e: ExperimentR
                                 H_error=abs(h.first / e.U1 - H_data) / abs(H_data))
 
 
-def validate(result: Result, data_file: DataFile, skip: float = 0.0) -> Validation:
+def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=None) -> Validation:
     """Simulate an identified model on every record and stepped-sine experiment of a data file.
 
     Parameters
@@ -207,6 +236,9 @@ def validate(result: Result, data_file: DataFile, skip: float = 0.0) -> Validati
         Data the model was (preferably) not fitted to: records, a measurement, or both.
     skip : float
         Seconds left out at the start of every record (as ``identify --skip``).
+    controller : ControllerSpec, optional
+        The records are closed-loop logs of this controller: they are replayed in the loop from their reference,
+        and the position and the force command are compared (as ``identify --closed-loop``).
 
     Returns
     -------
@@ -225,7 +257,10 @@ def validate(result: Result, data_file: DataFile, skip: float = 0.0) -> Validati
         raise UserError(f"{data_file.path}: holds no records and no experiments to validate on")
     sim = BatchSimulator(result.structure)
     params = result.plant.parameter_vector()
-    records = _validate_records(sim, params, data_file, skip) if data_file.records else []
+    if controller is not None:
+        records = _validate_closed_loop(result.structure, params, data_file, controller, skip)
+    else:
+        records = _validate_records(sim, params, data_file, skip) if data_file.records else []
     experiments = [_validate_experiment(sim, params, e) for e in data_file.experiments]
     return Validation(result=result, data_file=data_file, records=tuple(records), experiments=tuple(experiments))
 
@@ -246,7 +281,8 @@ def validation_json(v: Validation) -> dict:
 
     return {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path), "passed": v.passed,
             "records": [{"name": r.name, "output": r.output, "intersample": r.hold, "samples": int(r.y.size),
-                         "fit_percent": r.fit, "residual_test": test(r.residuals)} for r in v.records],
+                         "fit_percent": r.fit, "closed_loop": r.closed_loop, "passed": r.passed,
+                         "residual_test": test(r.residuals)} for r in v.records],
             "experiments": [{"index": e.index, "amplitude": e.amplitude, "frequency": e.frequency,
                              "converged": e.converged, "fit_percent": e.fit, "H_relative_error": e.H_error}
                             for e in v.experiments]}
@@ -258,10 +294,15 @@ def validation_text(v: Validation) -> str:
     if v.records:
         lines.append(f"{'record':<24}{'output':>10}{'samples':>9}{'fit %':>12}{'white':>7}{'indep.':>8}")
         for r in v.records:
+            white = ("yes" if r.residuals.white else "no") if r.closed_loop else ("yes" if r.residuals.white else "NO")
             lines.append(f"{r.name:<24}{r.output:>10}{r.y.size:>9}{r.fit:>12.4f}"
-                         f"{'yes' if r.residuals.white else 'NO':>7}{'yes' if r.residuals.independent else 'NO':>8}")
-        lines.append("residual tests: autocorrelation (lags 1-25) and cross-correlation with the input (lags "
-                     "-25..25) within their joint 99 % bounds: " + ("passed" if v.passed else "FAILED"))
+                         f"{white:>7}{'yes' if r.residuals.independent else 'NO':>8}")
+        loop = any(r.closed_loop for r in v.records)
+        lines.append("residual tests: " + ("cross-correlation with the reference (lags -25..25; in a closed loop "
+                                           "the residuals are not white)" if loop else
+                                           "autocorrelation (lags 1-25) and cross-correlation with the input (lags "
+                                           "-25..25)") + " within their joint 99 % bounds: "
+                     + ("passed" if v.passed else "FAILED"))
     if v.experiments:
         lines.append(f"{'experiment':<12}{'amplitude N':>12}{'frequency Hz':>14}{'fit %':>12}{'|dH|/|H|':>12}")
         for e in v.experiments:
@@ -339,13 +380,18 @@ def validation_html(v: Validation) -> list[str]:
 
 
 def validate_files(result_path: str | Path, data_path: str | Path, output: str | Path | None = None,
-                   skip: float = 0.0) -> Validation:
-    """Validate a result file on a data file; write ``output`` (.html page or .png figure) if given."""
+                   skip: float = 0.0, controller: str | Path | None = None) -> Validation:
+    """Validate a result file on a data file (closed-loop records with the controller file ``controller``);
+    write ``output`` (.html page or .png figure) if given."""
     if output is not None:
         output = check_output_path(output)
         if output.suffix.lower() not in (".html", ".png"):
             raise UserError(f"{output}: write an .html page or a .png figure")
-    v = validate(read_result(result_path), read_data_file(data_path), skip)
+    law = None
+    if controller is not None:
+        from ..control.controller import load_controller
+        law = load_controller(controller)
+    v = validate(read_result(result_path), read_data_file(data_path), skip, law)
     if output is None:
         return v
     if output.suffix.lower() == ".png":
