@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 README = Path(__file__).resolve().parent.parent / "README.md"
 
 
@@ -92,3 +94,21 @@ def test_importing_the_package_loads_no_numerical_code():
             "print(sorted(m for m in ('numpy', 'casadi', 'torch', 'h5py', 'fmpy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_closed_loop_commands_of_docs_control_run(tmp_path):
+    """docs/control.md's console block, in order, in an empty folder with a reference from rest."""
+    text = (README.parent / "docs" / "control.md").read_text()
+    block = text.split("```console", 1)[1].split("```", 1)[0]
+    commands = [shlex.split(line[2:]) for line in block.splitlines() if line.startswith("$ servofmu ")]
+    assert len(commands) == 7
+    t = np.arange(0.0, 2.0005, 1e-3)
+    x = 0.03 * (1 - np.cos(np.pi * t)) + 0.01 * (1 - np.cos(2 * np.pi * 2.3 * t))
+    np.savetxt(tmp_path / "reference.csv", np.column_stack([t, x]), delimiter=",", header="time,position",
+               comments="")
+    for argv in commands:
+        proc = subprocess.run([sys.executable, "-m", "servofmu", *argv[1:]], cwd=tmp_path, capture_output=True,
+                              text=True)
+        assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
+    assert "lowers the RMS tracking error" in proc.stdout
+    assert (tmp_path / "axis-compensation.html").stat().st_size > 0
