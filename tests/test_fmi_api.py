@@ -325,3 +325,39 @@ def test_time_reads_back_the_current_time(built_fmu, fmu_layout, version):
     me.fmu.setTime(0.123)
     assert me.get([layout.TIME]) == [0.123]
     me.close()
+
+
+# ---- values the plant file refuses ------------------------------------------------------------------------------
+@pytest.mark.parametrize("interface", ["cs", "me"])
+@pytest.mark.parametrize("version", [3, 2])
+@pytest.mark.parametrize("name, value", [("fv", -5.0), ("v_smooth", 0.0), ("fc_pos", -0.1), ("vs", -1.0),
+                                         ("pole1", 1.0), ("dc_gain", 0.0), ("excitation_frequency", 1e9),
+                                         ("excitation_frequency", 0.0)])
+def test_values_the_plant_file_refuses_are_refused_through_the_api(built_fmu, fmu_layout, version, interface, name,
+                                                                    value):
+    """As a NaN is: an error status and a log line naming the variable, the instance unchanged and usable."""
+    layout = fmu_layout("stribeck_servo")
+    fmu = Instance(built_fmu("stribeck_servo", version), version, interface)
+    vr = layout.parameters[name]
+    before = fmu.get([vr])
+    with pytest.raises(FMICallException) as info:
+        fmu.set([vr], [value])
+    assert info.value.status == FMI_ERROR
+    assert any(status == FMI_ERROR and str(vr) in text for status, text in fmu.messages), fmu.messages
+    assert fmu.get([vr]) == before
+    fmu.initialize()
+    if interface == "cs":
+        assert np.all(np.isfinite(fmu.run(0.0, 0.05, [layout.V])))
+    fmu.close()
+
+
+@pytest.mark.parametrize("interface", ["cs", "me"])
+@pytest.mark.parametrize("version", [3, 2])
+def test_static_friction_below_coulomb_friction_ends_initialisation_with_an_error(built_fmu, fmu_layout, version,
+                                                                                   interface):
+    layout = fmu_layout("stribeck_servo")
+    fmu = Instance(built_fmu("stribeck_servo", version), version, interface)
+    fmu.set([layout.parameters["fs_pos"]], [0.2])  # below fc_pos = 0.3: each value alone is fine
+    with pytest.raises(FMICallException):
+        fmu.initialize()
+    assert any(status == FMI_ERROR and "static friction" in text for status, text in fmu.messages), fmu.messages

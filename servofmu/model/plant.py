@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["Plant", "Friction", "PlantError", "load_plant", "plant_from_dict", "resolve_plant_path",
+__all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict", "resolve_plant_path",
            "example_files", "parameter_info", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
 
 FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
@@ -180,6 +180,46 @@ class Plant:
                  "[friction]", f'model = "{self.friction.model}"']
         lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
         return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class ParameterRules:
+    """What values of a plant's parameter vector the plant file format accepts (docs/plant-format.md), as data
+    for every checker (the batch simulator vectorised, the FMU in C):
+
+    every value finite; ``low[i] ≤ x[i] ≤ high[i]`` (``low_open[i]``: low itself excluded); ``x[i] ≠ 0`` where
+    ``nonzero[i]``; ``x[a] ≥ x[b]`` for every pair (a, b) of ``at_least``; and for every pair (re, im) of
+    ``not_zero_root`` (a root with dc_gain), not both zero (im is −1 for a real root)."""
+
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    low_open: tuple[bool, ...]
+    nonzero: tuple[bool, ...]
+    at_least: tuple[tuple[int, int], ...]
+    not_zero_root: tuple[tuple[int, int], ...]
+
+
+def parameter_rules(plant: Plant) -> ParameterRules:
+    """The value rules of plant_from_dict for ``plant``'s structure."""
+    names = plant.parameter_names()
+    low, high = [-math.inf] * len(names), [math.inf] * len(names)
+    low_open, nonzero = [False] * len(names), [False] * len(names)
+    index = {n: i for i, n in enumerate(names)}
+    not_zero_root = []
+    for kind, roots in (("pole", plant.poles), ("zero", plant.zeros)):
+        for i, root in enumerate(roots, start=1):
+            re = index[f"{kind}{i}_re"] if root.imag != 0 else index[f"{kind}{i}"]
+            if kind == "pole":
+                high[re] = 0.0  # no pole with a positive real part
+            if plant.dc_gain is not None:
+                not_zero_root.append((re, index[f"{kind}{i}_im"] if root.imag != 0 else -1))
+    nonzero[index[plant.gain_key]] = True
+    fr = plant.friction
+    for key in fr.keys():
+        low[index[key]] = 0.0
+        low_open[index[key]] = key in ("v_smooth", "vs", "sigma0") or (fr.model == "lugre" and key.startswith("fc_"))
+    at_least = tuple((index[f"fs_{side}"], index[f"fc_{side}"]) for side in ("pos", "neg") if f"fs_{side}" in index)
+    return ParameterRules(tuple(low), tuple(high), tuple(low_open), tuple(nonzero), at_least, tuple(not_zero_root))
 
 
 def root_names(prefix: str, roots) -> list[str]:

@@ -68,7 +68,7 @@ import numpy as np
 from ..errors import UserError
 from ..fmu.sources import C_DIR, generate_sources
 from ..fmu.variables import state_nominals
-from ..model.plant import Plant
+from ..model.plant import Plant, parameter_rules
 from ..model.signals import INTERSAMPLE
 from ..model.symbolic import SymbolicModel, build_model
 from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
@@ -274,36 +274,19 @@ class BatchSimulator:
 
 
 def valid_parameter_sets(plant: Plant, params) -> np.ndarray:
-    """Which rows of ``params`` (N × n_params) are plants that the plant file format accepts (docs/plant-format.md).
-
-    The rules of ``servofmu.model.plant.plant_from_dict``, vectorised: finite values; no pole with a positive real part;
-    a non-zero gain; with ``dc_gain``, no pole or zero at 0; friction values not negative, ``v_smooth``, ``vs`` and
-    ``sigma0`` positive, static friction not below Coulomb friction, and positive Coulomb friction for LuGre.
-    """
+    """Which rows of ``params`` (N × n_params) are plants that the plant file format accepts (docs/plant-format.md):
+    the rules of servofmu.model.plant.parameter_rules, vectorised."""
     p = np.atleast_2d(np.asarray(params, dtype=float))
-    col = {name: p[:, i] for i, name in enumerate(plant.parameter_names())}
+    rules = parameter_rules(plant)
     with np.errstate(invalid="ignore"):
         ok = np.all(np.isfinite(p), axis=1)
-        for kind, roots in (("pole", plant.poles), ("zero", plant.zeros)):
-            for i, root in enumerate(roots, start=1):
-                re = col[f"{kind}{i}_re"] if root.imag != 0 else col[f"{kind}{i}"]
-                im = col[f"{kind}{i}_im"] if root.imag != 0 else np.zeros_like(re)
-                if kind == "pole":
-                    ok &= re <= 0
-                if plant.dc_gain is not None:
-                    ok &= (re != 0) | (im != 0)
-        ok &= col[plant.gain_key] != 0
-        fr = plant.friction
-        for key in fr.keys():
-            ok &= col[key] >= 0
-        for key in ("v_smooth", "vs", "sigma0"):
-            if key in col:
-                ok &= col[key] > 0
-        for side in ("pos", "neg"):
-            if f"fs_{side}" in col:
-                ok &= col[f"fs_{side}"] >= col[f"fc_{side}"]
-            if fr.model == "lugre":
-                ok &= col[f"fc_{side}"] > 0
+        low, high = np.array(rules.low), np.array(rules.high)
+        ok &= np.all(np.where(rules.low_open, p > low, p >= low) & (p <= high), axis=1)
+        ok &= np.all((p != 0) | ~np.array(rules.nonzero), axis=1)
+        for a, b in rules.at_least:
+            ok &= p[:, a] >= p[:, b]
+        for re, im in rules.not_zero_root:
+            ok &= (p[:, re] != 0) | ((p[:, im] != 0) if im >= 0 else False)
     return ok
 
 

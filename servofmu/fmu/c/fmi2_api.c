@@ -230,6 +230,7 @@ fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
     CHECK_INSTANCE(c);
     if (nx != SV_NX) FAIL(c, "fmi2GetDerivatives: the plant has %d states", SV_NX);
+    if (sv_check_parameters(CORE(c)) != 0) return fmi2Error;
     sv_eval(CORE(c));
     memcpy(derivatives, CORE(c)->xdot, sizeof(double) * SV_NX);
     return fmi2OK;

@@ -330,6 +330,7 @@ fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance instance, fmi3Float64 
                                              size_t nContinuousStates) {
     CHECK_INSTANCE(instance);
     if (nContinuousStates != SV_NX) FAIL(instance, "fmi3GetContinuousStateDerivatives: the plant has %d states", SV_NX);
+    if (sv_check_parameters(CORE(instance)) != 0) return fmi3Error;
     sv_eval(CORE(instance));
     memcpy(derivatives, CORE(instance)->xdot, sizeof(double) * SV_NX);
     return fmi3OK;

@@ -51,6 +51,7 @@ int sv_set_checked(SvInstance *inst, unsigned vr, double value);
 void sv_eval(SvInstance *inst);
 int sv_derivative(SvInstance *inst, const unsigned *unknowns, size_t n_unknowns, const unsigned *knowns,
                   size_t n_knowns, const double *seed, double *sensitivity, int adjoint);
+int sv_check_parameters(SvInstance *inst);
 int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tolerance, double start_time);
 int sv_exit_initialization(SvInstance *inst);
 int sv_do_step(SvInstance *inst, double communication_point, double step_size);

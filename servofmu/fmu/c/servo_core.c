@@ -11,6 +11,10 @@
 #define SV_MAGIC 0x53564d31u /* "SVM1" */
 
 const double sv_p_start[SV_NP] = SV_P_START;
+/* The plant file's value rules (generated from servofmu.model.plant.parameter_rules, see model_config.h). */
+static const double p_low[SV_NP] = SV_P_LOW, p_high[SV_NP] = SV_P_HIGH;
+static const int p_low_open[SV_NP] = SV_P_LOW_OPEN, p_nonzero[SV_NP] = SV_P_NONZERO;
+static const int p_at_least[][2] = SV_P_AT_LEAST, p_roots_not_zero[][2] = SV_P_ROOTS_NOT_ZERO;
 const double sv_x_nominal[SV_NX] = SV_X_NOMINAL;
 
 char *sv_strdup(const char *text) {
@@ -108,6 +112,9 @@ int sv_set(SvInstance *inst, unsigned vr, double value) {
     case SV_INPUT: inst->s.u = value; break;
     case SV_PARAM:
         if (inst->s.mode == SV_TERMINATED) return -2;
+        if (value < p_low[i] || (p_low_open[i] && value == p_low[i]) || value > p_high[i] ||
+            (p_nonzero[i] && value == 0.0))
+            return -4;
         inst->s.p[i] = value;
         break;
     case SV_STATE: /* start values of the states, before initialisation only */
@@ -125,6 +132,9 @@ int sv_set_checked(SvInstance *inst, unsigned vr, double value) {
     if (rc == -1) sv_logf(inst, SV_LOG_ERROR, "logStatusError", "unknown value reference %u", vr);
     if (rc == -2) sv_logf(inst, SV_LOG_ERROR, "logStatusError", "variable %u cannot be set in this mode", vr);
     if (rc == -3) sv_logf(inst, SV_LOG_ERROR, "logStatusError", "variable %u: value is not finite", vr);
+    if (rc == -4)
+        sv_logf(inst, SV_LOG_ERROR, "logStatusError", "parameter %u = %g refused: outside what the plant file "
+                "allows (docs/plant-format.md)", vr, value);
     return rc;
 }
 
@@ -227,7 +237,7 @@ int sv_integrate(SvInstance *inst, double t_end) {
     double t = inst->s.time, xnew[SV_NX];
     double h = inst->s.h > 0.0 ? inst->s.h : 1e-5;
     const double span = fmax(fabs(t_end), 1.0);
-    long budget = 10000000L;
+    long budget = 2000000L; /* steps per call: a bounded time (seconds), however absurd the input */
     while (t < t_end) {
         double err, fac;
         int last = 0;
@@ -359,11 +369,33 @@ int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tole
     return 0;
 }
 
+/* The rules between parameters (static friction not below Coulomb friction; with a DC gain, no root at 0): they
+ * can only be judged once all are set.  0 ok, -1 violated (logged). */
+int sv_check_parameters(SvInstance *inst) {
+    int k;
+    for (k = 0; k < SV_N_AT_LEAST; ++k)
+        if (inst->s.p[p_at_least[k][0]] < inst->s.p[p_at_least[k][1]]) {
+            sv_logf(inst, SV_LOG_ERROR, "logStatusError", "parameter %u (%g) is below parameter %u (%g): static "
+                    "friction must not be below Coulomb friction", SV_VR_P0 + p_at_least[k][0],
+                    inst->s.p[p_at_least[k][0]], SV_VR_P0 + p_at_least[k][1], inst->s.p[p_at_least[k][1]]);
+            return -1;
+        }
+    for (k = 0; k < SV_N_ROOTS_NOT_ZERO; ++k)
+        if (inst->s.p[p_roots_not_zero[k][0]] == 0.0 &&
+            (p_roots_not_zero[k][1] < 0 || inst->s.p[p_roots_not_zero[k][1]] == 0.0)) {
+            sv_logf(inst, SV_LOG_ERROR, "logStatusError", "parameter %u puts a root at 0: no finite DC gain",
+                    SV_VR_P0 + p_roots_not_zero[k][0]);
+            return -1;
+        }
+    return 0;
+}
+
 int sv_exit_initialization(SvInstance *inst) {
     if (inst->s.mode != SV_INITIALIZATION) {
         sv_logf(inst, SV_LOG_ERROR, "logStatusError", "exit initialization mode: not in initialization mode");
         return -1;
     }
+    if (sv_check_parameters(inst) != 0) return -1;
     inst->s.mode = inst->is_cosim ? SV_STEP : SV_EVENT;
     return 0;
 }
@@ -383,6 +415,7 @@ int sv_do_step(SvInstance *inst, double communication_point, double step_size) {
                 inst->s.time);
         return -1;
     }
+    if (sv_check_parameters(inst) != 0) return -1;
     inst->s.time = communication_point;
     return sv_integrate(inst, communication_point + step_size);
 }

@@ -59,7 +59,7 @@ char *sv_strdup(const char *text);
 void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...);
 
 enum sv_kind sv_classify(unsigned vr, int *index);
-/* 0 ok; -1 unknown reference; -2 not settable in this mode; -3 not finite */
+/* 0 ok; -1 unknown reference; -2 not settable in this mode; -3 not finite; -4 outside the plant file's rules */
 int sv_get(SvInstance *inst, unsigned vr, double *value);
 int sv_set(SvInstance *inst, unsigned vr, double value);
 int sv_set_checked(SvInstance *inst, unsigned vr, double value); /* logs the failure */
@@ -72,6 +72,8 @@ int sv_integrate(SvInstance *inst, double t_end);
 int sv_derivative(SvInstance *inst, const unsigned *unknowns, size_t n_unknowns, const unsigned *knowns,
                   size_t n_knowns, const double *seed, double *sensitivity, int adjoint);
 
+/* The rules between parameters (the single-parameter ones are checked when a value is set); 0 ok, -1 (logged). */
+int sv_check_parameters(SvInstance *inst);
 /* Life cycle shared by the FMI versions; 0 ok, -1 error (logged). */
 int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tolerance, double start_time);
 int sv_exit_initialization(SvInstance *inst);
