@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import check_structure
+from ..identification.criterion import TimeDomainCriterion, check_structure
 from ..identification.identifier import identification_provenance
 from ..identification.prior import full_vectors
 from ..measurement.datafile import read_data_file
@@ -141,19 +141,17 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     return ClosedLoopData(tuple(out), law, str(data_file.path))
 
 
-class ClosedLoopCriterion:
-    """Residuals of candidate plants simulated in the known loop: per record the position and the force command
-    against the recorded ones, each signal divided by its scale (the spread of the signal before a fit, the RMS
-    error of a fit after :meth:`reweight`, as servofmu.identification.criterion.RecordCriterion)."""
+class ClosedLoopCriterion(TimeDomainCriterion):
+    """Candidate plants simulated in the known loop: per record the position and the force command against the
+    recorded ones, each signal weighted by its noise (servofmu.identification.criterion.TimeDomainCriterion)."""
 
     def __init__(self, structure: Plant, data: ClosedLoopData, simulator: LoopSimulator):
-        self.structure, self.data, self.simulator = structure, data, simulator
-        self.evaluations = 0
-        signals = [(r.position[r.fitted], r.command[r.fitted]) for r in data.records]
-        self.spreads = np.array([float(np.std(s)) or 1.0 for pair in signals for s in pair])
-        self.scales = self.spreads.copy()
-        sizes = [int(r.fitted.sum()) for r in data.records for _ in range(2)]
-        self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+        self.data, self.simulator = data, simulator
+        super().__init__(structure)
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        return [pair for r in self.data.records for pair in ((f"{r.name} position", r.position[r.fitted]),
+                                                             (f"{r.name} force", r.command[r.fitted]))]
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Model minus record at the fitted samples: per record the position, then the command."""
@@ -164,27 +162,6 @@ class ClosedLoopCriterion:
         for r in self.data.records:
             loop = self.simulator.simulate_loop(full, r.time, r.reference, self.data.controller, rtol=rtol)
             out += [loop.position[:, r.fitted] - r.position[r.fitted], loop.command[:, r.fitted] - r.command[r.fitted]]
-        return out
-
-    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
-        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
-
-    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
-        e = np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1)
-        return float(np.sqrt(np.mean(e**2)))
-
-    def reweight(self, theta: np.ndarray, rtol: float) -> None:
-        for k, e in enumerate(self.errors(theta, rtol)):
-            self.scales[k] = max(float(np.sqrt(np.mean(e[0] ** 2))), 1e-12 * self.spreads[k])
-
-    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
-        from ..identification.criterion import fit_percent
-
-        errors = self.errors(theta, rtol)
-        out = {}
-        for k, r in enumerate(self.data.records):
-            out[f"{r.name} position"] = fit_percent(r.position[r.fitted], errors[2 * k][0])
-            out[f"{r.name} force"] = fit_percent(r.command[r.fitted], errors[2 * k + 1][0])
         return out
 
 

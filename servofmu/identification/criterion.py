@@ -28,7 +28,7 @@ from .prior import full_vectors
 
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "check_structure", "record_errors", "fit_percent",
            "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
-           "RecordCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
+           "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
            "output_error_fitness", "SEARCH_RTOL", "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
@@ -246,23 +246,60 @@ def fit_percent(y: np.ndarray, error: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(error) / np.linalg.norm(y - np.mean(y))))
 
 
-class RecordCriterion:
-    """Residuals of candidates against time-domain records, every record simulated with its own hold.
+class TimeDomainCriterion:
+    """Residuals of candidates against sampled signals, each signal weighted by its noise.
 
-    Weights: the residuals of record k are divided by ``scales[k]``, an estimate of its noise level, so that
-    every sample counts by how exactly it was measured — the maximum-likelihood weighting for records of
-    different signals (velocity, position), noise levels and lengths.  Before a fit the scale is the spread of
-    the record's signal (relative errors); :meth:`reweight` sets it to the RMS of the residuals of a fit, after
-    which the fit is repeated (feasible generalised least squares).
+    A subclass gives ``signals()`` — the measured values of every signal at its fitted samples, with their names —
+    and ``errors(theta, rtol)`` — model minus measurement for N candidates, one (N, samples) array per signal.
+    The residuals of signal k are divided by ``scales[k]``, an estimate of its noise level, so that every sample
+    counts by how exactly it was measured: the maximum-likelihood weighting for signals of different units,
+    noise levels and lengths.  Before a fit the scale is the spread of the signal (relative errors);
+    :meth:`reweight` sets it to the RMS error of a fit, after which the fit is repeated (feasible generalised
+    least squares).  ``blocks``: the residuals of each signal, consecutive samples (Newey–West intervals).
     """
 
-    def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
-        self.structure, self.data, self.simulator = structure, data, simulator
+    def __init__(self, structure: Plant):
+        self.structure = structure
         self.evaluations = 0
-        self.spreads = np.array([float(np.std(r.y[r.fitted])) or 1.0 for r in data.records])
+        measured = [y for _, y in self.signals()]
+        self.spreads = np.array([float(np.std(y)) or 1.0 for y in measured])
         self.scales = self.spreads.copy()
-        sizes = [int(r.fitted.sum()) for r in data.records]
+        sizes = [y.size for y in measured]
         self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        raise NotImplementedError
+
+    def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+        raise NotImplementedError
+
+    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
+        """(N, samples) weighted residuals of the N candidates ``theta``, all signals one after the other."""
+        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
+
+    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
+        """The fitness of one candidate whatever the weights: RMS of every signal's error relative to its spread."""
+        return float(rms(np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1))[0])
+
+    def reweight(self, theta: np.ndarray, rtol: float) -> None:
+        """Scales from the errors at ``theta``: each signal's RMS error (its noise level, if the model fits)."""
+        for k, e in enumerate(self.errors(theta, rtol)):
+            self.scales[k] = max(float(np.sqrt(np.mean(e[0] ** 2))), 1e-12 * self.spreads[k])
+
+    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
+        """The fit (%) of every signal at ``theta``, by name."""
+        return {name: fit_percent(y, e[0]) for (name, y), e in zip(self.signals(), self.errors(theta, rtol))}
+
+
+class RecordCriterion(TimeDomainCriterion):
+    """Records simulated with their own hold, each compared on the signal it measures (record_errors)."""
+
+    def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
+        self.data, self.simulator = data, simulator
+        super().__init__(structure)
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        return [(r.name, r.y[r.fitted]) for r in self.data.records]
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Per record, model minus measurement at its fitted samples for the N candidates ``theta``."""
@@ -271,25 +308,6 @@ class RecordCriterion:
         full = full_vectors(self.structure, theta)
         return [record_errors(r, self.simulator.simulate_record(full, r.time, r.u, hold=r.hold, rtol=rtol))
                 for r in self.data.records]
-
-    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
-        """(N, samples) weighted residuals of the N candidates ``theta``, all records one after the other."""
-        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
-
-    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
-        """The fitness of one candidate whatever the weights: RMS of every record's error relative to the spread
-        of its signal."""
-        return float(rms(np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1))[0])
-
-    def reweight(self, theta: np.ndarray, rtol: float) -> None:
-        """Scales from the residuals at ``theta``: each record's RMS error (its noise level, if the model fits)."""
-        for k, e in enumerate(self.errors(theta, rtol)):
-            noise = float(np.sqrt(np.mean(e[0] ** 2)))
-            self.scales[k] = max(noise, 1e-12 * self.spreads[k])
-
-    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
-        """The fit (%) of every record at ``theta``, by record name."""
-        return {r.name: fit_percent(r.y[r.fitted], e[0]) for r, e in zip(self.data.records, self.errors(theta, rtol))}
 
 
 def rms(r: np.ndarray) -> np.ndarray:

@@ -12,22 +12,7 @@
 static const double p_start[SV_NP + 1] = SV_P_START;
 const double sv_x_nominal[1] = {1.0};
 
-char *sv_strdup(const char *text) {
-    size_t n = strlen(text) + 1;
-    char *copy = (char *)malloc(n);
-    if (copy) memcpy(copy, text, n);
-    return copy;
-}
-
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...) {
-    char buf[512];
-    va_list ap;
-    if (!inst->log || (level == SV_LOG_OK && !inst->logging_on)) return;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    inst->log(inst, level, category, buf);
-}
+#include "core_log.c"
 
 void sv_reset(SvInstance *inst) {
     memset(&inst->s, 0, sizeof inst->s);

@@ -17,22 +17,7 @@ static const int p_low_open[SV_NP] = SV_P_LOW_OPEN, p_nonzero[SV_NP] = SV_P_NONZ
 static const int p_at_least[][2] = SV_P_AT_LEAST, p_roots_not_zero[][2] = SV_P_ROOTS_NOT_ZERO;
 const double sv_x_nominal[SV_NX] = SV_X_NOMINAL;
 
-char *sv_strdup(const char *text) {
-    size_t n = strlen(text) + 1;
-    char *copy = (char *)malloc(n);
-    if (copy) memcpy(copy, text, n);
-    return copy;
-}
-
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...) {
-    char buf[512];
-    va_list ap;
-    if (!inst->log || (level == SV_LOG_OK && !inst->logging_on)) return;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    inst->log(inst, level, category, buf);
-}
+#include "core_log.c"
 
 void sv_reset(SvInstance *inst) {
     memset(&inst->s, 0, sizeof inst->s);
