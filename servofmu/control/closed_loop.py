@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import TimeDomainCriterion, check_structure
+from ..identification.criterion import TimeDomainCriterion, check_structure, fitted_samples
 from ..identification.identifier import identification_provenance
 from ..identification.prior import full_vectors
 from ..measurement.datafile import read_data_file
@@ -121,21 +121,14 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     sample.  The controller's encoder quantisation and actuator noise are switched off (see the module
     docstring); ``skip`` seconds at the start of every record are left out of the fit.
     """
-    if not data_file.records:
-        raise UserError(f"{data_file.path}: the file holds no records")
-    if not (np.isfinite(skip) and skip >= 0):
-        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
     out = []
-    for r in data_file.records:
+    for r, fitted in zip(data_file.records, fitted_samples(data_file, skip)):
         s = r.series
         if s.reference is None:
             raise UserError(f"{data_file.path}: record {r.name} has no reference: a closed-loop identification "
                             "simulates the loop from the recorded reference")
         if s.position is None:
             raise UserError(f"{data_file.path}: record {r.name} has no measured position")
-        fitted = s.time >= s.time[0] + skip
-        if fitted.sum() < 10:
-            raise UserError(f"{data_file.path}: record {r.name} has fewer than 10 samples after skipping {skip:g} s")
         out.append(ClosedLoopSeries(r.name, s.time, s.reference, s.position, s.u, fitted))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
     return ClosedLoopData(tuple(out), law, str(data_file.path))

@@ -28,7 +28,7 @@ from .variables import Variable, fmu_variables
 
 __all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT", "CORE_FILES"]
 
-CORE_FILES = ("core_api.h", "core_log.c")  # what every FMU core includes (servo_core.c, sampled_core.c)
+CORE_FILES = ("core_api.h", "core_common.c")  # what every FMU core includes (servo_core.c, sampled_core.c)
 DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "tolerance": 1e-10, "stepSize": 1e-3}
 EQUATIONS = """u_total = u + excitation_amplitude*sin(2*pi*excitation_frequency*t)
 v       = output of G(s) driven by u_total - F(v)        (all states start at 0)

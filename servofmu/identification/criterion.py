@@ -26,7 +26,7 @@ from ..model.plant import Plant
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from .prior import full_vectors
 
-__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "check_structure", "record_errors", "fit_percent",
+__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure", "record_errors", "fit_percent",
            "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
            "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
            "output_error_fitness", "SEARCH_RTOL", "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
@@ -99,6 +99,23 @@ def check_structure(structure: Plant, data: DataFile, what: str) -> None:
                         f"the data was measured on ({', '.join(measured)})")
 
 
+def fitted_samples(data: DataFile, skip: float) -> list[np.ndarray]:
+    """Per record of ``data``, the samples after its first ``skip`` seconds (a UserError for a file without
+    records, a negative skip, or fewer than 10 samples left)."""
+    if not data.records:
+        raise UserError(f"{data.path}: the file holds no records")
+    if not (np.isfinite(skip) and skip >= 0):
+        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
+    out = []
+    for r in data.records:
+        fitted = r.series.time >= r.series.time[0] + skip
+        if fitted.sum() < 10:
+            raise UserError(f"{data.path}: record {r.name} has {fitted.sum()} samples after skipping {skip:g} s; "
+                            "it needs at least 10")
+        out.append(fitted)
+    return out
+
+
 def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
     """The records of a records file as the criterion fits them.
 
@@ -121,18 +138,10 @@ def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
     UserError
         For a file without records, a negative skip, or a skip that leaves fewer than 10 samples of a record.
     """
-    if not data.records:
-        raise UserError(f"{data.path}: the file holds no records")
-    if not (np.isfinite(skip) and skip >= 0):
-        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
     out = []
-    for r in data.records:
+    for r, fitted in zip(data.records, fitted_samples(data, skip)):
         s = r.series
         position = r.kind == "position" and s.position is not None
-        fitted = s.time >= s.time[0] + skip
-        if fitted.sum() < 10:
-            raise UserError(f"{data.path}: record {r.name} has {fitted.sum()} samples after skipping {skip:g} s; "
-                            "it needs at least 10")
         out.append(RecordSeries(name=r.name, time=s.time, u=s.u, y=s.position if position else s.v,
                                 output="position" if position else "v", hold=r.intersample, fitted=fitted))
     return RecordData(records=tuple(out), source=str(data.path))

@@ -347,7 +347,7 @@ def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = N
         for name, text in (extra or {}).items():
             (src / name).write_text(text)
         digest = hashlib.sha256(compiler_signature(EXTRA_CFLAGS).encode())
-        core = [C_DIR / name for name in ("servo_core.c", "servo_core.h", "core_api.h", "core_log.c")]
+        core = [C_DIR / name for name in ("servo_core.c", "servo_core.h", "core_api.h", "core_common.c")]
         for path in sorted(src.iterdir()) + core + [DRIVER, driver]:
             digest.update(path.name.encode() + path.read_bytes())
         name = f"{driver.stem}-{plant.name}-{digest.hexdigest()[:20]}.so"
