@@ -128,7 +128,7 @@ def test_refuses_nan_or_empty_data(g1_files, tmp_path, spoil, message):
 
 
 def test_pso_ann_without_network_says_so(g1_files, tmp_path):
-    proc = run("identify", g1_files["data"], "--structure", "g1", "-o", tmp_path / "r.h5")
+    proc = run("identify", g1_files["data"], "--structure", "g1", "--method", "pso-ann", "-o", tmp_path / "r.h5")
     assert_one_line_error(proc, "needs a trained network")
 
 
