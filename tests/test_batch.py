@@ -15,7 +15,13 @@ from scipy.integrate import solve_ivp
 from servofmu.errors import UserError
 from servofmu.identification.prior import full_vectors
 from servofmu.model.plant import PlantError, load_plant, plant_from_dict
-from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions, valid_parameter_sets
+from servofmu.simulation.batch import (
+    BatchSimulator,
+    SteadyStateFeatures,
+    SteadyStateOptions,
+    WarmStarts,
+    valid_parameter_sets,
+)
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv": 0.0, "v_smooth": 1e-3}
 NOMINAL = {  # the plant files' contents, written out again: poles, zeros, DC gain, friction
@@ -194,6 +200,70 @@ def test_acceleration_reaches_the_same_steady_state_sooner(name, m, f):
     assert fast.settle_time[0, 0] < plain.settle_time[0, 0]
 
 
+@pytest.mark.parametrize("distance", [1e-3, 1e-5])
+def test_a_run_from_a_nearby_orbit_reaches_the_same_steady_state(distance):
+    # g2 at 2 N, 4 Hz settles slowly from rest; a plant nearby starts where the nominal plant's run ended
+    plant = load_plant("g2")
+    sim = simulator("g2")
+    amps, freqs = [2.0, 4.0], [4.0, 0.5]
+    rng = np.random.default_rng(2)
+    near = plant.parameter_vector() * (1 + distance * rng.uniform(-1, 1, len(plant.parameter_names())))
+    nominal = sim.steady_state(plant.parameter_vector(), amps, freqs)
+    cold = sim.steady_state(near, amps, freqs)
+    for options in (SteadyStateOptions(), SteadyStateOptions(accelerate=False)):  # with and without Newton
+        warm = sim.steady_state(near, amps, freqs, options, start=nominal.orbit)
+        assert cold.converged.all() and warm.converged.all()
+        for k, m in enumerate(amps):
+            assert_close(warm.H[0, k], warm.dc[0, k], cold.H[0, k], cold.dc[0, k], m, tol=2e-7)
+    loose = SteadyStateOptions(rtol=1e-5, tol=1e-6)  # the swarm's tolerance: a run from rest is mostly transient
+    cold = sim.steady_state(near, amps, freqs, loose)
+    warm = sim.steady_state(near, amps, freqs, loose, start=sim.steady_state(plant.parameter_vector(), amps, freqs,
+                                                                              loose).orbit)
+    assert warm.steps.sum() < cold.steps.sum() / 1.5
+
+
+@pytest.mark.parametrize("name, m, f", [("g2", 2.0, 5.0), ("g2", 4.0, 0.5), ("g1", 2.0, 20.0)])
+def test_monodromy_matrix_matches_finite_differences_of_the_period_map(name, m, f):
+    """The variational equations integrated beside the states (Newton's method uses them) against the period map
+    differentiated numerically: one period from a state and from states moved by 1e-6 of their scale."""
+    plant = load_plant(name)
+    sim = simulator(name)
+    ns = sim.n_states
+    p = plant.parameter_vector()
+    settling = sim.steady_state(p, [m], [f], SteadyStateOptions(max_time=3.5 / f, accelerate=False))
+    x0, scale = settling.orbit[0, 0, :ns], settling.orbit[0, 0, ns:2 * ns]
+
+    def one_period(x, newton):
+        start = np.full((1, 1, ns * (ns + 2)), np.nan)  # no matrix given: a Newton run computes its own
+        start[0, 0, :2 * ns] = np.concatenate([x, scale])
+        options = SteadyStateOptions(rtol=1e-12, max_time=0.5 / f, accelerate=newton, give_up_early=False)
+        return sim.steady_state(p, [m], [f], options, start=start).orbit[0, 0]
+
+    mono = one_period(x0, True)[2 * ns:].reshape(ns, ns)
+    base = one_period(x0, False)[:ns]
+    fd = np.column_stack([(one_period(x0 + 1e-6 * scale[j] * np.eye(ns)[j], False)[:ns] - base) / (1e-6 * scale[j])
+                          for j in range(ns)])
+    assert np.max(np.abs(mono - fd)) < 1e-4 * max(np.max(np.abs(fd)), 1e-3)
+
+
+def test_warm_starts_begin_each_experiment_on_the_nearest_converged_orbit():
+    def features(orbit, converged):
+        nan = np.full(converged.shape, np.nan)
+        return SteadyStateFeatures(H=nan, dc=nan, distortion=nan, converged=converged, settle_time=nan,
+                                   steps=np.zeros(converged.shape, int), orbit=orbit)
+
+    warm = WarmStarts(capacity=3)
+    assert warm.start(np.ones(2)) is None
+    orbits = np.arange(2 * 2 * 3, dtype=float).reshape(2, 2, 3)  # 2 sets x 2 experiments x 3 numbers
+    warm.add([[1.0, 0.0], [2.0, 0.0]], features(orbits, np.array([[True, False], [True, True]])))
+    start = warm.start([[1.1, 0.0], [np.nan, 0.0]])
+    np.testing.assert_array_equal(start[0, 0], orbits[0, 0])  # the nearest set, [1, 0]
+    np.testing.assert_array_equal(start[0, 1], orbits[1, 1])  # [1, 0] did not converge there: the next nearest
+    assert np.isnan(start[1]).all()  # a NaN set is near nothing: from rest
+    warm.add([[5.0, 1.0], [6.0, 1.0]], features(orbits + 100, np.ones((2, 2), bool)))  # [1, 0] is forgotten
+    np.testing.assert_array_equal(warm.start([[1.0, 0.0]])[0, 0], orbits[1, 0])
+
+
 def test_hopeless_experiment_is_given_up_early_with_the_same_verdict():
     # g2 at 0.6 N, 1 Hz: the friction's relay oscillation near 5 Hz does not lock to the excitation
     plant = load_plant("g2")
@@ -369,7 +439,8 @@ def test_record_of_an_invalid_set_is_nan():
     lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0], [0.0, np.nan]),
     lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0], [0.0, 1.0], hold="linear"),
     lambda s: SteadyStateOptions(rtol=0.5),
-    lambda s: SteadyStateOptions(min_periods=1),
+    lambda s: SteadyStateOptions(min_periods=0),
+    lambda s: s.steady_state(load_plant("g1").parameter_vector(), [1.0], [1.0], start=np.zeros((1, 1, 2))),
 ])
 def test_bad_inputs_raise_user_errors(call):
     with pytest.raises(UserError):

@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import UserError
 from ..measurement.datafile import DataFile
 from ..model.plant import Plant
-from ..simulation.batch import BatchSimulator, SteadyStateOptions
+from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
 from .prior import full_vectors
 
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "check_structure", "record_errors", "fit_percent",
@@ -221,13 +221,16 @@ class SineCriterion:
     def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
+        self.warm_starts = WarmStarts()  # every candidate's runs begin on the orbits of the nearest one before
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         """(N, 3n) residuals of the N candidates ``theta``; NaN rows for candidates without a steady state."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
-        feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
-                                            self.data.frequencies, steady_state_options(rtol))
+        full = full_vectors(self.structure, theta)
+        feats = self.simulator.steady_state(full, self.data.amplitudes, self.data.frequencies,
+                                            steady_state_options(rtol), start=self.warm_starts.start(full))
+        self.warm_starts.add(full, feats)
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r

@@ -305,14 +305,10 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(jac)):
             break
         a, g = jac.T @ jac, jac.T @ r
-        while damping < 1e8:
-            step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
-            r_new = residual(y + step)
-            if r_new @ r_new < r @ r:
-                break
-            damping *= 10
-        else:
-            break  # no step lowers the residuals: converged
+        step = _lowering_step(residual, y, r, jac, a, g, damping)
+        if step is None:
+            break  # no step lowers the residuals (enough to try): converged
+        step, r_new, damping = step
         improvement = 1 - np.sqrt((r_new @ r_new) / (r @ r))
         y, r, damping = y + step, r_new, max(damping / 10, 1e-9)
         small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10
@@ -320,6 +316,22 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if small or improvement < 0.01:
             break
     return y, jac
+
+
+def _lowering_step(residual, y, r, jac, a, g, damping):
+    """(step, its residuals, its damping): the least damped Levenberg–Marquardt step from ``y`` that lowers the
+    residual norm, raising the damping tenfold per failed try; None when none does.  A failed step that not even
+    the linear model r + J·step expected to lower the norm by 1 % ends the tries: the residuals are at their noise
+    floor, where more damping only costs evaluations."""
+    while damping < 1e8:
+        step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
+        r_new = residual(y + step)
+        if r_new @ r_new < r @ r:
+            return step, r_new, damping
+        if np.linalg.norm(r + jac @ step) > 0.99 * np.linalg.norm(r):
+            return None
+        damping *= 10
+    return None
 
 
 # ---------------------------------------------------------------------------
