@@ -3,6 +3,9 @@
 computed here by its own quadrature.  Relative errors: |H − H_ref|/|H_ref| for H, and |dc − dc_ref|
 relative to the response amplitude |H_ref|·m for the DC component."""
 import functools
+import os
+import subprocess
+import sys
 import pickle
 
 import numpy as np
@@ -223,9 +226,11 @@ def test_a_run_from_a_nearby_orbit_reaches_the_same_steady_state(distance):
 
 
 @pytest.mark.parametrize("name, m, f", [("g2", 2.0, 5.0), ("g2", 4.0, 0.5), ("g1", 2.0, 20.0)])
-def test_monodromy_matrix_matches_finite_differences_of_the_period_map(name, m, f):
-    """The variational equations integrated beside the states (Newton's method uses them) against the period map
-    differentiated numerically: one period from a state and from states moved by 1e-6 of their scale."""
+def test_variational_equations_match_finite_differences_of_the_period(name, m, f):
+    """What Newton's method and the features' correction use — the derivatives of one period's end state (the
+    monodromy matrix) and of its integrals (S1, DC) with respect to where it began, from the variational equations
+    integrated beside the states — against the period differentiated numerically (starts moved by 1e-6 of their
+    scale)."""
     plant = load_plant(name)
     sim = simulator(name)
     ns = sim.n_states
@@ -234,16 +239,25 @@ def test_monodromy_matrix_matches_finite_differences_of_the_period_map(name, m, 
     x0, scale = settling.orbit[0, 0, :ns], settling.orbit[0, 0, ns:2 * ns]
 
     def one_period(x, newton):
-        start = np.full((1, 1, ns * (ns + 2)), np.nan)  # no matrix given: a Newton run computes its own
+        start = np.full((1, 1, ns * (ns + 6)), np.nan)  # no derivatives given: a Newton run computes its own
         start[0, 0, :2 * ns] = np.concatenate([x, scale])
         options = SteadyStateOptions(rtol=1e-12, max_time=0.5 / f, accelerate=newton, give_up_early=False)
-        return sim.steady_state(p, [m], [f], options, start=start).orbit[0, 0]
+        r = sim.steady_state(p, [m], [f], options, start=start)
+        return r.orbit[0, 0], np.array([(r.H[0, 0] * m).real, (r.H[0, 0] * m).imag, r.dc[0, 0]])
 
-    mono = one_period(x0, True)[2 * ns:].reshape(ns, ns)
-    base = one_period(x0, False)[:ns]
-    fd = np.column_stack([(one_period(x0 + 1e-6 * scale[j] * np.eye(ns)[j], False)[:ns] - base) / (1e-6 * scale[j])
-                          for j in range(ns)])
-    assert np.max(np.abs(mono - fd)) < 1e-4 * max(np.max(np.abs(fd)), 1e-3)
+    orbit, _ = one_period(x0, True)
+    flow = orbit[2 * ns:].reshape(ns + 4, ns)
+    T = 1 / f
+    exact = np.vstack([flow[:ns], 2 / T * flow[ns + 2], 2 / T * flow[ns + 1], flow[ns] / T])  # states, S1, DC
+    base_x, base_s = one_period(x0, False)
+    columns = []
+    for j in range(ns):
+        e = 1e-6 * scale[j]
+        x, s_ = one_period(x0 + e * np.eye(ns)[j], False)
+        columns.append(np.concatenate([x[:ns] - base_x[:ns], s_ - base_s]) / e)
+    fd = np.column_stack(columns)
+    # 1e-3: the variational equations leave the Jacobian's time derivative out
+    assert np.max(np.abs(exact - fd)) < 1e-3 * max(np.max(np.abs(fd)), 1e-3)
 
 
 def test_warm_starts_begin_each_experiment_on_the_nearest_converged_orbit():
@@ -445,3 +459,29 @@ def test_record_of_an_invalid_set_is_nan():
 def test_bad_inputs_raise_user_errors(call):
     with pytest.raises(UserError):
         call(simulator("g1"))
+
+
+def test_the_library_is_built_once_by_concurrent_processes_then_loaded_without_generating_code(tmp_path):
+    code = ("import sys; from servofmu.model.plant import load_plant; "
+            "from servofmu.simulation.batch import BatchSimulator; BatchSimulator(load_plant('g1')); "
+            "print('casadi' in sys.modules)")
+    env = {**os.environ, "SERVOFMU_CACHE": str(tmp_path)}
+    builders = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, text=True)
+                for _ in range(3)]
+    assert [b.wait() for b in builders] == [0, 0, 0]
+    for b in builders:
+        b.stdout.close()
+    assert [p.suffix for p in tmp_path.iterdir()] == [".so"]  # one library, no partial files left
+    loaded = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "False"  # CasADi, which generates the code, is not even imported
+
+
+def test_the_cache_key_follows_what_determines_the_library():
+    from servofmu.simulation.batch import DRIVER, library_key
+
+    g1 = load_plant("g1")
+    other_values = g1.with_parameters(g1.parameter_vector() * 1.1)  # the nominal values scale the states
+    assert library_key(g1, DRIVER, {}) == library_key(load_plant("g1"), DRIVER, {})
+    keys = {library_key(g1, DRIVER, {}), library_key(other_values, DRIVER, {}),
+            library_key(load_plant("g2"), DRIVER, {}), library_key(g1, DRIVER, {"extra.h": "#define X 1\n"})}
+    assert len(keys) == 4

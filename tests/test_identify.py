@@ -1,5 +1,7 @@
 """The identifier end to end on FMU data: dataset → train → identify, and its refusals of bad input."""
 import json
+import subprocess
+import sys
 
 import h5py
 import numpy as np
@@ -188,3 +190,25 @@ def test_polish_tolerance_does_not_give_up_on_a_slowly_settling_experiment():
                     skipped=0)
     r = SineCriterion(plant, data, sim).residuals(theta, POLISH_RTOL)
     assert np.all(np.isfinite(r)) and np.max(np.abs(r)) < 1e-8
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 7, 30, 31, 999, 1001, 123456])
+def test_student_t_quantile_matches_scipy(dof):
+    from scipy.stats import t
+
+    from servofmu.identification.student_t import t_quantile
+
+    for level in (0.5, 0.9, 0.95, 0.99, 0.999):
+        assert t_quantile(level, dof) == pytest.approx(t.ppf(0.5 + level / 2, dof), rel=1e-12)
+
+
+def test_identify_loads_neither_torch_nor_scipy_nor_casadi(g1_files, tmp_path):
+    """The network's inference is numpy; the intervals need no scipy; the compiled simulator comes from the cache
+    (the fixture's training set put it there), so nothing generates code."""
+    code = ("import json, sys; from servofmu.cli import main; "
+            f"rc = main(['identify', {str(g1_files['data'])!r}, '--structure', 'g1', '--ann', "
+            f"{str(g1_files['ann'])!r}, '--json', '-o', {str(tmp_path / 'r.h5')!r}]); "
+            "print(json.dumps([rc, sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'torch', 'scipy', 'casadi', 'dask', 'distributed', 'matplotlib', 'fmpy'})]), file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert json.loads(proc.stderr.strip().splitlines()[-1]) == [0, []], proc.stderr

@@ -83,9 +83,9 @@ if TYPE_CHECKING:  # CasADi is loaded only to generate code, which a cached libr
 
     from ..model.symbolic import SymbolicModel
 
-__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "WarmStarts", "RecordResponse", "valid_parameter_sets",
-           "batch_functions", "ModelStructureError", "compiled_driver", "write_batch_sources", "H_START",
-           "c_doubles", "c_mask"]
+__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "WarmStarts", "RecordResponse",
+           "valid_parameter_sets", "batch_functions", "ModelStructureError", "compiled_driver", "library_key",
+           "write_batch_sources", "H_START", "c_doubles", "c_mask"]
 
 PACKAGE = Path(__file__).resolve().parent.parent
 DRIVER = PACKAGE / "simulation" / "batch_c" / "batch_driver.c"
@@ -155,9 +155,10 @@ class SteadyStateFeatures:
     ``H`` (complex, m/s per N), ``dc`` (m/s), ``distortion`` (1), ``converged``
     (bool), ``settle_time`` (s: the simulated time up to the end of the period
     the features come from; NaN for an invalid set), ``steps`` (accepted
-    integrator steps, for benchmarks), ``orbit`` (shape (N, n_exp, 2·n_states): where each run ended — the
-    states at the end of its last period, then the integrator's state scales — which ``steady_state``'s
-    ``start`` takes to begin a nearby parameter set's run there).
+    integrator steps, for benchmarks), ``orbit`` (shape (N, n_exp, n_states·(n_states + 6)): where each run
+    ended — the states at the end of its last period, the integrator's state scales, and the period's
+    derivatives with respect to where it began (the monodromy matrix, then those of the four integrals; NaN
+    when not computed) — which ``steady_state``'s ``start`` takes to begin a nearby parameter set's run there).
     """
 
     H: np.ndarray
@@ -214,7 +215,7 @@ class BatchSimulator:
 
         ``amplitudes`` (N) and ``frequencies`` (Hz): one experiment per pair.
         ``progress(done, total)``, if given, is called as parameter sets finish.
-        ``start``: where to begin each run instead of at rest, shape (N, n_exp, 2·n_states) — the ``orbit`` of an
+        ``start``: where to begin each run instead of at rest, shape of ``orbit`` — the ``orbit`` of an
         earlier call for nearby parameter sets (:class:`WarmStarts` picks them); NaN entries begin at rest.  A
         warm start shortens the transient, not the convergence test: the features agree with a run from rest to
         the tolerance, as long as both reach the same periodic orbit.
@@ -230,7 +231,7 @@ class BatchSimulator:
             raise UserError(f"excitation frequencies must be positive and finite, not {freq.tolist()}")
         n, n_exp = p.shape[0], amp.size
         out = np.empty((n, n_exp, N_RESULTS))
-        orbit = np.empty((n, n_exp, self.n_states * (self.n_states + 2)))
+        orbit = np.empty((n, n_exp, self.n_states * (self.n_states + 6)))  # the driver's ORBIT
         if start is not None:
             start = np.ascontiguousarray(start, dtype=float)
             if start.shape != orbit.shape:
@@ -315,7 +316,7 @@ class WarmStarts:
     def __init__(self, capacity: int = 1024):
         self.capacity = capacity
         self.params = None  # (M, n_params)
-        self.orbits = None  # (M, n_exp, 2·n_states), NaN where the run did not converge
+        self.orbits = None  # (M, n_exp, orbit), NaN where the run did not converge
 
     def add(self, params, features: SteadyStateFeatures) -> None:
         """Remember the runs of ``features`` (of the parameter sets ``params``) that converged."""
@@ -331,7 +332,7 @@ class WarmStarts:
             self.params, self.orbits = params, orbits
 
     def start(self, params) -> np.ndarray | None:
-        """``start`` for the parameter sets ``params`` (N, n_params): shape (N, n_exp, 2·n_states), NaN where no
+        """``start`` for the parameter sets ``params`` (N, n_params): shape (N, n_exp, orbit), NaN where no
         run converged in an experiment; None before anything converged."""
         if self.params is None:
             return None

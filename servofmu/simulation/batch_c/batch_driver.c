@@ -34,9 +34,12 @@
 #define NQ 4            /* quadratures over a period: v, v*cos(w tau), v*sin(w tau), v^2 */
 #define NY (NS + NQ)
 #define NF 8            /* results per sine task */
-/* Where a sine task ended: the states at a period boundary, their scales, and the monodromy matrix of the orbit
- * (row-major; NaN when none was computed). */
-#define ORBIT (2 * NS + NS * NS)
+/* The variational equations: d(states, quadratures)/d(initial states), NY x NS row-major; the first NS rows are the
+ * monodromy matrix once a period is integrated, the last NQ how the period's integrals depend on where it began. */
+#define NPHI (NY * NS)
+/* Where a sine task ended: the states at a period boundary, their scales, and the variational equations' solution
+ * over the orbit's period (NaN when none is known). */
+#define ORBIT (2 * NS + NPHI)
 #define TWO_PI 6.283185307179586
 #define FAC_MAX 5.0     /* largest step growth after an accepted step */
 /* The transient of a sine experiment only has to lead to the steady state, not to be accurate: it is integrated
@@ -74,7 +77,7 @@ typedef struct {
     double u0, slope;
     double rtol, q_time;
     double scale[NS];  /* running maxima of |state|: absolute tolerance = rtol*scale */
-    double *phi;       /* NS x NS (row-major): d state / d initial state, integrated beside the states; or NULL */
+    double *phi;       /* NPHI: the variational equations, integrated beside the states; or NULL */
     long steps, rejected, max_steps;
 } Problem;
 
@@ -119,14 +122,15 @@ static void stage_jac(Eval *ev, const Input *in, const double *y, double *jac, d
 }
 
 /* The variational equations' part of a RODAS4 stage: with P_s = phi + sum_{j<st} A[st][j] kp[j], solve
- * W kp[st] = J(stage) P_s + sum_{j<st} CC[st][j]/h kp[j] with the step's LU of W (the same linearly implicit
- * method as the states'; the explicit time dependence of J is left out, which costs order, not accuracy enough to
- * matter for Newton's method).  jac: dxdot/dx at the stage, column-major. */
-static void phi_stage(const Problem *pb, const double *jac, const double *m, const int *piv, double h, int st,
-                      double kp[6][NS * NS]) {
-    double ps[NS * NS], col[NS];
+ * W kp[st] = F'(stage) P_s + sum_{j<st} CC[st][j]/h kp[j] with the step's block-triangular W, as the states' and
+ * quadratures' stages are solved (the explicit time dependence of the Jacobian is left out, which costs order, not
+ * accuracy enough to matter for Newton's method).  jac: dxdot/dx at the stage (column-major); in, v: the stage's
+ * input and velocity (the quadratures' derivatives); gx: those at the step's start (W's quadrature rows). */
+static void phi_stage(const Problem *pb, const double *jac, const double *m, const int *piv, const double *gx,
+                      const Input *in, double v, double h, int st, double kp[6][NPHI]) {
+    double ps[NPHI], col[NS], gs[NQ] = {1.0, in->c, in->s, 2.0 * v}, hg = h * R_GAMMA;
     int i, j, c, l;
-    for (i = 0; i < NS * NS; ++i) {
+    for (i = 0; i < NPHI; ++i) {
         double acc = pb->phi[i];
         for (j = 0; j < st; ++j) acc += R_A[st][j] * kp[j][i];
         ps[i] = acc;
@@ -140,9 +144,14 @@ static void phi_stage(const Problem *pb, const double *jac, const double *m, con
         }
         lu_solve(m, piv, col, NS);
         for (i = 0; i < NS; ++i) kp[st][i * NS + c] = col[i];
+        for (i = 0; i < NQ; ++i) {
+            double acc = gs[i] * ps[c];
+            for (j = 0; j < st; ++j) acc += R_CC[st][j] / h * kp[j][(NS + i) * NS + c];
+            kp[st][(NS + i) * NS + c] = hg * (acc + gx[i] * col[0]);
+        }
     }
     if (st == 5)
-        for (i = 0; i < NS * NS; ++i) kp[5][i] += ps[i]; /* the new phi, as ynew = ys + k[5] */
+        for (i = 0; i < NPHI; ++i) kp[5][i] += ps[i]; /* the new phi, as ynew = ys + k[5] */
 }
 
 /* One RODAS4 step of size h from (tau, y), in the formulation of servo_core.c's rodas_step; the quadrature rows of
@@ -153,7 +162,7 @@ __attribute__((flatten))
 #endif
 static double step(Eval *ev, Problem *pb, double tau, const double *y, double h, const Input *in0, const Input *in1,
                    double *ynew, double *phi_new) {
-    double jac[NS * NS], bu[NS], m[NS * NS], ft[NY], gx[NQ], k[6][NY], ys[NY], f[NY], kp[6][NS * NS];
+    double jac[NS * NS], bu[NS], m[NS * NS], ft[NY], gx[NQ], k[6][NY], ys[NY], f[NY], kp[6][NPHI];
     double hg = h * R_GAMMA, hinv = 1.0 / h, err = 0.0, v = y[0];
     int piv[NS], i, j, st, n_err = NS + pb->nq;
     Input in;
@@ -179,7 +188,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
         if (pb->phi) {
             double js[NS * NS], bs[NS];
             if (st > 0) stage_jac(ev, stage_in, ys, js, bs);
-            phi_stage(pb, st > 0 ? js : jac, m, piv, h, st, kp);
+            phi_stage(pb, st > 0 ? js : jac, m, piv, gx, stage_in, ys[0], h, st, kp);
         }
         for (i = 0; i < NY; ++i) {
             double acc = f[i] + h * R_D[st] * ft[i];
@@ -205,7 +214,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
 
 /* Integrate y from tau0 to tau1 (the last step lands on tau1); *h carries the step size.  0 ok, -1 failure. */
 static int integrate(Eval *ev, Problem *pb, double *y, double tau0, double tau1, double *h) {
-    double tau = tau0, ynew[NY], phi_new[NS * NS], hmin = 1e-14 * fmax(fabs(tau1), 1.0);
+    double tau = tau0, ynew[NY], phi_new[NPHI], hmin = 1e-14 * fmax(fabs(tau1), 1.0);
     int rejected_here = 0, i;
     Input in0 = input(pb, tau0);
     while (tau < tau1) {
@@ -307,22 +316,29 @@ static int eigenvalues_within(const double *mat, double radius) {
     return schur_stable(scaled, NS);
 }
 
-/* Newton's step for the fixed point of the period map P from x0, where one period led to x1 = P(x0) and mono is
- * (an estimate of) dP/dx: x = x0 + (I - mono)^{-1} (x1 - x0).  Returns 0 and writes x when the orbit it aims at is
- * clearly attracting (multipliers within MAX_MULTIPLIER) and the jump from x1 is at most MAX_JUMP times |x1 - x0|,
- * both on the error control's scale; -1 otherwise (no step). */
-static int newton_step(const double *x0, const double *x1, const double *mono, const double *scale, double *x) {
-    double a[NS * NS], d[NS], moved = 0.0, jump = 0.0;
+/* d = (I - mono)^{-1} (x1 - x0): how far the fixed point of the period map P lies from x0, where one period led to
+ * x1 = P(x0) and mono is (an estimate of) dP/dx.  0, or -1 when I - mono is singular. */
+static int fixed_point_offset(const double *x0, const double *x1, const double *mono, double *d) {
+    double a[NS * NS];
     int piv[NS], i, j;
-    if (!eigenvalues_within(mono, MAX_MULTIPLIER)) return -1;
     for (i = 0; i < NS; ++i) {
         for (j = 0; j < NS; ++j) a[i * NS + j] = (i == j ? 1.0 : 0.0) - mono[i * NS + j];
         d[i] = x1[i] - x0[i];
-        moved = fmax(moved, fabs(d[i]) / scale[i]);
     }
     if (lu_factor(a, piv, NS) != 0) return -1;
     lu_solve(a, piv, d, NS);
+    return 0;
+}
+
+/* Newton's step for the fixed point of the period map from x0: x = x0 + d (fixed_point_offset).  Returns 0 and
+ * writes x when the orbit it aims at is clearly attracting (multipliers within MAX_MULTIPLIER) and the jump from x1
+ * is at most MAX_JUMP times |x1 - x0|, both on the error control's scale; -1 otherwise (no step). */
+static int newton_step(const double *x0, const double *x1, const double *mono, const double *scale, double *x) {
+    double d[NS], moved = 0.0, jump = 0.0;
+    int i;
+    if (!eigenvalues_within(mono, MAX_MULTIPLIER) || fixed_point_offset(x0, x1, mono, d) != 0) return -1;
     for (i = 0; i < NS; ++i) {
+        moved = fmax(moved, fabs(x1[i] - x0[i]) / scale[i]);
         x[i] = x0[i] + d[i];
         if (!isfinite(x[i])) return -1;
         jump = fmax(jump, fabs(x[i] - x1[i]) / scale[i]);
@@ -346,13 +362,14 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
                       const double *start, double *out, double *orbit) {
     Eval ev;
     Problem pb;
-    double y[NY] = {0}, T = 1.0 / f, changes[8] = {0}, mono[NS * NS], phi[NS * NS], y_plain[NS];
+    double y[NY] = {0}, T = 1.0 / f, changes[8] = {0}, flow[NPHI], phi[NPHI], y_plain[NS];
     double threshold = fmax(o->tol, RTOL_SCATTER * o->rtol); /* smaller changes are the integrator's */
     double mismatch_before_jump = 0.0;
     long period, tight_from = o->rtol < LOOSE_RTOL ? -1 : 0, jumped_at = -1;
-    /* newton: Newton's steps allowed; have_mono: mono holds a monodromy matrix; own: this run computes its own
-     * (from the second period of a run from rest); jump_own: the last step was taken with the run's own matrix */
-    int i, newton = (int)o->accelerate, have_mono = 0, own, warm = start != NULL, jump_own = 0;
+    /* flow: the variational equations over a period (NPHI: the monodromy matrix, then the integrals' derivatives);
+     * newton: Newton's steps allowed; have_flow: flow is known; own: this run computes its own (from the second
+     * period of a run from rest); jump_own: the last step was taken with the run's own matrix */
+    int i, newton = (int)o->accelerate, have_flow = 0, own, warm = start != NULL, jump_own = 0;
     for (i = 0; warm && i < 2 * NS; ++i) warm = isfinite(start[i]);
     if (warm) tight_from = 0;
     problem_init(&pb, &ev, params, n_plant, tight_from < 0 ? LOOSE_RTOL : o->rtol, o->max_steps);
@@ -361,10 +378,10 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
             y[i] = start[i];
             pb.scale[i] = fmax(pb.scale[i], start[NS + i]);
         }
-        have_mono = 1;
-        for (i = 0; i < NS * NS; ++i) have_mono &= isfinite(mono[i] = start[2 * NS + i]);
+        have_flow = 1;
+        for (i = 0; i < NPHI; ++i) have_flow &= isfinite(flow[i] = start[2 * NS + i]);
     }
-    own = !have_mono;
+    own = !have_flow;
     pb.nq = NQ;
     pb.sine = 1;
     pb.m = m;
@@ -372,14 +389,15 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
     pb.q_time = T;
     out[4] = 0.0;
     for (period = 1;; ++period) {
-        double h = o->h_start * T, mismatch = 0.0, y0[NS], x[NS];
+        double h = o->h_start * T, mismatch = 0.0, y0[NS], x[NS], d[NS];
+        int converged;
         /* the variational equations: from the second period of a run from rest (the first is far from any orbit);
          * in a warm run when the nearby orbit brought no matrix, or its step did not close the period after it */
         int variational = newton && own && (warm || period >= 2);
         memcpy(y0, y, sizeof y0);
         for (i = 0; i < NQ; ++i) y[NS + i] = 0.0;
         if (variational) {
-            for (i = 0; i < NS * NS; ++i) phi[i] = i % (NS + 1) == 0 ? 1.0 : 0.0;
+            for (i = 0; i < NPHI; ++i) phi[i] = i < NS * NS && i % (NS + 1) == 0 ? 1.0 : 0.0;
             pb.phi = phi;
         }
         if (integrate(&ev, &pb, y, 0.0, T, &h) != 0) {
@@ -390,16 +408,25 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
         }
         pb.phi = NULL;
         if (variational) {
-            memcpy(mono, phi, sizeof mono);
-            have_mono = 1;
+            memcpy(flow, phi, sizeof flow);
+            have_flow = 1;
         }
+        for (i = 0; i < NS; ++i) mismatch = fmax(mismatch, fabs(y[i] - y0[i]) / pb.scale[i]);
+        converged = tight_from >= 0 && period > tight_from && period >= o->min_periods && mismatch < threshold;
+        if (converged && newton && have_flow && fixed_point_offset(y0, y, flow, d) == 0)
+            /* The period began within the threshold of the orbit; to first order its integrals are the orbit's
+             * plus d(integrals)/d(start) times the fixed point's offset, which makes the features independent of
+             * where the run began to second order (smooth in the parameters, whatever the start). */
+            for (i = 0; i < NQ; ++i) {
+                int c;
+                for (c = 0; c < NS; ++c) y[NS + i] += flow[(NS + i) * NS + c] * d[c];
+            }
         out[0] = 2.0 / T * y[NS + 2];
         out[1] = 2.0 / T * y[NS + 1];
         out[2] = y[NS] / T;
         out[3] = y[NS + 3] / T;
         out[5] = period * T;
-        for (i = 0; i < NS; ++i) mismatch = fmax(mismatch, fabs(y[i] - y0[i]) / pb.scale[i]);
-        if (tight_from >= 0 && period > tight_from && period >= o->min_periods && mismatch < threshold) {
+        if (converged) {
             out[4] = 1.0;
             break;
         }
@@ -422,7 +449,7 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
         if (period >= o->min_periods && period * T >= o->max_time) break;
         if (o->give_up && period >= 17 && !will_converge(changes, period - 1, threshold, o->max_time * f - period))
             break;
-        if (newton && have_mono && (variational || period == 1) && newton_step(y0, y, mono, pb.scale, x) == 0) {
+        if (newton && have_flow && (variational || period == 1) && newton_step(y0, y, flow, pb.scale, x) == 0) {
             memcpy(y_plain, y, sizeof y_plain);
             memcpy(y, x, sizeof x);
             mismatch_before_jump = mismatch;
@@ -437,7 +464,7 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
             orbit[i] = y[i];
             orbit[NS + i] = pb.scale[i];
         }
-        for (i = 0; i < NS * NS; ++i) orbit[2 * NS + i] = have_mono ? mono[i] : NAN;
+        for (i = 0; i < NPHI; ++i) orbit[2 * NS + i] = have_flow ? flow[i] : NAN;
     }
 }
 
