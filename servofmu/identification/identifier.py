@@ -281,8 +281,10 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg–Marquardt on ``crit``'s residuals from ``y0`` (search coordinates; ``to_theta`` maps rows of them
     to parameters); returns the optimum and the Jacobian there (in search coordinates).
 
-    Stops when a step changes no coordinate by more than 1e-10 (relative), or when the best step lowers the
-    residual norm by less than 1 % (the features' own noise floor is reached).  The forward-difference Jacobian
+    Stops when a step changes no coordinate by more than 1e-10 (relative) or by more than its standard error
+    (Gauss–Newton, from the step's Jacobian: a smaller move is one the data cannot tell from noise, and at the
+    features' noise floor further steps only wander), or when the best step lowers the residual norm by less than
+    1 %.  The forward-difference Jacobian
     is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
     fails both ways ends the polish (NaN intervals rather than false ones)."""
 
@@ -311,7 +313,8 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         step, r_new, damping = step
         improvement = 1 - np.sqrt((r_new @ r_new) / (r @ r))
         y, r, damping = y + step, r_new, max(damping / 10, 1e-9)
-        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10
+        standard_errors = np.sqrt(np.clip(np.diag(np.linalg.pinv(a)), 0, None) * (r @ r) / max(r.size - y.size, 1))
+        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10 or np.all(np.abs(step) <= standard_errors)
         jac = jacobian(y, r)
         if small or improvement < 0.01:
             break

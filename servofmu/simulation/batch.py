@@ -93,7 +93,7 @@ FMU_C_DIR = PACKAGE / "fmu" / "c"  # servo_core.c: the FMU's integrator, which t
 # The Python modules whose code writes the generated C sources (with the C files, part of a library's cache key).
 GENERATORS = ("model/plant.py", "model/symbolic.py", "model/signals.py", "fmu/sources.py", "fmu/variables.py",
               "simulation/batch.py")
-EXTRA_CFLAGS = ("-pthread",)
+EXTRA_CFLAGS = ("-pthread", "-O3")
 _HOLD_CODES = {"zoh": 0, "foh": 1, "sine": 2}  # the driver's HOLD_* values
 N_RESULTS = 8  # per sine task: re S1, im S1, DC, mean square, converged, settle time, steps, rejected steps
 H_START = 1e-4  # first step of every period, as a fraction of the period (the same each period: see the driver)

@@ -54,6 +54,13 @@
  * never settles there — and only when it jumps less than MAX_JUMP times as far as the period it follows moved. */
 #define MAX_MULTIPLIER 0.99
 #define MAX_JUMP 100.0
+/* A monodromy matrix is reused for Newton's steps (the chord method) while each step shrinks the period's mismatch by
+ * at least this factor. */
+#define CHORD_RATIO 0.1
+/* The relative error of a period's derivatives from the variational equations: about 2e-3 with the Jacobian held
+ * over each step (tests/test_batch.py); a derivative from elsewhere (an earlier period, a nearby orbit) is taken to
+ * err by this plus how far (on the error scale) its period began from the present one. */
+#define FLOW_ERROR 1e-2
 
 static const double x_nominal[NS] = SB_X_NOMINAL;
 
@@ -122,33 +129,33 @@ static void stage_jac(Eval *ev, const Input *in, const double *y, double *jac, d
 }
 
 /* The variational equations' part of a RODAS4 stage: with P_s = phi + sum_{j<st} A[st][j] kp[j], solve
- * W kp[st] = F'(stage) P_s + sum_{j<st} CC[st][j]/h kp[j] with the step's block-triangular W, as the states' and
- * quadratures' stages are solved (the explicit time dependence of the Jacobian is left out, which costs order, not
- * accuracy enough to matter for Newton's method).  jac: dxdot/dx at the stage (column-major); in, v: the stage's
- * input and velocity (the quadratures' derivatives); gx: those at the step's start (W's quadrature rows). */
+ * W kp[st] = F' P_s + sum_{j<st} CC[st][j]/h kp[j] with the step's block-triangular W, as the states' and
+ * quadratures' stages are solved.  The states' Jacobian is the step's own (frozen over the step: evaluating it at
+ * every stage made a step twice as dear, for derivatives 1e-4 rather than 1e-3 exact, which Newton's method does
+ * not need); jac: dxdot/dx (column-major); in, v: the stage's input and velocity (the quadratures' derivatives);
+ * gx: those at the step's start (W's quadrature rows). */
 static void phi_stage(const Problem *pb, const double *jac, const double *m, const int *piv, const double *gx,
                       const Input *in, double v, double h, int st, double kp[6][NPHI]) {
-    double ps[NPHI], col[NS], gs[NQ] = {1.0, in->c, in->s, 2.0 * v}, hg = h * R_GAMMA;
+    double ps[NPHI], rhs[NPHI], gs[NQ] = {1.0, in->c, in->s, 2.0 * v}, hg = h * R_GAMMA, a[5], cc[5];
     int i, j, c, l;
+    for (j = 0; j < st; ++j) { a[j] = R_A[st][j]; cc[j] = R_CC[st][j] / h; }
     for (i = 0; i < NPHI; ++i) {
-        double acc = pb->phi[i];
-        for (j = 0; j < st; ++j) acc += R_A[st][j] * kp[j][i];
+        double acc = pb->phi[i], acc2 = 0.0;
+        for (j = 0; j < st; ++j) { acc += a[j] * kp[j][i]; acc2 += cc[j] * kp[j][i]; }
         ps[i] = acc;
+        rhs[i] = acc2;
     }
     for (c = 0; c < NS; ++c) {
+        double col[NS];
         for (i = 0; i < NS; ++i) {
-            double acc = 0.0;
+            double acc = rhs[i * NS + c];
             for (l = 0; l < NS; ++l) acc += jac[l * NS + i] * ps[l * NS + c];
-            for (j = 0; j < st; ++j) acc += R_CC[st][j] / h * kp[j][i * NS + c];
             col[i] = acc;
         }
         lu_solve(m, piv, col, NS);
         for (i = 0; i < NS; ++i) kp[st][i * NS + c] = col[i];
-        for (i = 0; i < NQ; ++i) {
-            double acc = gs[i] * ps[c];
-            for (j = 0; j < st; ++j) acc += R_CC[st][j] / h * kp[j][(NS + i) * NS + c];
-            kp[st][(NS + i) * NS + c] = hg * (acc + gx[i] * col[0]);
-        }
+        for (i = 0; i < NQ; ++i)
+            kp[st][(NS + i) * NS + c] = hg * (gs[i] * ps[c] + rhs[(NS + i) * NS + c] + gx[i] * col[0]);
     }
     if (st == 5)
         for (i = 0; i < NPHI; ++i) kp[5][i] += ps[i]; /* the new phi, as ynew = ys + k[5] */
@@ -185,11 +192,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
         const Input *stage_in = R_C[st] == 0.0 ? in0 : R_C[st] == 1.0 ? in1 : &in;
         if (stage_in == &in) in = input(pb, tau + R_C[st] * h);
         stage_rhs(ev, stage_in, ys, f);
-        if (pb->phi) {
-            double js[NS * NS], bs[NS];
-            if (st > 0) stage_jac(ev, stage_in, ys, js, bs);
-            phi_stage(pb, st > 0 ? js : jac, m, piv, gx, stage_in, ys[0], h, st, kp);
-        }
+        if (pb->phi) phi_stage(pb, jac, m, piv, gx, stage_in, ys[0], h, st, kp);
         for (i = 0; i < NY; ++i) {
             double acc = f[i] + h * R_D[st] * ft[i];
             for (j = 0; j < st; ++j) acc += R_CC[st][j] * hinv * k[j][i];
@@ -362,14 +365,16 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
                       const double *start, double *out, double *orbit) {
     Eval ev;
     Problem pb;
-    double y[NY] = {0}, T = 1.0 / f, changes[8] = {0}, flow[NPHI], phi[NPHI], y_plain[NS];
+    double y[NY] = {0}, T = 1.0 / f, changes[8] = {0}, flow[NPHI], flow_from[NS], phi[NPHI], y_plain[NS];
     double threshold = fmax(o->tol, RTOL_SCATTER * o->rtol); /* smaller changes are the integrator's */
     double mismatch_before_jump = 0.0;
     long period, tight_from = o->rtol < LOOSE_RTOL ? -1 : 0, jumped_at = -1;
     /* flow: the variational equations over a period (NPHI: the monodromy matrix, then the integrals' derivatives);
-     * newton: Newton's steps allowed; have_flow: flow is known; own: this run computes its own (from the second
-     * period of a run from rest); jump_own: the last step was taken with the run's own matrix */
-    int i, newton = (int)o->accelerate, have_flow = 0, own, warm = start != NULL, jump_own = 0;
+     * newton: Newton's steps allowed; have_flow: flow is known; refresh: the next period integrates the variational
+     * equations (from the second period of a run from rest: the first is far from any orbit); jump_fresh: the last
+     * step was taken with a matrix from the period just before it; refused_fresh: a fresh matrix refused a step */
+    int i, newton = (int)o->accelerate, have_flow = 0, refresh, warm = start != NULL, jump_fresh = 0;
+    int refused_fresh = 0;
     for (i = 0; warm && i < 2 * NS; ++i) warm = isfinite(start[i]);
     if (warm) tight_from = 0;
     problem_init(&pb, &ev, params, n_plant, tight_from < 0 ? LOOSE_RTOL : o->rtol, o->max_steps);
@@ -380,8 +385,9 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
         }
         have_flow = 1;
         for (i = 0; i < NPHI; ++i) have_flow &= isfinite(flow[i] = start[2 * NS + i]);
+        memcpy(flow_from, y, sizeof flow_from);
     }
-    own = !have_flow;
+    refresh = !have_flow;
     pb.nq = NQ;
     pb.sine = 1;
     pb.m = m;
@@ -391,9 +397,7 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
     for (period = 1;; ++period) {
         double h = o->h_start * T, mismatch = 0.0, y0[NS], x[NS], d[NS];
         int converged;
-        /* the variational equations: from the second period of a run from rest (the first is far from any orbit);
-         * in a warm run when the nearby orbit brought no matrix, or its step did not close the period after it */
-        int variational = newton && own && (warm || period >= 2);
+        int variational = newton && refresh && (warm || period >= 2);
         memcpy(y0, y, sizeof y0);
         for (i = 0; i < NQ; ++i) y[NS + i] = 0.0;
         if (variational) {
@@ -409,18 +413,29 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
         pb.phi = NULL;
         if (variational) {
             memcpy(flow, phi, sizeof flow);
+            memcpy(flow_from, y0, sizeof flow_from);
             have_flow = 1;
+            refresh = 0;
         }
         for (i = 0; i < NS; ++i) mismatch = fmax(mismatch, fabs(y[i] - y0[i]) / pb.scale[i]);
-        converged = tight_from >= 0 && period > tight_from && period >= o->min_periods && mismatch < threshold;
-        if (converged && newton && have_flow && fixed_point_offset(y0, y, flow, d) == 0)
-            /* The period began within the threshold of the orbit; to first order its integrals are the orbit's
-             * plus d(integrals)/d(start) times the fixed point's offset, which makes the features independent of
-             * where the run began to second order (smooth in the parameters, whatever the start). */
-            for (i = 0; i < NQ; ++i) {
-                int c;
-                for (c = 0; c < NS; ++c) y[NS + i] += flow[(NS + i) * NS + c] * d[c];
+        converged = tight_from >= 0 && period > tight_from && period >= o->min_periods;
+        if (converged && newton && have_flow && fixed_point_offset(y0, y, flow, d) == 0) {
+            /* To first order the orbit's integrals are this period's plus d(integrals)/d(start) times the fixed
+             * point's offset d: corrected so, the features err by about (the derivatives' error)·|d| + |d|^2 instead
+             * of |d|, and the period counts as the orbit's when that is below the threshold — or as before when the
+             * period closed by itself.  The features are then independent of where the run began to second order
+             * (smooth in the parameters, whatever the start). */
+            double offset = 0.0, stale = 0.0;
+            int c;
+            for (i = 0; i < NS; ++i) {
+                offset = fmax(offset, fabs(d[i]) / pb.scale[i]);
+                stale = fmax(stale, fabs(y0[i] - flow_from[i]) / pb.scale[i]);
             }
+            converged = mismatch < threshold || (FLOW_ERROR + stale) * offset + offset * offset < o->rtol;
+            for (i = 0; converged && i < NQ; ++i)
+                for (c = 0; c < NS; ++c) y[NS + i] += flow[(NS + i) * NS + c] * d[c];
+        } else
+            converged = converged && mismatch < threshold;
         out[0] = 2.0 / T * y[NS + 2];
         out[1] = 2.0 / T * y[NS + 1];
         out[2] = y[NS] / T;
@@ -431,15 +446,19 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
             break;
         }
         if (jumped_at == period - 1) {
-            own = 1; /* a borrowed matrix did not close the orbit in one step: the run computes its own */
             if (mismatch >= mismatch_before_jump) {
                 /* Newton's step did not bring the orbit closer (too far from it for the linearisation, or a matrix
-                 * from elsewhere): go back to where the plain period had led.  With the run's own matrix, Newton's
-                 * method is given up and the run goes on plainly. */
+                 * from elsewhere): go back to where the plain period had led.  With a matrix of the period just
+                 * before, Newton's method is given up and the run goes on plainly; with an older or a nearby
+                 * orbit's, the next period computes a fresh one. */
                 memcpy(y, y_plain, sizeof y_plain);
-                if (jump_own) newton = 0;
+                if (jump_fresh) newton = 0;
+                else refresh = 1;
                 continue;
             }
+            /* A matrix is reused while its steps keep shrinking the period's mismatch at least tenfold (the chord
+             * method); when they no longer do, the next period computes a fresh one. */
+            if (mismatch > CHORD_RATIO * mismatch_before_jump) refresh = 1;
         }
         changes[(period - 1) % 8] = mismatch;
         if (tight_from < 0 && mismatch < SWITCH_CHANGE) {
@@ -449,12 +468,17 @@ static void sine_task(const double *params, int n_plant, double m, double f, con
         if (period >= o->min_periods && period * T >= o->max_time) break;
         if (o->give_up && period >= 17 && !will_converge(changes, period - 1, threshold, o->max_time * f - period))
             break;
-        if (newton && have_flow && (variational || period == 1) && newton_step(y0, y, flow, pb.scale, x) == 0) {
-            memcpy(y_plain, y, sizeof y_plain);
-            memcpy(y, x, sizeof x);
-            mismatch_before_jump = mismatch;
-            jumped_at = period;
-            jump_own = variational;
+        if (newton && have_flow) {
+            if (newton_step(y0, y, flow, pb.scale, x) == 0) {
+                memcpy(y_plain, y, sizeof y_plain);
+                memcpy(y, x, sizeof x);
+                mismatch_before_jump = mismatch;
+                jumped_at = period;
+                jump_fresh = variational;
+            } else if (!refused_fresh) { /* refused: an older matrix is renewed once, a fresh one is believed */
+                refused_fresh = variational;
+                refresh = !variational;
+            }
         }
     }
     out[6] = (double)pb.steps;
