@@ -23,8 +23,9 @@ import numpy as np
 from ..errors import UserError
 from ..measurement.datafile import DataFile
 from ..model.plant import Plant
-from ..simulation.batch import BatchSimulator, SteadyStateOptions
+from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
 from .prior import full_vectors
+from .student_t import t_quantile
 
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure", "record_errors", "fit_percent",
            "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
@@ -174,9 +175,10 @@ def sine_data(data: DataFile) -> SineData:
     if not (np.all(np.isfinite(H)) and np.all(np.isfinite(dc))):
         raise UserError(f"{data.path}: the stored first harmonics contain NaN or Inf")
     amps = np.array([e.amplitude for e in exps])
-    if len(np.unique(amps)) < 2:
+    magnitudes = sorted(set(amps.tolist()))  # (np.unique would load numpy.ma)
+    if len(magnitudes) < 2:
         raise UserError(f"{data.path}: identification needs experiments at two or more excitation magnitudes "
-                        f"with a steady state (has {', '.join(map(str, np.unique(amps)))})")
+                        f"with a steady state (has {', '.join(map(str, magnitudes))})")
     return SineData(amplitudes=amps, frequencies=np.array([e.frequency for e in exps]), H=H, dc=dc, noisy=noisy,
                     source=str(data.path), skipped=len(data.experiments) - len(exps))
 
@@ -230,13 +232,16 @@ class SineCriterion:
     def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
+        self.warm_starts = WarmStarts()  # every candidate's runs begin on the orbits of the nearest one before
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         """(N, 3n) residuals of the N candidates ``theta``; NaN rows for candidates without a steady state."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
-        feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
-                                            self.data.frequencies, steady_state_options(rtol))
+        full = full_vectors(self.structure, theta)
+        feats = self.simulator.steady_state(full, self.data.amplitudes, self.data.frequencies,
+                                            steady_state_options(rtol), start=self.warm_starts.start(full))
+        self.warm_starts.add(full, feats)
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r
@@ -346,8 +351,6 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
                             blocks: list[slice] | None = None) -> np.ndarray:
     """(p, 2) intervals with a Student t quantile, from the Gauss–Newton covariance s²(JᵀJ)⁻¹ or, with ``blocks``
     (the residuals of each record, consecutive samples), from :func:`newey_west_covariance`."""
-    from scipy.stats import t as student
-
     p = theta.size
     dof = max(r.size - p, 1)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
@@ -356,7 +359,7 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
         cov = float(r @ r) / dof * np.linalg.pinv(jac.T @ jac)
     else:
         cov = newey_west_covariance(r, jac, blocks) * r.size / dof
-    half = student.ppf(0.5 + level / 2, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
+    half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
     return np.stack([theta - half, theta + half], axis=1)
 
 
