@@ -232,7 +232,10 @@ def main() -> None:
         n = len(files)
         lines += ["", f"## A fleet: {n} data files in one call\n",
                   f"`servofmu identify A.h5 B.h5 ... --output-dir DIR`: {n} g1 axes measured from the demo's g1 FMU "
-                  "at 40 dB output SNR (one noise seed each). Process wall time of the whole call.\n",
+                  "at 40 dB output SNR (one noise seed each). Process wall time of the whole call. In one process "
+                  "each fit already runs its simulations on all cores (threads in the batch simulator); a worker "
+                  "runs one thread, so on this machine the workers gain only what the single process loses "
+                  "between its threaded calls.\n",
                   "| where | wall time [s] | files per second | throughput vs one process |", "|---|---|---|---|"]
         for label, t in (("one process (`--workers 0`)", t_one), ("2 local worker processes", t_local),
                          ("Dask LocalCluster, 2 workers", t_dask)):
