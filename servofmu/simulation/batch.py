@@ -58,7 +58,6 @@ import ctypes
 import functools
 import hashlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,7 +70,7 @@ from ..fmu.variables import state_nominals
 from ..model.plant import Plant, parameter_rules
 from ..model.signals import INTERSAMPLE
 from ..model.symbolic import SymbolicModel, build_model
-from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
+from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature, temporary_folder
 
 __all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "RecordResponse", "valid_parameter_sets",
            "batch_functions", "ModelStructureError", "compiled_driver", "write_batch_sources", "H_START",
@@ -341,7 +340,7 @@ def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = N
     """The shared library of a driver C file compiled with the plant's batch sources (write_batch_sources) and
     ``extra`` generated files (name -> text), cached on disk by a hash of all sources (cache_dir())."""
     model = build_model(plant)
-    with tempfile.TemporaryDirectory(prefix="servofmu-batch-") as tmp:
+    with temporary_folder("batch") as tmp:
         src = Path(tmp)
         write_batch_sources(model, src)
         for name, text in (extra or {}).items():
