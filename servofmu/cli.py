@@ -202,6 +202,12 @@ def cmd_train(args) -> None:
 
 
 def cmd_identify(args) -> None:
+    if args.output_dir is not None or len(args.data) > 1:
+        return cmd_identify_files(args)
+    if args.output is None or args.scheduler or args.workers is not None or args.resume:
+        raise UserError("give -o RESULT.h5 for one data file (--scheduler, --workers and --resume go with "
+                        "--output-dir DIR)")
+    args.data = args.data[0]
     from .identification.identifier import PSOANNIdentifier, load_identification_inputs
     from .identification.results import result_from_estimator, table_text, to_json_text, write_result
     from .runtime import utc_now
@@ -235,6 +241,33 @@ def cmd_identify(args) -> None:
     else:
         print(table_text(result))
         print(f"wrote {args.output}")
+
+
+def cmd_identify_files(args) -> None:
+    """`identify A.h5 B.h5 ... --output-dir DIR`: one result per data file and a summary table."""
+    from .identification.fleet import identify_files, outcomes_json, outcomes_table
+
+    if args.output_dir is None:
+        raise UserError(f"{len(args.data)} data files: give --output-dir DIR (one result per file), not -o")
+    if args.output is not None or args.closed_loop:
+        raise UserError("with --output-dir, results are named after the data files (no -o); closed-loop records "
+                        "are identified one file at a time")
+    bar = None if args.json else _ProgressBar("file")
+    try:
+        outcomes = identify_files(args.data, args.structure, args.output_dir, ann_file=args.ann,
+                                  method=args.method or ("pso-ann" if args.ann else "pso"), seed=args.seed,
+                                  polish=not args.no_polish, skip=args.skip, resume=args.resume,
+                                  scheduler=args.scheduler, workers=args.workers,
+                                  command=getattr(args, "command_line", ""), progress=bar.update if bar else None)
+    finally:
+        if bar:
+            bar.close()
+    print(outcomes_json(outcomes) if args.json else outcomes_table(outcomes))
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:
+        why = [o.message if o.data_file in o.message else f"{o.data_file}: {o.message}" for o in failed]
+        raise UserError(f"{len(failed)} of {len(outcomes)} data files not identified: " + "; ".join(why[:3])
+                        + ("; ..." if len(why) > 3 else ""))
 
 
 # ---------------------------------------------------------------------------
@@ -493,8 +526,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="network file to write (HDF5)")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("identify", help="identify G(s) and the friction from a data file")
-    p.add_argument("data", help="data file (HDF5) from `servofmu measure` or `servofmu import`")
+    p = sub.add_parser("identify", help="identify G(s) and the friction from a data file (or many)")
+    p.add_argument("data", nargs="+", help="data file (HDF5) from `servofmu measure` or `servofmu import`; several "
+                                           "with --output-dir")
     p.add_argument("--structure", required=True, help="plant file giving the structure (order, friction model)")
     p.add_argument("--ann", help="trained network (HDF5) from `servofmu train`")
     p.add_argument("--method", choices=IDENTIFY_METHODS,
@@ -508,8 +542,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "at the first sample; a record that does not start at rest is fitted after its initial "
                         "state has died away)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    p.add_argument("-o", "--output", required=True, help="result file to write (HDF5)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object (many files: an array "
+                                                       "of one summary object per file)")
+    p.add_argument("-o", "--output", help="result file to write (HDF5), for one data file")
+    p.add_argument("--output-dir", metavar="DIR", help="many data files: write DIR/NAME-result.h5 for each NAME.h5 "
+                                                       "and print a summary table")
+    p.add_argument("--scheduler", metavar="ADDR", help="many data files: Dask scheduler, tcp://HOST:PORT (default: "
+                                                       "local processes)")
+    p.add_argument("--workers", type=int, help="many data files: local worker processes (default: one per core; 0: "
+                                               "this process)")
+    p.add_argument("--resume", action="store_true", help="many data files: keep the results already in DIR from the "
+                                                         "same data and settings, identify the others")
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("export", help="export an identified model: FMU, python-control, MATLAB, JSON, plant TOML")

@@ -73,8 +73,12 @@ def compile_shared(sources: Sequence[Path], target: Path, include: Sequence[Path
 
 
 def compiler_signature(extra_flags: Sequence[str] = ()) -> str:
-    """The compiler command and flags, for cache keys of compiled code."""
-    return " ".join([find_compiler(), *CFLAGS, *extra_flags])
+    """The compiler command and flags, and the size and date of the compiler's program, for cache keys of compiled
+    code (an upgraded compiler builds anew)."""
+    cc = find_compiler()
+    program = os.path.realpath(shutil.which(cc.split()[0]))
+    stat = os.stat(program)
+    return " ".join([cc, *CFLAGS, *extra_flags, f"({program} {stat.st_size} {stat.st_mtime_ns})"])
 
 
 def cache_dir() -> Path:

@@ -3,6 +3,9 @@
 computed here by its own quadrature.  Relative errors: |H − H_ref|/|H_ref| for H, and |dc − dc_ref|
 relative to the response amplitude |H_ref|·m for the DC component."""
 import functools
+import os
+import subprocess
+import sys
 import pickle
 
 import numpy as np
@@ -15,7 +18,13 @@ from scipy.integrate import solve_ivp
 from servofmu.errors import UserError
 from servofmu.identification.prior import full_vectors
 from servofmu.model.plant import PlantError, load_plant, plant_from_dict
-from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions, valid_parameter_sets
+from servofmu.simulation.batch import (
+    BatchSimulator,
+    SteadyStateFeatures,
+    SteadyStateOptions,
+    WarmStarts,
+    valid_parameter_sets,
+)
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv": 0.0, "v_smooth": 1e-3}
 NOMINAL = {  # the plant files' contents, written out again: poles, zeros, DC gain, friction
@@ -194,6 +203,81 @@ def test_acceleration_reaches_the_same_steady_state_sooner(name, m, f):
     assert fast.settle_time[0, 0] < plain.settle_time[0, 0]
 
 
+@pytest.mark.parametrize("distance", [1e-3, 1e-5])
+def test_a_run_from_a_nearby_orbit_reaches_the_same_steady_state(distance):
+    # g2 at 2 N, 4 Hz settles slowly from rest; a plant nearby starts where the nominal plant's run ended
+    plant = load_plant("g2")
+    sim = simulator("g2")
+    amps, freqs = [2.0, 4.0], [4.0, 0.5]
+    rng = np.random.default_rng(2)
+    near = plant.parameter_vector() * (1 + distance * rng.uniform(-1, 1, len(plant.parameter_names())))
+    nominal = sim.steady_state(plant.parameter_vector(), amps, freqs)
+    cold = sim.steady_state(near, amps, freqs)
+    for options in (SteadyStateOptions(), SteadyStateOptions(accelerate=False)):  # with and without Newton
+        warm = sim.steady_state(near, amps, freqs, options, start=nominal.orbit)
+        assert cold.converged.all() and warm.converged.all()
+        for k, m in enumerate(amps):
+            assert_close(warm.H[0, k], warm.dc[0, k], cold.H[0, k], cold.dc[0, k], m, tol=2e-7)
+    loose = SteadyStateOptions(rtol=1e-5, tol=1e-6)  # the swarm's tolerance: a run from rest is mostly transient
+    cold = sim.steady_state(near, amps, freqs, loose)
+    warm = sim.steady_state(near, amps, freqs, loose, start=sim.steady_state(plant.parameter_vector(), amps, freqs,
+                                                                              loose).orbit)
+    assert warm.steps.sum() < cold.steps.sum() / 1.5
+
+
+@pytest.mark.parametrize("name, m, f", [("g2", 2.0, 5.0), ("g2", 4.0, 0.5), ("g1", 2.0, 20.0)])
+def test_variational_equations_match_finite_differences_of_the_period(name, m, f):
+    """What Newton's method and the features' correction use — the derivatives of one period's end state (the
+    monodromy matrix) and of its integrals (S1, DC) with respect to where it began, from the variational equations
+    integrated beside the states — against the period differentiated numerically (starts moved by 1e-6 of their
+    scale)."""
+    plant = load_plant(name)
+    sim = simulator(name)
+    ns = sim.n_states
+    p = plant.parameter_vector()
+    settling = sim.steady_state(p, [m], [f], SteadyStateOptions(max_time=3.5 / f, accelerate=False))
+    x0, scale = settling.orbit[0, 0, :ns], settling.orbit[0, 0, ns:2 * ns]
+
+    def one_period(x, newton):
+        start = np.full((1, 1, ns * (ns + 6)), np.nan)  # no derivatives given: a Newton run computes its own
+        start[0, 0, :2 * ns] = np.concatenate([x, scale])
+        options = SteadyStateOptions(rtol=1e-12, max_time=0.5 / f, accelerate=newton, give_up_early=False)
+        r = sim.steady_state(p, [m], [f], options, start=start)
+        return r.orbit[0, 0], np.array([(r.H[0, 0] * m).real, (r.H[0, 0] * m).imag, r.dc[0, 0]])
+
+    orbit, _ = one_period(x0, True)
+    flow = orbit[2 * ns:].reshape(ns + 4, ns)
+    T = 1 / f
+    exact = np.vstack([flow[:ns], 2 / T * flow[ns + 2], 2 / T * flow[ns + 1], flow[ns] / T])  # states, S1, DC
+    base_x, base_s = one_period(x0, False)
+    columns = []
+    for j in range(ns):
+        e = 1e-6 * scale[j]
+        x, s_ = one_period(x0 + e * np.eye(ns)[j], False)
+        columns.append(np.concatenate([x[:ns] - base_x[:ns], s_ - base_s]) / e)
+    fd = np.column_stack(columns)
+    # 1e-2: the variational equations hold the Jacobian fixed over each step
+    assert np.max(np.abs(exact - fd)) < 1e-2 * max(np.max(np.abs(fd)), 1e-3)
+
+
+def test_warm_starts_begin_each_experiment_on_the_nearest_converged_orbit():
+    def features(orbit, converged):
+        nan = np.full(converged.shape, np.nan)
+        return SteadyStateFeatures(H=nan, dc=nan, distortion=nan, converged=converged, settle_time=nan,
+                                   steps=np.zeros(converged.shape, int), orbit=orbit)
+
+    warm = WarmStarts(capacity=3)
+    assert warm.start(np.ones(2)) is None
+    orbits = np.arange(2 * 2 * 3, dtype=float).reshape(2, 2, 3)  # 2 sets x 2 experiments x 3 numbers
+    warm.add([[1.0, 0.0], [2.0, 0.0]], features(orbits, np.array([[True, False], [True, True]])))
+    start = warm.start([[1.1, 0.0], [np.nan, 0.0]])
+    np.testing.assert_array_equal(start[0, 0], orbits[0, 0])  # the nearest set, [1, 0]
+    np.testing.assert_array_equal(start[0, 1], orbits[1, 1])  # [1, 0] did not converge there: the next nearest
+    assert np.isnan(start[1]).all()  # a NaN set is near nothing: from rest
+    warm.add([[5.0, 1.0], [6.0, 1.0]], features(orbits + 100, np.ones((2, 2), bool)))  # [1, 0] is forgotten
+    np.testing.assert_array_equal(warm.start([[1.0, 0.0]])[0, 0], orbits[1, 0])
+
+
 def test_hopeless_experiment_is_given_up_early_with_the_same_verdict():
     # g2 at 0.6 N, 1 Hz: the friction's relay oscillation near 5 Hz does not lock to the excitation
     plant = load_plant("g2")
@@ -318,7 +402,7 @@ def reference_record(params, t, u, hold):
 @pytest.mark.parametrize("name", ["g1", "g2"])
 def test_record_matches_radau(name, hold):
     rng = np.random.default_rng(11)
-    t = 0.5 + np.cumsum(rng.uniform(0.01, 0.03, 120))  # irregular sampling, starting away from zero
+    t = 0.5 + np.cumsum(rng.uniform(0.01, 0.03, 60))  # irregular sampling, starting away from zero
     u = 1.5 * np.sin(2 * np.pi * 1.3 * (t - t[0])) + 0.4 * rng.standard_normal(t.size)
     sets = np.array([vector(name, NOMINAL[name]), vector(name, PERTURBED[name])])
     response = simulator(name).simulate_record(sets, t, u, hold=hold, rtol=1e-10)
@@ -341,7 +425,7 @@ def test_zoh_and_foh_differ_as_the_hold_does():
 
 
 def test_sine_series_matches_radau():
-    t = np.linspace(0.0, 3.0, 301)
+    t = np.linspace(0.0, 1.5, 151)
     sets = vector("g2", PERTURBED["g2"])[None]
     response = simulator("g2").simulate_sine(sets, t, 2.0, 1.7, rtol=1e-10)
     v, pos = reference_record(SETS["perturbed"]["g2"], t, lambda tt: 2.0 * np.sin(2 * np.pi * 1.7 * tt), None)
@@ -369,8 +453,35 @@ def test_record_of_an_invalid_set_is_nan():
     lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0], [0.0, np.nan]),
     lambda s: s.simulate_record(load_plant("g1").parameter_vector(), [0.0, 1.0], [0.0, 1.0], hold="linear"),
     lambda s: SteadyStateOptions(rtol=0.5),
-    lambda s: SteadyStateOptions(min_periods=1),
+    lambda s: SteadyStateOptions(min_periods=0),
+    lambda s: s.steady_state(load_plant("g1").parameter_vector(), [1.0], [1.0], start=np.zeros((1, 1, 2))),
 ])
 def test_bad_inputs_raise_user_errors(call):
     with pytest.raises(UserError):
         call(simulator("g1"))
+
+
+def test_the_library_is_built_once_by_concurrent_processes_then_loaded_without_generating_code(tmp_path):
+    code = ("import sys; from servofmu.model.plant import load_plant; "
+            "from servofmu.simulation.batch import BatchSimulator; BatchSimulator(load_plant('g1')); "
+            "print('casadi' in sys.modules)")
+    env = {**os.environ, "SERVOFMU_CACHE": str(tmp_path)}
+    builders = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, text=True)
+                for _ in range(3)]
+    assert [b.wait() for b in builders] == [0, 0, 0]
+    for b in builders:
+        b.stdout.close()
+    assert [p.suffix for p in tmp_path.iterdir()] == [".so"]  # one library, no partial files left
+    loaded = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "False"  # CasADi, which generates the code, is not even imported
+
+
+def test_the_cache_key_follows_what_determines_the_library():
+    from servofmu.simulation.batch import DRIVER, library_key
+
+    g1 = load_plant("g1")
+    other_values = g1.with_parameters(g1.parameter_vector() * 1.1)  # the nominal values scale the states
+    assert library_key(g1, DRIVER, {}) == library_key(load_plant("g1"), DRIVER, {})
+    keys = {library_key(g1, DRIVER, {}), library_key(other_values, DRIVER, {}),
+            library_key(load_plant("g2"), DRIVER, {}), library_key(g1, DRIVER, {"extra.h": "#define X 1\n"})}
+    assert len(keys) == 4

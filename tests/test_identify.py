@@ -1,5 +1,8 @@
 """The identifier end to end on FMU data: dataset → train → identify, and its refusals of bad input."""
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -128,7 +131,7 @@ def test_refuses_nan_or_empty_data(g1_files, tmp_path, spoil, message):
 
 
 def test_pso_ann_without_network_says_so(g1_files, tmp_path):
-    proc = run("identify", g1_files["data"], "--structure", "g1", "-o", tmp_path / "r.h5")
+    proc = run("identify", g1_files["data"], "--structure", "g1", "--method", "pso-ann", "-o", tmp_path / "r.h5")
     assert_one_line_error(proc, "needs a trained network")
 
 
@@ -178,8 +181,8 @@ def test_polish_tolerance_does_not_give_up_on_a_slowly_settling_experiment():
     theta = np.array([-2.13696222, 38.87697534, -11.04557933, 1.39954763, 0.6566386, 0.46513884])
     sim = BatchSimulator(plant)
     amps, freqs = np.array([2.0]), np.array([4.0])
-    hasty = sim.steady_state(full_vectors(plant, theta), amps, freqs,
-                             SteadyStateOptions(rtol=POLISH_RTOL, tol=1e-10, give_up_early=True))
+    hasty = sim.steady_state(full_vectors(plant, theta), amps, freqs,  # (Newton's method settles it sooner)
+                             SteadyStateOptions(rtol=POLISH_RTOL, tol=1e-10, accelerate=False, give_up_early=True))
     plain = sim.steady_state(full_vectors(plant, theta), amps, freqs,
                              SteadyStateOptions(rtol=1e-11, tol=1e-10, accelerate=False, give_up_early=False))
     assert not hasty.converged[0, 0] and plain.converged[0, 0]  # the case this guards against
@@ -188,3 +191,117 @@ def test_polish_tolerance_does_not_give_up_on_a_slowly_settling_experiment():
                     skipped=0)
     r = SineCriterion(plant, data, sim).residuals(theta, POLISH_RTOL)
     assert np.all(np.isfinite(r)) and np.max(np.abs(r)) < 1e-8
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 7, 30, 31, 999, 1001, 123456])
+def test_student_t_quantile_matches_scipy(dof):
+    from scipy.stats import t
+
+    from servofmu.identification.student_t import t_quantile
+
+    for level in (0.5, 0.9, 0.95, 0.99, 0.999):
+        assert t_quantile(level, dof) == pytest.approx(t.ppf(0.5 + level / 2, dof), rel=1e-12)
+
+
+def test_identify_loads_neither_torch_nor_scipy_nor_casadi(g1_files, tmp_path):
+    """The network's inference is numpy; the intervals need no scipy; the compiled simulator comes from the cache
+    (the fixture's training set put it there), so nothing generates code."""
+    code = ("import json, sys; from servofmu.cli import main; "
+            f"rc = main(['identify', {str(g1_files['data'])!r}, '--structure', 'g1', '--ann', "
+            f"{str(g1_files['ann'])!r}, '--json', '-o', {str(tmp_path / 'r.h5')!r}]); "
+            "print(json.dumps([rc, sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'torch', 'scipy', 'casadi', 'dask', 'distributed', 'matplotlib', 'fmpy'})]), file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert json.loads(proc.stderr.strip().splitlines()[-1]) == [0, []], proc.stderr
+
+
+# ---------------------------------------------------------------------------
+# Many data files at once (a fleet of axes)
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def fleet(g1_files, built_fmu):
+    """Three g1 axes: the fixture's measurement and two noisy remeasurements."""
+    folder = g1_files["folder"] / "fleet"
+    folder.mkdir()
+    files = [folder / "axis0.h5"]
+    files[0].write_bytes(g1_files["data"].read_bytes())
+    for seed in (1, 2):
+        files.append(folder / f"axis{seed}.h5")
+        measure(built_fmu("g1", 3), files[-1], options=MeasureOptions(noise_snr_db=40.0, seed=seed), workers=0,
+                **PLAN)
+    return files
+
+
+def test_many_files_give_the_one_file_results_on_processes_and_on_a_dask_cluster(g1_files, fleet, tmp_path):
+    from distributed import LocalCluster
+
+    from servofmu.identification.fleet import identify_files
+    from servofmu.identification.results import parameters_json, read_result
+
+    ann = g1_files["ann"]
+    one = {}
+    for f in fleet:  # the single-file command, one after the other
+        proc = run("identify", f, "--structure", "g1", "--ann", ann, "--json", "-o", tmp_path / f"{f.stem}.h5")
+        one[str(f)] = json.loads(proc.stdout)["parameters"]
+    runs = {}
+    for label in ("local", "dask"):
+        out = tmp_path / label
+        out.mkdir()
+        if label == "local":
+            runs[label] = identify_files(fleet, "g1", out, ann_file=ann, workers=2)
+        else:
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                              dashboard_address=None, worker_dashboard_address=None) as cluster:
+                runs[label] = identify_files(fleet, "g1", out, ann_file=ann, scheduler=cluster.scheduler_address)
+    for label, outcomes in runs.items():
+        assert [o.status for o in outcomes] == ["identified"] * 3, label
+        for o in outcomes:
+            assert parameters_json(read_result(o.result_file).plant) == one[o.data_file], (label, o.data_file)
+
+
+def test_an_interrupted_many_files_run_resumes_with_only_the_unfinished_files(g1_files, fleet, tmp_path):
+    import signal
+    import time
+
+    args = [*map(str, fleet), "--structure", "g1", "--ann", str(g1_files["ann"]), "--output-dir", str(tmp_path),
+            "--workers", "0"]
+    proc = subprocess.Popen([sys.executable, "-m", "servofmu", "identify", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob("*-result.h5")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    finished = {p.name: p.read_bytes() for p in tmp_path.glob("*-result.h5")}
+    assert proc.returncode == 130 and "interrupted" in err, err
+    assert 1 <= len(finished) < 3 and not list(tmp_path.glob(".*part"))
+
+    again = run("identify", *args, "--resume", "--json")
+    assert again.returncode == 0, again.stderr
+    status = {Path(o["result_file"]).name: o["status"] for o in json.loads(again.stdout)}
+    assert {n for n, s in status.items() if s == "kept"} == set(finished)
+    assert {n for n, s in status.items() if s == "identified"} == {f"{f.stem}-result.h5" for f in fleet} - set(finished)
+    assert all((tmp_path / n).read_bytes() == b for n, b in finished.items())  # kept as they were
+
+
+def test_many_files_refusals_and_a_failing_file(g1_files, fleet, tmp_path):
+    ann = g1_files["ann"]
+    assert_one_line_error(run("identify", *fleet, "--structure", "g1", "--ann", ann, "-o", tmp_path / "r.h5"),
+                          "--output-dir")
+    assert_one_line_error(run("identify", fleet[0], "--structure", "g1", "--ann", ann, "--resume", "-o",
+                              tmp_path / "r.h5"), "--output-dir")
+    assert_one_line_error(run("identify", *fleet, "--structure", "g1", "--ann", ann, "--output-dir",
+                              tmp_path / "missing"), "no such folder")
+    broken = tmp_path / "broken.h5"
+    broken.write_bytes(b"not HDF5")
+    proc = run("identify", fleet[0], broken, "--structure", "g1", "--ann", ann, "--output-dir", tmp_path,
+               "--workers", "0", "--json")
+    assert_one_line_error(proc, "1 of 2 data files not identified", str(broken))
+    assert [o["status"] for o in json.loads(proc.stdout)] == ["identified", "failed"]
+    assert (tmp_path / "axis0-result.h5").exists() and not (tmp_path / "broken-result.h5").exists()
+    # the finished result is not overwritten without --resume, nor kept for other settings with it
+    again = run("identify", fleet[0], "--structure", "g1", "--ann", ann, "--output-dir", tmp_path)
+    assert_one_line_error(again, "axis0-result.h5", "exists already")
+    other = run("identify", fleet[0], "--structure", "g1", "--ann", ann, "--seed", "7", "--output-dir", tmp_path,
+                "--resume")
+    assert_one_line_error(other, "axis0-result.h5", "other settings")

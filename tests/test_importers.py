@@ -212,9 +212,8 @@ def libcosim_cosimulation(path, layout, amplitude, frequency):
     for k in range(N_STEPS):
         # a last-value observer, read after every step (libcosimpy 0.0.6's time-series reader drops the step-0 sample)
         assert execution.step(), get_last_error_message()
-        time, v_k = observer.last_real_values(index, [layout.TIME, layout.V])
+        (v_k,) = observer.last_real_values(index, [layout.V])
         assert execution.status().current_time == (k + 1) * step_ns
-        assert abs(time - (k + 1) * DT) < 1e-12
         v.append(v_k)
     return np.array(v)
 

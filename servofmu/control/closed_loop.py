@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import check_structure
+from ..identification.criterion import TimeDomainCriterion, check_structure, fitted_samples
 from ..identification.identifier import identification_provenance
 from ..identification.prior import full_vectors
 from ..measurement.datafile import read_data_file
@@ -121,39 +121,30 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     sample.  The controller's encoder quantisation and actuator noise are switched off (see the module
     docstring); ``skip`` seconds at the start of every record are left out of the fit.
     """
-    if not data_file.records:
-        raise UserError(f"{data_file.path}: the file holds no records")
-    if not (np.isfinite(skip) and skip >= 0):
-        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
     out = []
-    for r in data_file.records:
+    for r, fitted in zip(data_file.records, fitted_samples(data_file, skip)):
         s = r.series
         if s.reference is None:
             raise UserError(f"{data_file.path}: record {r.name} has no reference: a closed-loop identification "
                             "simulates the loop from the recorded reference")
         if s.position is None:
             raise UserError(f"{data_file.path}: record {r.name} has no measured position")
-        fitted = s.time >= s.time[0] + skip
-        if fitted.sum() < 10:
-            raise UserError(f"{data_file.path}: record {r.name} has fewer than 10 samples after skipping {skip:g} s")
         out.append(ClosedLoopSeries(r.name, s.time, s.reference, s.position, s.u, fitted))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
     return ClosedLoopData(tuple(out), law, str(data_file.path))
 
 
-class ClosedLoopCriterion:
-    """Residuals of candidate plants simulated in the known loop: per record the position and the force command
-    against the recorded ones, each signal divided by its scale (the spread of the signal before a fit, the RMS
-    error of a fit after :meth:`reweight`, as servofmu.identification.criterion.RecordCriterion)."""
+class ClosedLoopCriterion(TimeDomainCriterion):
+    """Candidate plants simulated in the known loop: per record the position and the force command against the
+    recorded ones, each signal weighted by its noise (servofmu.identification.criterion.TimeDomainCriterion)."""
 
     def __init__(self, structure: Plant, data: ClosedLoopData, simulator: LoopSimulator):
-        self.structure, self.data, self.simulator = structure, data, simulator
-        self.evaluations = 0
-        signals = [(r.position[r.fitted], r.command[r.fitted]) for r in data.records]
-        self.spreads = np.array([float(np.std(s)) or 1.0 for pair in signals for s in pair])
-        self.scales = self.spreads.copy()
-        sizes = [int(r.fitted.sum()) for r in data.records for _ in range(2)]
-        self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+        self.data, self.simulator = data, simulator
+        super().__init__(structure)
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        return [pair for r in self.data.records for pair in ((f"{r.name} position", r.position[r.fitted]),
+                                                             (f"{r.name} force", r.command[r.fitted]))]
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Model minus record at the fitted samples: per record the position, then the command."""
@@ -164,27 +155,6 @@ class ClosedLoopCriterion:
         for r in self.data.records:
             loop = self.simulator.simulate_loop(full, r.time, r.reference, self.data.controller, rtol=rtol)
             out += [loop.position[:, r.fitted] - r.position[r.fitted], loop.command[:, r.fitted] - r.command[r.fitted]]
-        return out
-
-    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
-        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
-
-    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
-        e = np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1)
-        return float(np.sqrt(np.mean(e**2)))
-
-    def reweight(self, theta: np.ndarray, rtol: float) -> None:
-        for k, e in enumerate(self.errors(theta, rtol)):
-            self.scales[k] = max(float(np.sqrt(np.mean(e[0] ** 2))), 1e-12 * self.spreads[k])
-
-    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
-        from ..identification.criterion import fit_percent
-
-        errors = self.errors(theta, rtol)
-        out = {}
-        for k, r in enumerate(self.data.records):
-            out[f"{r.name} position"] = fit_percent(r.position[r.fitted], errors[2 * k][0])
-            out[f"{r.name} force"] = fit_percent(r.command[r.fitted], errors[2 * k + 1][0])
         return out
 
 

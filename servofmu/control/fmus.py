@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import UserError
-from ..fmu.build import assemble_fmu
+from ..fmu.build import CORE_FILES, assemble_fmu
 from ..fmu.variables import Variable
 from .controller import PARAMETERS, ControllerSpec, params_header
 
@@ -76,7 +76,7 @@ def _sampled_sources(component: str, config: str, generated: dict[str, str]):
         text, token = config
         (src / "model_config.h").write_text(text)
         (src / "fmu_core.h").write_text('#include "sampled_core.h"\n')
-        for name in ("sampled_core.c", "sampled_core.h"):
+        for name in ("sampled_core.c", "sampled_core.h", *CORE_FILES):
             shutil.copy(FMU_C_DIR / name, src / name)
         shutil.copy(C_DIR / f"{component}.c", src / f"{component}.c")
         shutil.copy(C_DIR / f"{component}.h", src / "component.h")

@@ -25,8 +25,9 @@ from . import description
 from .sources import C_DIR, generate_sources
 from .variables import Variable, fmu_variables
 
-__all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT"]
+__all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT", "CORE_FILES"]
 
+CORE_FILES = ("core_api.h", "core_common.c")  # what every FMU core includes (servo_core.c, sampled_core.c)
 DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "tolerance": 1e-10, "stepSize": 1e-3}
 EQUATIONS = """u_total = u + excitation_amplitude*sin(2*pi*excitation_frequency*t)
 v       = output of G(s) driven by u_total - F(v)        (all states start at 0)
@@ -95,7 +96,7 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     def write_sources(src: Path) -> str:
         token = generate_sources(model, src, plant.name)  # model_eqs.c/.h, model_config.h
         (src / "fmu_core.h").write_text('#include "servo_core.h"\n')
-        for name in ("servo_core.c", "servo_core.h"):
+        for name in ("servo_core.c", "servo_core.h", *CORE_FILES):
             shutil.copy(C_DIR / name, src / name)
         return token
 

@@ -388,8 +388,7 @@ def _normalisation(A: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
 def _activate(z: np.ndarray, activation: str) -> np.ndarray:
     if activation == "tanh":
         return np.tanh(z)
-    from scipy.special import expit  # overflow-free logistic
-    return expit(z)
+    return 0.5 + 0.5 * np.tanh(0.5 * z)  # the logistic function, overflow-free
 
 
 # ---------------------------------------------------------------------------

@@ -23,12 +23,13 @@ import numpy as np
 from ..errors import UserError
 from ..measurement.datafile import DataFile
 from ..model.plant import Plant
-from ..simulation.batch import BatchSimulator, SteadyStateOptions
+from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
 from .prior import full_vectors
+from .student_t import t_quantile
 
-__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "check_structure", "record_errors", "fit_percent",
+__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure", "record_errors", "fit_percent",
            "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
-           "RecordCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
+           "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
            "output_error_fitness", "SEARCH_RTOL", "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
@@ -99,6 +100,23 @@ def check_structure(structure: Plant, data: DataFile, what: str) -> None:
                         f"the data was measured on ({', '.join(measured)})")
 
 
+def fitted_samples(data: DataFile, skip: float) -> list[np.ndarray]:
+    """Per record of ``data``, the samples after its first ``skip`` seconds (a UserError for a file without
+    records, a negative skip, or fewer than 10 samples left)."""
+    if not data.records:
+        raise UserError(f"{data.path}: the file holds no records")
+    if not (np.isfinite(skip) and skip >= 0):
+        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
+    out = []
+    for r in data.records:
+        fitted = r.series.time >= r.series.time[0] + skip
+        if fitted.sum() < 10:
+            raise UserError(f"{data.path}: record {r.name} has {fitted.sum()} samples after skipping {skip:g} s; "
+                            "it needs at least 10")
+        out.append(fitted)
+    return out
+
+
 def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
     """The records of a records file as the criterion fits them.
 
@@ -121,18 +139,10 @@ def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
     UserError
         For a file without records, a negative skip, or a skip that leaves fewer than 10 samples of a record.
     """
-    if not data.records:
-        raise UserError(f"{data.path}: the file holds no records")
-    if not (np.isfinite(skip) and skip >= 0):
-        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
     out = []
-    for r in data.records:
+    for r, fitted in zip(data.records, fitted_samples(data, skip)):
         s = r.series
         position = r.kind == "position" and s.position is not None
-        fitted = s.time >= s.time[0] + skip
-        if fitted.sum() < 10:
-            raise UserError(f"{data.path}: record {r.name} has {fitted.sum()} samples after skipping {skip:g} s; "
-                            "it needs at least 10")
         out.append(RecordSeries(name=r.name, time=s.time, u=s.u, y=s.position if position else s.v,
                                 output="position" if position else "v", hold=r.intersample, fitted=fitted))
     return RecordData(records=tuple(out), source=str(data.path))
@@ -165,9 +175,10 @@ def sine_data(data: DataFile) -> SineData:
     if not (np.all(np.isfinite(H)) and np.all(np.isfinite(dc))):
         raise UserError(f"{data.path}: the stored first harmonics contain NaN or Inf")
     amps = np.array([e.amplitude for e in exps])
-    if len(np.unique(amps)) < 2:
+    magnitudes = sorted(set(amps.tolist()))  # (np.unique would load numpy.ma)
+    if len(magnitudes) < 2:
         raise UserError(f"{data.path}: identification needs experiments at two or more excitation magnitudes "
-                        f"with a steady state (has {', '.join(map(str, np.unique(amps)))})")
+                        f"with a steady state (has {', '.join(map(str, magnitudes))})")
     return SineData(amplitudes=amps, frequencies=np.array([e.frequency for e in exps]), H=H, dc=dc, noisy=noisy,
                     source=str(data.path), skipped=len(data.experiments) - len(exps))
 
@@ -221,13 +232,16 @@ class SineCriterion:
     def __init__(self, structure: Plant, data: SineData, simulator: BatchSimulator):
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
+        self.warm_starts = WarmStarts()  # every candidate's runs begin on the orbits of the nearest one before
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         """(N, 3n) residuals of the N candidates ``theta``; NaN rows for candidates without a steady state."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
-        feats = self.simulator.steady_state(full_vectors(self.structure, theta), self.data.amplitudes,
-                                            self.data.frequencies, steady_state_options(rtol))
+        full = full_vectors(self.structure, theta)
+        feats = self.simulator.steady_state(full, self.data.amplitudes, self.data.frequencies,
+                                            steady_state_options(rtol), start=self.warm_starts.start(full))
+        self.warm_starts.add(full, feats)
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r
@@ -246,23 +260,60 @@ def fit_percent(y: np.ndarray, error: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(error) / np.linalg.norm(y - np.mean(y))))
 
 
-class RecordCriterion:
-    """Residuals of candidates against time-domain records, every record simulated with its own hold.
+class TimeDomainCriterion:
+    """Residuals of candidates against sampled signals, each signal weighted by its noise.
 
-    Weights: the residuals of record k are divided by ``scales[k]``, an estimate of its noise level, so that
-    every sample counts by how exactly it was measured — the maximum-likelihood weighting for records of
-    different signals (velocity, position), noise levels and lengths.  Before a fit the scale is the spread of
-    the record's signal (relative errors); :meth:`reweight` sets it to the RMS of the residuals of a fit, after
-    which the fit is repeated (feasible generalised least squares).
+    A subclass gives ``signals()`` — the measured values of every signal at its fitted samples, with their names —
+    and ``errors(theta, rtol)`` — model minus measurement for N candidates, one (N, samples) array per signal.
+    The residuals of signal k are divided by ``scales[k]``, an estimate of its noise level, so that every sample
+    counts by how exactly it was measured: the maximum-likelihood weighting for signals of different units,
+    noise levels and lengths.  Before a fit the scale is the spread of the signal (relative errors);
+    :meth:`reweight` sets it to the RMS error of a fit, after which the fit is repeated (feasible generalised
+    least squares).  ``blocks``: the residuals of each signal, consecutive samples (Newey–West intervals).
     """
 
-    def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
-        self.structure, self.data, self.simulator = structure, data, simulator
+    def __init__(self, structure: Plant):
+        self.structure = structure
         self.evaluations = 0
-        self.spreads = np.array([float(np.std(r.y[r.fitted])) or 1.0 for r in data.records])
+        measured = [y for _, y in self.signals()]
+        self.spreads = np.array([float(np.std(y)) or 1.0 for y in measured])
         self.scales = self.spreads.copy()
-        sizes = [int(r.fitted.sum()) for r in data.records]
+        sizes = [y.size for y in measured]
         self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        raise NotImplementedError
+
+    def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+        raise NotImplementedError
+
+    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
+        """(N, samples) weighted residuals of the N candidates ``theta``, all signals one after the other."""
+        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
+
+    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
+        """The fitness of one candidate whatever the weights: RMS of every signal's error relative to its spread."""
+        return float(rms(np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1))[0])
+
+    def reweight(self, theta: np.ndarray, rtol: float) -> None:
+        """Scales from the errors at ``theta``: each signal's RMS error (its noise level, if the model fits)."""
+        for k, e in enumerate(self.errors(theta, rtol)):
+            self.scales[k] = max(float(np.sqrt(np.mean(e[0] ** 2))), 1e-12 * self.spreads[k])
+
+    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
+        """The fit (%) of every signal at ``theta``, by name."""
+        return {name: fit_percent(y, e[0]) for (name, y), e in zip(self.signals(), self.errors(theta, rtol))}
+
+
+class RecordCriterion(TimeDomainCriterion):
+    """Records simulated with their own hold, each compared on the signal it measures (record_errors)."""
+
+    def __init__(self, structure: Plant, data: RecordData, simulator: BatchSimulator):
+        self.data, self.simulator = data, simulator
+        super().__init__(structure)
+
+    def signals(self) -> list[tuple[str, np.ndarray]]:
+        return [(r.name, r.y[r.fitted]) for r in self.data.records]
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Per record, model minus measurement at its fitted samples for the N candidates ``theta``."""
@@ -271,25 +322,6 @@ class RecordCriterion:
         full = full_vectors(self.structure, theta)
         return [record_errors(r, self.simulator.simulate_record(full, r.time, r.u, hold=r.hold, rtol=rtol))
                 for r in self.data.records]
-
-    def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
-        """(N, samples) weighted residuals of the N candidates ``theta``, all records one after the other."""
-        return np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.scales)], axis=1)
-
-    def relative_rms(self, theta: np.ndarray, rtol: float) -> float:
-        """The fitness of one candidate whatever the weights: RMS of every record's error relative to the spread
-        of its signal."""
-        return float(rms(np.concatenate([e / s for e, s in zip(self.errors(theta, rtol), self.spreads)], axis=1))[0])
-
-    def reweight(self, theta: np.ndarray, rtol: float) -> None:
-        """Scales from the residuals at ``theta``: each record's RMS error (its noise level, if the model fits)."""
-        for k, e in enumerate(self.errors(theta, rtol)):
-            noise = float(np.sqrt(np.mean(e[0] ** 2)))
-            self.scales[k] = max(noise, 1e-12 * self.spreads[k])
-
-    def fit_percent(self, theta: np.ndarray, rtol: float) -> dict[str, float]:
-        """The fit (%) of every record at ``theta``, by record name."""
-        return {r.name: fit_percent(r.y[r.fitted], e[0]) for r, e in zip(self.data.records, self.errors(theta, rtol))}
 
 
 def rms(r: np.ndarray) -> np.ndarray:
@@ -319,8 +351,6 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
                             blocks: list[slice] | None = None) -> np.ndarray:
     """(p, 2) intervals with a Student t quantile, from the Gauss–Newton covariance s²(JᵀJ)⁻¹ or, with ``blocks``
     (the residuals of each record, consecutive samples), from :func:`newey_west_covariance`."""
-    from scipy.stats import t as student
-
     p = theta.size
     dof = max(r.size - p, 1)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
@@ -329,7 +359,7 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
         cov = float(r @ r) / dof * np.linalg.pinv(jac.T @ jac)
     else:
         cov = newey_west_covariance(r, jac, blocks) * r.size / dof
-    half = student.ppf(0.5 + level / 2, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
+    half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
     return np.stack([theta - half, theta + half], axis=1)
 
 

@@ -282,8 +282,10 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg–Marquardt on ``crit``'s residuals from ``y0`` (search coordinates; ``to_theta`` maps rows of them
     to parameters); returns the optimum and the Jacobian there (in search coordinates).
 
-    Stops when a step changes no coordinate by more than 1e-10 (relative), or when the best step lowers the
-    residual norm by less than 1 % (the features' own noise floor is reached).  The forward-difference Jacobian
+    Stops when a step changes no coordinate by more than 1e-10 (relative) or by more than its standard error
+    (Gauss–Newton, from the step's Jacobian: a smaller move is one the data cannot tell from noise, and at the
+    features' noise floor further steps only wander), or when the best step lowers the residual norm by less than
+    1 %.  The forward-difference Jacobian
     is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
     fails both ways ends the polish (NaN intervals rather than false ones)."""
 
@@ -306,21 +308,34 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(jac)):
             break
         a, g = jac.T @ jac, jac.T @ r
-        while damping < 1e8:
-            step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
-            r_new = residual(y + step)
-            if r_new @ r_new < r @ r:
-                break
-            damping *= 10
-        else:
-            break  # no step lowers the residuals: converged
+        step = _lowering_step(residual, y, r, jac, a, g, damping)
+        if step is None:
+            break  # no step lowers the residuals (enough to try): converged
+        step, r_new, damping = step
         improvement = 1 - np.sqrt((r_new @ r_new) / (r @ r))
         y, r, damping = y + step, r_new, max(damping / 10, 1e-9)
-        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10
+        standard_errors = np.sqrt(np.clip(np.diag(np.linalg.pinv(a)), 0, None) * (r @ r) / max(r.size - y.size, 1))
+        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10 or np.all(np.abs(step) <= standard_errors)
         jac = jacobian(y, r)
         if small or improvement < 0.01:
             break
     return y, jac
+
+
+def _lowering_step(residual, y, r, jac, a, g, damping):
+    """(step, its residuals, its damping): the least damped Levenberg–Marquardt step from ``y`` that lowers the
+    residual norm, raising the damping tenfold per failed try; None when none does.  A failed step that not even
+    the linear model r + J·step expected to lower the norm by 1 % ends the tries: the residuals are at their noise
+    floor, where more damping only costs evaluations."""
+    while damping < 1e8:
+        step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
+        r_new = residual(y + step)
+        if r_new @ r_new < r @ r:
+            return step, r_new, damping
+        if np.linalg.norm(r + jac @ step) > 0.99 * np.linalg.norm(r):
+            return None
+        damping *= 10
+    return None
 
 
 # ---------------------------------------------------------------------------

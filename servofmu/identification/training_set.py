@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +27,10 @@ __all__ = ["TrainingSet", "make_training_set", "load_training_set", "TRAINING_RT
 
 FORMAT = "servofmu-training-set"
 SCHEMA_VERSION = 1
-CHUNK = 250  # parameter sets per write: a killed run loses at most this much work
+CHUNK = 250  # parameter sets per task
+# While the run goes on, the file is rewritten (whole, atomically) at most every WRITE_EVERY seconds: a killed run
+# loses at most that much work, and rewriting after every chunk took a tenth of a 10 000-plant run.
+WRITE_EVERY = 5.0
 # Integrator tolerance of training sets: features to ~1e-5 (docs/bench-batch.md), far below what an ANN with
 # validation errors near 1e-3 can use, and ~3x faster than 1e-8.
 TRAINING_RTOL = 1e-6
@@ -118,7 +122,8 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     samples : int
         Number of plants.
     output : str or Path
-        The training set (HDF5) to write; rewritten after every chunk, so a killed run loses little.
+        The training set (HDF5) to write; rewritten every few seconds (WRITE_EVERY), so a killed run loses
+        little.
     spread : float
         Prior width: every identified quantity is scaled by a log-uniform factor in [1/(1+spread), 1+spread].
     seed : int
@@ -184,13 +189,19 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     workers = Workers(scheduler=scheduler, workers=0) if scheduler is None else Workers(scheduler=scheduler)
     resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
     items = [(full[rows], data.amplitudes, data.frequencies, rtol) for rows in chunks]
+    written = time.monotonic()
     with workers:
-        for i, (H, dc, conv) in workers.imap(_simulate_chunk, items, resource=resource):
-            rows = chunks[i]
-            arrays["H_re"][rows], arrays["H_im"][rows], arrays["dc"][rows] = H.real, H.imag, dc
-            arrays["converged"][rows], arrays["done"][rows] = conv, 1
+        try:
+            for i, (H, dc, conv) in workers.imap(_simulate_chunk, items, resource=resource):
+                rows = chunks[i]
+                arrays["H_re"][rows], arrays["H_im"][rows], arrays["dc"][rows] = H.real, H.imag, dc
+                arrays["converged"][rows], arrays["done"][rows] = conv, 1
+                if time.monotonic() - written >= WRITE_EVERY:
+                    _write(output, arrays, attrs)
+                    written = time.monotonic()
+                done += len(rows)
+                if progress:
+                    progress(done, samples)
+        finally:  # what is done is kept, also when the run is interrupted
             _write(output, arrays, attrs)
-            done += len(rows)
-            if progress:
-                progress(done, samples)
     return load_training_set(output)

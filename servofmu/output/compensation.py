@@ -59,11 +59,7 @@ def _friction_png(runs: list[TrackingRun], identified: Plant, truth: Plant | Non
     ax.set_ylabel("friction force [N]")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    try:
-        return png_bytes(fig)
-    finally:
-        plt.close(fig)
+    return png_bytes(fig)
 
 
 def _error_png(runs: list[TrackingRun]) -> bytes:
@@ -78,11 +74,7 @@ def _error_png(runs: list[TrackingRun]) -> bytes:
     axes[1].set_xlabel("time [s]")
     for ax in axes:
         ax.grid(True, alpha=0.4)
-    fig.tight_layout()
-    try:
-        return png_bytes(fig)
-    finally:
-        plt.close(fig)
+    return png_bytes(fig)
 
 
 def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant | None, source: str) -> str:

@@ -94,13 +94,19 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
 
 
 def reference_trajectories(sample_time: float = 1e-3) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The demo's references, each from rest at 0 (m): ``identify`` (two superposed reversing motions, 4 s),
-    ``validate`` (other ones, 3 s) and ``reversals`` (a 0.5 Hz reversing stroke, 4 s) for the compensation."""
+    """The demo's references, each from rest at 0 (m):
+
+    - ``identify`` (16 s): 4 s of two superposed reversing motions (up to 0.17 m/s), then 12 s of a slow
+      reversing stroke (up to 0.015 m/s) that dwells in the Stribeck region of low velocities;
+    - ``validate`` (3 s): other reversing motions;
+    - ``reversals`` (4 s): a 0.05 m stroke at 0.5 Hz, for the compensation."""
     def t(duration):
         return np.arange(0.0, duration + sample_time / 2, sample_time)
 
-    a, b, c = t(4.0), t(3.0), t(4.0)
-    return {"identify": (a, 0.03 * (1 - np.cos(np.pi * a)) + 0.01 * (1 - np.cos(2 * np.pi * 2.3 * a))),
+    a, b, c = t(16.0), t(3.0), t(4.0)
+    fast = 0.03 * (1 - np.cos(np.pi * a)) + 0.01 * (1 - np.cos(2 * np.pi * 2.25 * a))  # back at rest at 4 s
+    slow = 0.0095 * (1 - np.cos(2 * np.pi * 0.25 * (a - 4.0)))
+    return {"identify": (a, np.where(a < 4.0, fast, slow)),
             "validate": (b, 0.04 * (1 - np.cos(2 * np.pi * 0.7 * b)) - 0.015 * (1 - np.cos(2 * np.pi * 1.9 * b))),
             "reversals": (c, 0.05 * (1 - np.cos(np.pi * c)))}
 

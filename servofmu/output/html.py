@@ -46,10 +46,16 @@ def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_
 
 
 def png_bytes(fig) -> bytes:
-    """A matplotlib figure as PNG bytes."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
-    return buf.getvalue()
+    """A finished matplotlib figure (laid out tightly) as PNG bytes; the figure is closed."""
+    import matplotlib.pyplot as plt
+
+    try:
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=DPI)
+        return buf.getvalue()
+    finally:
+        plt.close(fig)
 
 
 def figure(caption: str, image: bytes, alt: str) -> str:

@@ -243,11 +243,7 @@ def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float)
     axes[0].set_ylabel("friction force F(v) [N]")
     axes[0].legend(fontsize=8)
     fig.suptitle("friction against velocity (steady sliding)")
-    fig.tight_layout()
-    try:
-        png = png_bytes(fig)
-    finally:
-        plt.close(fig)
+    png = png_bytes(fig)
     return ("Friction force against velocity at constant velocity, over the velocities the data reached "
             f"(|v| ≤ {v_max:.3g} m/s)" + (", identified against true" if truth is not None else "") + ".", png)
 
@@ -271,11 +267,7 @@ def convergence_figure(entries: Sequence[Entry]) -> tuple[str, bytes] | None:
     ax.set_title("PSO convergence")
     ax.grid(True, which="both", alpha=0.4)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    try:
-        png = png_bytes(fig)
-    finally:
-        plt.close(fig)
+    png = png_bytes(fig)
     return "Best fitness of the swarm at each iteration; lines mark the fitness after the other stages.", png
 
 

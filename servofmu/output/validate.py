@@ -345,11 +345,7 @@ def validation_figure(v: Validation, which: str) -> bytes | None:
                 ax.set_xlabel("lag [samples]")
         for ax in row:
             ax.grid(True, alpha=0.4)
-    fig.tight_layout()
-    try:
-        return png_bytes(fig)
-    finally:
-        plt.close(fig)
+    return png_bytes(fig)
 
 
 def validation_html(v: Validation) -> list[str]:

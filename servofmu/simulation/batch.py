@@ -3,17 +3,19 @@
 A :class:`BatchSimulator` generates C code for the plant's right-hand side and
 Jacobian from the same CasADi model as the FMU (``servofmu.model.symbolic``), and
 compiles it with a driver (``batch_c/batch_driver.c``) that uses the FMU core's
-RODAS4 integrator (``fmu/c/servo_core.c``) into a shared library, cached on disk
-by a hash of its sources (:func:`cache_dir`).  It then runs
+RODAS4 integrator (``fmu/c/servo_core.c``) into a shared library, kept in a
+cache on disk (:func:`compiled_driver`) so that a process which finds it there
+generates and compiles nothing.  It then runs
 
 * :meth:`BatchSimulator.steady_state`: stepped-sine experiments.  Experiment k
-  is u = 0 plus the excitation m·sin(2πf t), all states zero at t = 0.  The
-  plant is integrated period by period until the first harmonic and the mean
-  of the velocity change from one period to the next by less than
-  max(``tol``, 3·``rtol``)·|S1| — steady periods integrated at rtol differ by
-  up to about 2·rtol (the step sequence may alternate from period to period) —
-  or ``max_time`` is reached; ``converged`` is then False and the features of
-  the last period are returned.  Per experiment:
+  is u = 0 plus the excitation m·sin(2πf t), all states zero at t = 0 (or
+  where a nearby parameter set's run ended: ``start``).  The plant is
+  integrated period by period until a period ends where it began: every state
+  within max(``tol``, 3·``rtol``) of its scale (the largest magnitude it has
+  reached, the integrator's error scale) — steady periods integrated at rtol
+  differ by up to about 2·rtol (the step sequence may alternate from period to
+  period) — or ``max_time`` is reached; ``converged`` is then False and the
+  features of the last period are returned.  Per experiment:
 
   - ``H`` = V1/U1 with S1 = j·(2/T)∫_period s(t)·exp(−j2πft) dt, so that
     s ≈ |S1|·sin(2πft + arg S1); U1 = m;
@@ -24,17 +26,21 @@ by a hash of its sources (:func:`cache_dir`).  It then runs
   The integrals are quadrature states of the integrator (q' = v, v·cos, v·sin,
   v²), not sums over samples.  In steady state the features do not depend on
   which period they come from, nor on how the transient was computed, so
-  three speed-ups leave them unchanged: the periods before the change per
-  period falls below 1e-2 are integrated at rtol = 1e-4 (only the last two
-  periods, at ``rtol``, decide convergence); ``accelerate`` extrapolates the
-  fixed point of the period map (minimal polynomial extrapolation, only to a
-  fixed point whose estimated multipliers lie within 0.99 — an orbit that is
-  not attracting is no steady state, a plain run never settles there — and
-  undone when near the integrator's scatter it makes the change grow); and
-  ``give_up_early`` stops an experiment whose period-to-period change does not
-  decay fast enough to converge within ``max_time`` (converged = False, as at
-  ``max_time``).  ``settle_time`` is the simulated time used, not that of a
-  plain run.
+  four speed-ups leave them unchanged: a run from rest integrates its periods
+  at rtol = 1e-4 until one ends within 1e-2 of where it began (only the
+  periods after, at ``rtol``, decide convergence); ``start`` begins a run on a
+  nearby orbit (:class:`WarmStarts`); ``accelerate`` finds the fixed point of
+  the period map by Newton's method (shooting: the period's monodromy matrix
+  from the variational equations integrated beside the states, or a nearby
+  orbit's), stepping only towards an orbit whose multipliers lie within 0.99
+  — an orbit that is not attracting is no steady state, a plain run never
+  settles there — and undoing a step after which the period moves more than
+  before; and ``give_up_early`` stops an experiment whose period-to-period
+  change does not decay fast enough to converge within ``max_time``
+  (converged = False, as at ``max_time``).  A warm start or Newton's step may
+  in principle reach another attracting orbit than a run from rest would,
+  where several coexist.  ``settle_time`` is the simulated time used, not
+  that of a plain run.
 
 * :meth:`BatchSimulator.simulate_record`: the response (v and the position)
   at the sample times to a sampled input u, held constant between samples
@@ -57,27 +63,36 @@ from __future__ import annotations
 import ctypes
 import functools
 import hashlib
+import importlib.util
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import casadi as ca
 import numpy as np
 
+from .. import __version__
 from ..errors import UserError
-from ..fmu.sources import C_DIR, generate_sources
-from ..fmu.variables import state_nominals
 from ..model.plant import Plant, parameter_rules
 from ..model.signals import INTERSAMPLE
-from ..model.symbolic import SymbolicModel, build_model
 from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature, temporary_folder
 
-__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "RecordResponse", "valid_parameter_sets",
-           "batch_functions", "ModelStructureError", "compiled_driver", "write_batch_sources", "H_START",
-           "c_doubles", "c_mask"]
+if TYPE_CHECKING:  # CasADi is loaded only to generate code, which a cached library spares
+    import casadi as ca
 
-DRIVER = Path(__file__).resolve().parent / "batch_c" / "batch_driver.c"
-EXTRA_CFLAGS = ("-pthread",)
+    from ..model.symbolic import SymbolicModel
+
+__all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "WarmStarts", "RecordResponse",
+           "valid_parameter_sets", "batch_functions", "ModelStructureError", "compiled_driver", "library_key",
+           "write_batch_sources", "H_START", "c_doubles", "c_mask"]
+
+PACKAGE = Path(__file__).resolve().parent.parent
+DRIVER = PACKAGE / "simulation" / "batch_c" / "batch_driver.c"
+FMU_C_DIR = PACKAGE / "fmu" / "c"  # servo_core.c: the FMU's integrator, which the driver includes
+# The Python modules whose code writes the generated C sources (with the C files, part of a library's cache key).
+GENERATORS = ("model/plant.py", "model/symbolic.py", "model/signals.py", "fmu/sources.py", "fmu/variables.py",
+              "simulation/batch.py")
+EXTRA_CFLAGS = ("-pthread", "-O3")
 _HOLD_CODES = {"zoh": 0, "foh": 1, "sine": 2}  # the driver's HOLD_* values
 N_RESULTS = 8  # per sine task: re S1, im S1, DC, mean square, converged, settle time, steps, rejected steps
 H_START = 1e-4  # first step of every period, as a fraction of the period (the same each period: see the driver)
@@ -94,9 +109,9 @@ class SteadyStateOptions:
     ``rtol``: integrator relative tolerance; the absolute tolerance of each
     state is ``rtol`` times the largest magnitude the state has reached, so the
     features are accurate to a few ``rtol`` relative (docs/bench-batch.md).
-    ``tol``: converged when S1 and DC change by less than max(``tol``,
-    3·``rtol``)·|S1| from one period to the next, after at least
-    ``min_periods`` periods.  ``max_time`` (s): stop after the period that
+    ``tol``: converged when a period at ``rtol`` ends within max(``tol``,
+    3·``rtol``) of where it began, every state relative to its scale, after at
+    least ``min_periods`` periods.  ``max_time`` (s): stop after the period that
     reaches it.  ``max_steps``: integrator step budget per experiment
     (exceeding it gives NaN).  ``accelerate``, ``give_up_early``: see the
     module docstring.
@@ -105,7 +120,7 @@ class SteadyStateOptions:
     rtol: float = 1e-8
     tol: float = 1e-10
     max_time: float = 60.0
-    min_periods: int = 2
+    min_periods: int = 1
     max_steps: int = 5_000_000
     accelerate: bool = True
     give_up_early: bool = True
@@ -117,9 +132,8 @@ class SteadyStateOptions:
             raise UserError(f"tol must be in (0, 1), not {self.tol}")
         if not self.max_time > 0:
             raise UserError(f"max_time must be positive, not {self.max_time}")
-        if self.min_periods < 2:
-            raise UserError(f"min_periods must be at least 2 (convergence compares two periods), "
-                            f"not {self.min_periods}")
+        if self.min_periods < 1:
+            raise UserError(f"min_periods must be at least 1, not {self.min_periods}")
         if self.max_steps < 1:
             raise UserError(f"max_steps must be positive, not {self.max_steps}")
 
@@ -140,7 +154,10 @@ class SteadyStateFeatures:
     ``H`` (complex, m/s per N), ``dc`` (m/s), ``distortion`` (1), ``converged``
     (bool), ``settle_time`` (s: the simulated time up to the end of the period
     the features come from; NaN for an invalid set), ``steps`` (accepted
-    integrator steps, for benchmarks).
+    integrator steps, for benchmarks), ``orbit`` (shape (N, n_exp, n_states·(n_states + 6)): where each run
+    ended — the states at the end of its last period, the integrator's state scales, and the period's
+    derivatives with respect to where it began (the monodromy matrix, then those of the four integrals; NaN
+    when not computed) — which ``steady_state``'s ``start`` takes to begin a nearby parameter set's run there).
     """
 
     H: np.ndarray
@@ -149,7 +166,7 @@ class SteadyStateFeatures:
     converged: np.ndarray
     settle_time: np.ndarray
     steps: np.ndarray
-
+    orbit: np.ndarray
 
 
 class BatchSimulator:
@@ -167,6 +184,9 @@ class BatchSimulator:
         self.threads = threads or available_cores()
         self.parameter_names = plant.parameter_names()
         self._lib = self._load(plant)
+        ns, n_p, nf = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
+        self._lib.sb_sizes(ctypes.byref(ns), ctypes.byref(n_p), ctypes.byref(nf))
+        self.n_states = ns.value  # integrated states (all but the position)
 
     @staticmethod
     def _load(plant: Plant) -> ctypes.CDLL:
@@ -189,11 +209,15 @@ class BatchSimulator:
 
     # ---- stepped sine ---------------------------------------------------------------------------------------
     def steady_state(self, params, amplitudes, frequencies, options: SteadyStateOptions = SteadyStateOptions(),
-                     progress=None) -> SteadyStateFeatures:
+                     progress=None, start=None) -> SteadyStateFeatures:
         """Steady-state features of every parameter set (rows of ``params``) in every experiment.
 
         ``amplitudes`` (N) and ``frequencies`` (Hz): one experiment per pair.
         ``progress(done, total)``, if given, is called as parameter sets finish.
+        ``start``: where to begin each run instead of at rest, shape of ``orbit`` — the ``orbit`` of an
+        earlier call for nearby parameter sets (:class:`WarmStarts` picks them); NaN entries begin at rest.  A
+        warm start shortens the transient, not the convergence test: the features agree with a run from rest to
+        the tolerance, as long as both reach the same periodic orbit.
         """
         p, valid = self._parameter_sets(params)
         amp = np.ascontiguousarray(np.asarray(amplitudes, dtype=float).ravel())
@@ -206,12 +230,19 @@ class BatchSimulator:
             raise UserError(f"excitation frequencies must be positive and finite, not {freq.tolist()}")
         n, n_exp = p.shape[0], amp.size
         out = np.empty((n, n_exp, N_RESULTS))
+        orbit = np.empty((n, n_exp, self.n_states * (self.n_states + 6)))  # the driver's ORBIT
+        if start is not None:
+            start = np.ascontiguousarray(start, dtype=float)
+            if start.shape != orbit.shape:
+                raise UserError(f"start must have shape {orbit.shape} (sets, experiments, orbit), not {start.shape}")
         for lo, hi in _chunks(n, progress):
             rc = self._lib.sb_sine(hi - lo, p.shape[1], c_doubles(p[lo:hi]), c_mask(valid[lo:hi]), n_exp,
                                    c_doubles(amp), c_doubles(freq), options.rtol, options.tol, options.max_time,
                                    options.min_periods,
                                    H_START, options.max_steps, int(options.accelerate),
-                                   int(options.give_up_early), self.threads, c_doubles(out[lo:hi]))
+                                   int(options.give_up_early), self.threads,
+                                   None if start is None else c_doubles(start[lo:hi]), c_doubles(out[lo:hi]),
+                                   c_doubles(orbit[lo:hi]))
             if rc != 0:
                 raise RuntimeError(f"batch library rejected the call (code {rc})")
             if progress is not None:
@@ -222,7 +253,7 @@ class BatchSimulator:
             harmonics = np.maximum(2 * (mean_square - dc ** 2) - np.abs(s1) ** 2, 0.0)
             distortion = np.sqrt(harmonics) / np.abs(s1)
         return SteadyStateFeatures(H=s1 / amp, dc=dc, distortion=distortion, converged=out[..., 4] == 1.0,
-                                   settle_time=out[..., 5], steps=out[..., 6].astype(np.int64))
+                                   settle_time=out[..., 5], steps=out[..., 6].astype(np.int64), orbit=orbit)
 
     # ---- records ----------------------------------------------------------------------------------------------
     def simulate_record(self, params, time, u, hold: str = "zoh", rtol: float = 1e-8, max_steps: int = 50_000_000,
@@ -272,6 +303,51 @@ class BatchSimulator:
         return RecordResponse(v=out[:, 0], position=out[:, 1])
 
 
+class WarmStarts:
+    """The orbits of parameter sets simulated so far, to begin each new set's run where the nearest one ended
+    (``steady_state``'s ``start``): a search's candidates, a particle's next position, a Jacobian's perturbed
+    points lie close to sets already simulated, and their transients are then short.
+
+    Nearest: the smallest sum of squared relative differences of the parameters, chosen per experiment among
+    the runs that converged in it.  The latest ``capacity`` parameter sets are kept.
+    """
+
+    def __init__(self, capacity: int = 1024):
+        self.capacity = capacity
+        self.params = None  # (M, n_params)
+        self.orbits = None  # (M, n_exp, orbit), NaN where the run did not converge
+
+    def add(self, params, features: SteadyStateFeatures) -> None:
+        """Remember the runs of ``features`` (of the parameter sets ``params``) that converged."""
+        params = np.atleast_2d(np.asarray(params, dtype=float))
+        orbits = np.where(features.converged[..., None], features.orbit, np.nan)
+        some = np.any(features.converged, axis=1)
+        if self.params is not None:
+            params = np.concatenate([self.params, params[some]])[-self.capacity:]
+            orbits = np.concatenate([self.orbits, orbits[some]])[-self.capacity:]
+        else:
+            params, orbits = params[some], orbits[some]
+        if len(params):
+            self.params, self.orbits = params, orbits
+
+    def start(self, params) -> np.ndarray | None:
+        """``start`` for the parameter sets ``params`` (N, n_params): shape (N, n_exp, orbit), NaN where no
+        run converged in an experiment; None before anything converged."""
+        if self.params is None:
+            return None
+        p = np.atleast_2d(np.asarray(params, dtype=float))[:, None, :]
+        scale = np.abs(p) + np.abs(self.params)
+        with np.errstate(invalid="ignore"):
+            rel = np.divide(p - self.params, scale, out=np.zeros(scale.shape), where=scale != 0)  # 0 where both are 0
+        distance = np.nan_to_num(np.sum(rel ** 2, axis=2), nan=np.inf)  # (N, M); a NaN set is near nothing
+        usable = np.isfinite(self.orbits[..., 0]).T  # (n_exp, M)
+        distance = np.where(usable[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
+        nearest = np.argmin(distance, axis=2)
+        start = self.orbits[nearest, np.arange(usable.shape[0])]
+        start[~np.isfinite(np.min(distance, axis=2))] = np.nan
+        return start
+
+
 def valid_parameter_sets(plant: Plant, params) -> np.ndarray:
     """Which rows of ``params`` (N × n_params) are plants that the plant file format accepts (docs/plant-format.md):
     the rules of servofmu.model.plant.parameter_rules, vectorised."""
@@ -299,6 +375,8 @@ def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
     the position, the plant's parameters ``p`` and the model's own excitation removed (the driver puts the sine
     into u).  Checks what the driver relies on: v is the first state and nothing depends on the position.
     """
+    import casadi as ca
+
     names = model.parameter_names
     pos = model.state_names.index("position")
     keep = [i for i in range(model.nx) if i != pos]
@@ -320,6 +398,11 @@ def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
 
 def write_batch_sources(model: SymbolicModel, src: Path) -> None:
     """batch_eqs.c (CasADi) and batch_config.h (sizes) for the driver; the FMU's sources via generate_sources."""
+    import casadi as ca
+
+    from ..fmu.sources import generate_sources
+    from ..fmu.variables import state_nominals
+
     generate_sources(model, src, model.plant.name)  # model_eqs.c, model_config.h: what servo_core.c needs
     functions = batch_functions(model)
     cg = ca.CodeGenerator("batch_eqs.c", {"with_header": False})
@@ -338,37 +421,75 @@ def write_batch_sources(model: SymbolicModel, src: Path) -> None:
 
 def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = None) -> ctypes.CDLL:
     """The shared library of a driver C file compiled with the plant's batch sources (write_batch_sources) and
-    ``extra`` generated files (name -> text), cached on disk by a hash of all sources (cache_dir())."""
-    model = build_model(plant)
+    ``extra`` generated files (name -> text).
+
+    Libraries are kept in cache_dir() under a key of everything that determines them (:func:`library_key`), so
+    that a process which finds its library there loads it without generating or compiling anything.  A new
+    library is compiled in a temporary folder and renamed into the cache: processes building the same library
+    at once all end with one complete file.  Deleting the folder is safe; libraries are rebuilt on demand.
+    """
+    extra = extra or {}
+    name = f"{driver.stem}-{plant.name}-{library_key(plant, driver, extra)[:24]}.so"
+    target = cache_dir() / name
     with temporary_folder("batch") as tmp:
-        src = Path(tmp)
-        write_batch_sources(model, src)
-        for name, text in (extra or {}).items():
-            (src / name).write_text(text)
-        digest = hashlib.sha256(compiler_signature(EXTRA_CFLAGS).encode())
-        for path in sorted(src.iterdir()) + [C_DIR / "servo_core.c", C_DIR / "servo_core.h", DRIVER, driver]:
-            digest.update(path.name.encode() + path.read_bytes())
-        name = f"{driver.stem}-{plant.name}-{digest.hexdigest()[:20]}.so"
-        target = cache_dir() / name
         if not target.is_file():
-            built = src / name
-            # the driver's unit includes batch_eqs.c and servo_core.c; model_eqs.c serves servo_core.c
-            compile_shared([driver, src / "model_eqs.c"], built, include=[src, C_DIR, DRIVER.parent, driver.parent],
-                           extra_flags=EXTRA_CFLAGS, what=f"the {driver.stem} of {plant.name}")
-            try:
-                target.parent.mkdir(parents=True, exist_ok=True)
-                partial = target.with_name(f".{name}.{os.getpid()}.part")
-                partial.write_bytes(built.read_bytes())
-                os.replace(partial, target)  # atomic: concurrent builders all end with a complete file
-            except OSError:
-                target = built  # no writable cache: load from the temporary folder (the mapping outlives it)
-        lib = ctypes.CDLL(str(target))
+            target = _build(plant, driver, extra, Path(tmp), target)
+        lib = ctypes.CDLL(str(target))  # inside: a library left in the temporary folder is mapped before it goes
     _declare(lib)
     ns, n_p, nf = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
     lib.sb_sizes(ctypes.byref(ns), ctypes.byref(n_p), ctypes.byref(nf))
-    if (ns.value, n_p.value, nf.value) != (model.nx - 1, len(plant.parameter_names()), N_RESULTS):
+    if (n_p.value, nf.value) != (len(plant.parameter_names()), N_RESULTS):
         raise ModelStructureError(f"{target}: compiled library does not match plant {plant.name}")
     return lib
+
+
+def library_key(plant: Plant, driver: Path, extra: dict[str, str]) -> str:
+    """The cache key (SHA-256, hex) of a compiled driver: the plant (its file text: the structure, and the
+    nominal values that scale the states), servofmu's version, the Python code that generates the C sources
+    (GENERATORS), every C file of the driver's, the batch driver's and the FMU core's folders, the ``extra``
+    texts, the CasADi installation, and the compiler with its flags."""
+    digest = hashlib.sha256()
+    for text in (plant.to_toml(), __version__, compiler_signature(EXTRA_CFLAGS), _casadi_stamp()):
+        digest.update(text.encode() + b"\0")
+    folders = {FMU_C_DIR, DRIVER.parent, driver.parent}
+    files = [PACKAGE / g for g in GENERATORS] + sorted(f for d in folders for f in d.iterdir()
+                                                     if f.suffix in (".c", ".h"))
+    for path in [*files, driver]:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    for name, text in sorted(extra.items()):
+        digest.update(name.encode() + b"\0" + text.encode())
+    return digest.hexdigest()
+
+
+def _casadi_stamp() -> str:
+    """Which CasADi generates the code, without importing it: its location, size and modification time."""
+    spec = importlib.util.find_spec("casadi")
+    if spec is None or spec.origin is None:
+        return "no casadi"
+    stat = os.stat(spec.origin)
+    return f"{spec.origin} {stat.st_size} {stat.st_mtime_ns}"
+
+
+def _build(plant: Plant, driver: Path, extra: dict[str, str], src: Path, target: Path) -> Path:
+    """Generate the sources into ``src``, compile, and move the library to ``target`` (the library's path in the
+    temporary folder ``src`` when the cache is not writable)."""
+    from ..model.symbolic import build_model
+
+    write_batch_sources(build_model(plant), src)
+    for name, text in extra.items():
+        (src / name).write_text(text)
+    built = src / target.name
+    # the driver's unit includes batch_eqs.c and servo_core.c; model_eqs.c serves servo_core.c
+    compile_shared([driver, src / "model_eqs.c"], built, include=[src, FMU_C_DIR, DRIVER.parent, driver.parent],
+                   extra_flags=EXTRA_CFLAGS, what=f"the {driver.stem} of {plant.name}")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        partial = target.with_name(f".{target.name}.{os.getpid()}.part")
+        partial.write_bytes(built.read_bytes())
+        os.replace(partial, target)  # atomic: concurrent builders all end with a complete file
+    except OSError:
+        return built  # no writable cache
+    return target
 
 
 @functools.lru_cache(maxsize=None)
@@ -380,7 +501,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
     pu = ctypes.POINTER(ctypes.c_ubyte)
     lib.sb_sizes.argtypes = [ctypes.POINTER(i)] * 3
-    lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, i, pd]
+    lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, i, pd, pd, pd]
     lib.sb_sine.restype = i
     lib.sb_record.argtypes = [lng, i, pd, pu, lng, pd, pd, i, d, d, d, d, lng, i, pd]
     lib.sb_record.restype = i

@@ -12,22 +12,7 @@
 static const double p_start[SV_NP + 1] = SV_P_START;
 const double sv_x_nominal[1] = {1.0};
 
-char *sv_strdup(const char *text) {
-    size_t n = strlen(text) + 1;
-    char *copy = (char *)malloc(n);
-    if (copy) memcpy(copy, text, n);
-    return copy;
-}
-
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...) {
-    char buf[512];
-    va_list ap;
-    if (!inst->log || (level == SV_LOG_OK && !inst->logging_on)) return;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    inst->log(inst, level, category, buf);
-}
+#include "core_common.c"
 
 void sv_reset(SvInstance *inst) {
     memset(&inst->s, 0, sizeof inst->s);
@@ -126,20 +111,7 @@ int sv_exit_initialization(SvInstance *inst) {
 }
 
 int sv_do_step(SvInstance *inst, double communication_point, double step_size) {
-    if (!inst->is_cosim || inst->s.mode != SV_STEP) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError", "do step: not in step mode of a Co-Simulation instance");
-        return -1;
-    }
-    if (!(step_size > 0.0)) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError", "do step: step size %g is not positive", step_size);
-        return -1;
-    }
-    if (fabs(communication_point - inst->s.time) > 1e-9 * fmax(1.0, fabs(inst->s.time))) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError",
-                "do step: communication point %.17g differs from the FMU's time %.17g", communication_point,
-                inst->s.time);
-        return -1;
-    }
+    if (check_step(inst, communication_point, step_size) != 0) return -1;
     if (sc_step(inst, communication_point, communication_point + step_size) != 0) return -1;
     inst->s.time = communication_point + step_size;
     return 0;

@@ -16,8 +16,6 @@
 typedef struct SvInstance SvInstance;
 #include "component.h" /* ScState, the component's own state */
 
-enum sv_mode { SV_INSTANTIATED, SV_INITIALIZATION, SV_EVENT, SV_CONTINUOUS, SV_STEP, SV_TERMINATED, SV_ERROR };
-enum sv_level { SV_LOG_OK = 0, SV_LOG_WARNING = 1, SV_LOG_ERROR = 3 };
 
 /* Everything that defines where the component is: what an FMU state saves. */
 typedef struct {
@@ -42,24 +40,7 @@ struct SvInstance {
 
 extern const double sv_x_nominal[1];
 
-/* The servo_core.h interface (see there). */
-void sv_reset(SvInstance *inst);
-char *sv_strdup(const char *text);
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...);
-int sv_get_checked(SvInstance *inst, unsigned vr, double *value);
-int sv_set_checked(SvInstance *inst, unsigned vr, double value);
-void sv_eval(SvInstance *inst);
-int sv_derivative(SvInstance *inst, const unsigned *unknowns, size_t n_unknowns, const unsigned *knowns,
-                  size_t n_knowns, const double *seed, double *sensitivity, int adjoint);
-int sv_check_parameters(SvInstance *inst);
-int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tolerance, double start_time);
-int sv_exit_initialization(SvInstance *inst);
-int sv_do_step(SvInstance *inst, double communication_point, double step_size);
-int sv_state_get(SvInstance *inst, void **state);
-int sv_state_set(SvInstance *inst, const void *state);
-int sv_state_serialize(SvInstance *inst, const void *state, unsigned char *bytes, size_t size);
-int sv_state_deserialize(SvInstance *inst, const unsigned char *bytes, size_t size, void **state);
-#define SV_STATE_SIZE sizeof(SvState)
+#include "core_api.h"
 
 /* ---- What a component provides ---- */
 /* The reason a parameter value is refused, or NULL when it is acceptable (called on every set). */

@@ -17,22 +17,7 @@ static const int p_low_open[SV_NP] = SV_P_LOW_OPEN, p_nonzero[SV_NP] = SV_P_NONZ
 static const int p_at_least[][2] = SV_P_AT_LEAST, p_roots_not_zero[][2] = SV_P_ROOTS_NOT_ZERO;
 const double sv_x_nominal[SV_NX] = SV_X_NOMINAL;
 
-char *sv_strdup(const char *text) {
-    size_t n = strlen(text) + 1;
-    char *copy = (char *)malloc(n);
-    if (copy) memcpy(copy, text, n);
-    return copy;
-}
-
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...) {
-    char buf[512];
-    va_list ap;
-    if (!inst->log || (level == SV_LOG_OK && !inst->logging_on)) return;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    inst->log(inst, level, category, buf);
-}
+#include "core_common.c"
 
 void sv_reset(SvInstance *inst) {
     memset(&inst->s, 0, sizeof inst->s);
@@ -401,20 +386,7 @@ int sv_exit_initialization(SvInstance *inst) {
 }
 
 int sv_do_step(SvInstance *inst, double communication_point, double step_size) {
-    if (!inst->is_cosim || inst->s.mode != SV_STEP) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError", "do step: not in step mode of a Co-Simulation instance");
-        return -1;
-    }
-    if (!(step_size > 0.0)) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError", "do step: step size %g is not positive", step_size);
-        return -1;
-    }
-    if (fabs(communication_point - inst->s.time) > 1e-9 * fmax(1.0, fabs(inst->s.time))) {
-        sv_logf(inst, SV_LOG_ERROR, "logStatusError",
-                "do step: communication point %.17g differs from the FMU's time %.17g", communication_point,
-                inst->s.time);
-        return -1;
-    }
+    if (check_step(inst, communication_point, step_size) != 0) return -1;
     if (sv_check_parameters(inst) != 0) return -1;
     inst->s.time = communication_point;
     return sv_integrate(inst, communication_point + step_size);

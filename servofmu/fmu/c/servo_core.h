@@ -14,10 +14,6 @@
 
 enum sv_kind { SV_UNKNOWN, SV_TIME, SV_INPUT, SV_OUTPUT, SV_PARAM, SV_STATE, SV_DERIV };
 
-enum sv_mode { SV_INSTANTIATED, SV_INITIALIZATION, SV_EVENT, SV_CONTINUOUS, SV_STEP, SV_TERMINATED, SV_ERROR };
-
-enum sv_level { SV_LOG_OK = 0, SV_LOG_WARNING = 1, SV_LOG_ERROR = 3 };
-
 /* Everything that defines where the model is: what an FMU state saves. */
 typedef struct {
     unsigned magic;
@@ -54,36 +50,13 @@ struct SvInstance {
 extern const double sv_p_start[SV_NP];   /* parameter start values */
 extern const double sv_x_nominal[SV_NX]; /* state nominal values */
 
-void sv_reset(SvInstance *inst);
-char *sv_strdup(const char *text);
-void sv_logf(SvInstance *inst, int level, const char *category, const char *fmt, ...);
+#include "core_api.h"
 
 enum sv_kind sv_classify(unsigned vr, int *index);
 /* 0 ok; -1 unknown reference; -2 not settable in this mode; -3 not finite; -4 outside the plant file's rules */
 int sv_get(SvInstance *inst, unsigned vr, double *value);
 int sv_set(SvInstance *inst, unsigned vr, double value);
-int sv_set_checked(SvInstance *inst, unsigned vr, double value); /* logs the failure */
-int sv_get_checked(SvInstance *inst, unsigned vr, double *value);
-
-void sv_eval(SvInstance *inst);
 /* Integrate from s.time to t_end with the adaptive RODAS4 method; 0 ok, -1 failure (logged). */
 int sv_integrate(SvInstance *inst, double t_end);
-/* sensitivity = d unknowns / d knowns · seed (adjoint=0) or seedᵀ · d unknowns / d knowns (adjoint=1). */
-int sv_derivative(SvInstance *inst, const unsigned *unknowns, size_t n_unknowns, const unsigned *knowns,
-                  size_t n_knowns, const double *seed, double *sensitivity, int adjoint);
-
-/* The rules between parameters (the single-parameter ones are checked when a value is set); 0 ok, -1 (logged). */
-int sv_check_parameters(SvInstance *inst);
-/* Life cycle shared by the FMI versions; 0 ok, -1 error (logged). */
-int sv_enter_initialization(SvInstance *inst, int tolerance_defined, double tolerance, double start_time);
-int sv_exit_initialization(SvInstance *inst);
-int sv_do_step(SvInstance *inst, double communication_point, double step_size);
-
-/* FMU state: get allocates when *state is NULL; 0 ok, -1 error (logged). */
-int sv_state_get(SvInstance *inst, void **state);
-int sv_state_set(SvInstance *inst, const void *state);
-int sv_state_serialize(SvInstance *inst, const void *state, unsigned char *bytes, size_t size);
-int sv_state_deserialize(SvInstance *inst, const unsigned char *bytes, size_t size, void **state);
-#define SV_STATE_SIZE sizeof(SvState)
 
 #endif

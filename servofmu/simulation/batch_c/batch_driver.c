@@ -12,14 +12,16 @@
  *     dxdot/dt = dxdot/du * du/dt;
  *   - sine experiments run in phase time tau in [0, T) per period, with the same starting step size every
  *     period, so that in steady state every period is integrated alike and the period-to-period change of the
- *     harmonic measures the transient, not the integrator;
+ *     state measures the transient, not the integrator;
  *   - the harmonic integrals are quadrature states (q' = v, v*cos, v*sin, v^2) solved outside the LU (they do
  *     not feed back);
  *   - absolute tolerances follow the running maximum of each state, so one rtol means the same relative accuracy
  *     for small and large responses;
  *   - the transient is integrated at a loose tolerance, only the periods that decide convergence at rtol;
- *   - optionally, the fixed point of the period map is extrapolated (minimal polynomial extrapolation), and
- *     experiments that cannot converge before max_time are stopped early;
+ *   - a run may start where a nearby parameter set's run ended (its orbit), instead of at rest;
+ *   - optionally, the fixed point of the period map is found by Newton's method (shooting), with the period's
+ *     monodromy matrix from the variational equations integrated beside the states, and experiments that cannot
+ *     converge before max_time are stopped early;
  *   - tasks (parameter set x experiment) are shared out to POSIX threads through an atomic counter.
  */
 #include <pthread.h>
@@ -32,17 +34,33 @@
 #define NQ 4            /* quadratures over a period: v, v*cos(w tau), v*sin(w tau), v^2 */
 #define NY (NS + NQ)
 #define NF 8            /* results per sine task */
+/* The variational equations: d(states, quadratures)/d(initial states), NY x NS row-major; the first NS rows are the
+ * monodromy matrix once a period is integrated, the last NQ how the period's integrals depend on where it began. */
+#define NPHI (NY * NS)
+/* Where a sine task ended: the states at a period boundary, their scales, and the variational equations' solution
+ * over the orbit's period (NaN when none is known). */
+#define ORBIT (2 * NS + NPHI)
 #define TWO_PI 6.283185307179586
 #define FAC_MAX 5.0     /* largest step growth after an accepted step */
 /* The transient of a sine experiment only has to lead to the steady state, not to be accurate: it is integrated
- * at LOOSE_RTOL until the change from one period to the next falls below SWITCH_CHANGE (about 25 % fewer steps). */
+ * at LOOSE_RTOL until a period ends within SWITCH_CHANGE of where it began (about 25 % fewer steps). */
 #define LOOSE_RTOL 1e-4
 #define SWITCH_CHANGE 1e-2
-/* Period-to-period changes below NOISE_FLOOR times the convergence threshold are mostly the integrator's scatter. */
-#define NOISE_FLOOR 100.0
 /* Steady periods of an integration at rtol differ by up to about 2 rtol (the step sequence may alternate between
  * periods): changes below RTOL_SCATTER*rtol are not the transient's. */
 #define RTOL_SCATTER 3.0
+/* A Newton step of the period map is taken only towards an orbit whose multipliers (the eigenvalues of the monodromy
+ * matrix) lie within MAX_MULTIPLIER — an orbit that is not clearly attracting is no steady state: a measurement
+ * never settles there — and only when it jumps less than MAX_JUMP times as far as the period it follows moved. */
+#define MAX_MULTIPLIER 0.99
+#define MAX_JUMP 100.0
+/* A monodromy matrix is reused for Newton's steps (the chord method) while each step shrinks the period's mismatch by
+ * at least this factor. */
+#define CHORD_RATIO 0.1
+/* The relative error of a period's derivatives from the variational equations: about 2e-3 with the Jacobian held
+ * over each step (tests/test_batch.py); a derivative from elsewhere (an earlier period, a nearby orbit) is taken to
+ * err by this plus how far (on the error scale) its period began from the present one. */
+#define FLOW_ERROR 1e-2
 
 static const double x_nominal[NS] = SB_X_NOMINAL;
 
@@ -66,6 +84,7 @@ typedef struct {
     double u0, slope;
     double rtol, q_time;
     double scale[NS];  /* running maxima of |state|: absolute tolerance = rtol*scale */
+    double *phi;       /* NPHI: the variational equations, integrated beside the states; or NULL */
     long steps, rejected, max_steps;
 } Problem;
 
@@ -100,24 +119,61 @@ static void stage_rhs(Eval *ev, const Input *in, const double *y, double *f) {
     f[NS + 3] = v * v;
 }
 
-/* One RODAS4 step of size h from (tau, y), in the formulation of servo_core.c's rodas_step; the quadrature rows of
- * the block-triangular iteration matrix are solved by substitution.  in0/in1: the input at tau and tau + h.
- * Returns the scaled error norm. */
-#if defined(__GNUC__)
-__attribute__((flatten))
-#endif
-static double step(Eval *ev, Problem *pb, double tau, const double *y, double h, const Input *in0, const Input *in1,
-                   double *ynew) {
-    double jac[NS * NS], bu[NS], m[NS * NS], ft[NY], gx[NQ], k[6][NY], ys[NY], f[NY];
-    double hg = h * R_GAMMA, hinv = 1.0 / h, err = 0.0, v = y[0];
-    int piv[NS], i, j, st, n_err = NS + pb->nq;
-    Input in;
+static void stage_jac(Eval *ev, const Input *in, const double *y, double *jac, double *bu) {
     ev->arg[0] = y;
-    ev->arg[1] = &in0->u;
+    ev->arg[1] = &in->u;
     ev->arg[2] = ev->p;
     ev->res[0] = jac;
     ev->res[1] = bu;
     sb_jac(ev->arg, ev->res, ev->iw, ev->w, 0);
+}
+
+/* The variational equations' part of a RODAS4 stage: with P_s = phi + sum_{j<st} A[st][j] kp[j], solve
+ * W kp[st] = F' P_s + sum_{j<st} CC[st][j]/h kp[j] with the step's block-triangular W, as the states' and
+ * quadratures' stages are solved.  The states' Jacobian is the step's own (frozen over the step: evaluating it at
+ * every stage made a step twice as dear, for derivatives 1e-4 rather than 1e-3 exact, which Newton's method does
+ * not need); jac: dxdot/dx (column-major); in, v: the stage's input and velocity (the quadratures' derivatives);
+ * gx: those at the step's start (W's quadrature rows). */
+static void phi_stage(const Problem *pb, const double *jac, const double *m, const int *piv, const double *gx,
+                      const Input *in, double v, double h, int st, double kp[6][NPHI]) {
+    double ps[NPHI], rhs[NPHI], gs[NQ] = {1.0, in->c, in->s, 2.0 * v}, hg = h * R_GAMMA, a[5], cc[5];
+    int i, j, c, l;
+    for (j = 0; j < st; ++j) { a[j] = R_A[st][j]; cc[j] = R_CC[st][j] / h; }
+    for (i = 0; i < NPHI; ++i) {
+        double acc = pb->phi[i], acc2 = 0.0;
+        for (j = 0; j < st; ++j) { acc += a[j] * kp[j][i]; acc2 += cc[j] * kp[j][i]; }
+        ps[i] = acc;
+        rhs[i] = acc2;
+    }
+    for (c = 0; c < NS; ++c) {
+        double col[NS];
+        for (i = 0; i < NS; ++i) {
+            double acc = rhs[i * NS + c];
+            for (l = 0; l < NS; ++l) acc += jac[l * NS + i] * ps[l * NS + c];
+            col[i] = acc;
+        }
+        lu_solve(m, piv, col, NS);
+        for (i = 0; i < NS; ++i) kp[st][i * NS + c] = col[i];
+        for (i = 0; i < NQ; ++i)
+            kp[st][(NS + i) * NS + c] = hg * (gs[i] * ps[c] + rhs[(NS + i) * NS + c] + gx[i] * col[0]);
+    }
+    if (st == 5)
+        for (i = 0; i < NPHI; ++i) kp[5][i] += ps[i]; /* the new phi, as ynew = ys + k[5] */
+}
+
+/* One RODAS4 step of size h from (tau, y), in the formulation of servo_core.c's rodas_step; the quadrature rows of
+ * the block-triangular iteration matrix are solved by substitution.  in0/in1: the input at tau and tau + h.
+ * With pb->phi, the variational equations are stepped too, into phi_new.  Returns the scaled error norm. */
+#if defined(__GNUC__)
+__attribute__((flatten))
+#endif
+static double step(Eval *ev, Problem *pb, double tau, const double *y, double h, const Input *in0, const Input *in1,
+                   double *ynew, double *phi_new) {
+    double jac[NS * NS], bu[NS], m[NS * NS], ft[NY], gx[NQ], k[6][NY], ys[NY], f[NY], kp[6][NPHI];
+    double hg = h * R_GAMMA, hinv = 1.0 / h, err = 0.0, v = y[0];
+    int piv[NS], i, j, st, n_err = NS + pb->nq;
+    Input in;
+    stage_jac(ev, in0, y, jac, bu);
     /* CasADi's dense matrices are column-major */
     for (i = 0; i < NS; ++i) {
         for (j = 0; j < NS; ++j) m[i * NS + j] = -jac[j * NS + i] + (i == j ? 1.0 / hg : 0.0);
@@ -133,12 +189,10 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
             ys[i] = acc;
         }
         /* stage times tau + c*h with c = 0, 0.386, 0.21, 0.63, 1, 1 */
-        if (R_C[st] == 0.0) stage_rhs(ev, in0, ys, f);
-        else if (R_C[st] == 1.0) stage_rhs(ev, in1, ys, f);
-        else {
-            in = input(pb, tau + R_C[st] * h);
-            stage_rhs(ev, &in, ys, f);
-        }
+        const Input *stage_in = R_C[st] == 0.0 ? in0 : R_C[st] == 1.0 ? in1 : &in;
+        if (stage_in == &in) in = input(pb, tau + R_C[st] * h);
+        stage_rhs(ev, stage_in, ys, f);
+        if (pb->phi) phi_stage(pb, jac, m, piv, gx, stage_in, ys[0], h, st, kp);
         for (i = 0; i < NY; ++i) {
             double acc = f[i] + h * R_D[st] * ft[i];
             for (j = 0; j < st; ++j) acc += R_CC[st][j] * hinv * k[j][i];
@@ -151,6 +205,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
         ynew[i] = ys[i] + k[5][i];
         if (!isfinite(ynew[i])) return INFINITY;
     }
+    if (pb->phi) memcpy(phi_new, kp[5], sizeof kp[5]);
     for (i = 0; i < n_err; ++i) {
         double scale = i < NS ? pb->scale[i]
                               : pb->q_time * (i == NS + 3 ? pb->scale[0] * pb->scale[0] : pb->scale[0]);
@@ -162,7 +217,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
 
 /* Integrate y from tau0 to tau1 (the last step lands on tau1); *h carries the step size.  0 ok, -1 failure. */
 static int integrate(Eval *ev, Problem *pb, double *y, double tau0, double tau1, double *h) {
-    double tau = tau0, ynew[NY], hmin = 1e-14 * fmax(fabs(tau1), 1.0);
+    double tau = tau0, ynew[NY], phi_new[NPHI], hmin = 1e-14 * fmax(fabs(tau1), 1.0);
     int rejected_here = 0, i;
     Input in0 = input(pb, tau0);
     while (tau < tau1) {
@@ -171,11 +226,12 @@ static int integrate(Eval *ev, Problem *pb, double *y, double tau0, double tau1,
         Input in1;
         if (hs >= tau1 - tau || tau1 - tau - hs < 1e-12 * (tau1 - tau0)) { hs = tau1 - tau; last = 1; }
         in1 = input(pb, last ? tau1 : tau + hs);
-        err = step(ev, pb, tau, y, hs, &in0, &in1, ynew);
+        err = step(ev, pb, tau, y, hs, &in0, &in1, ynew, phi_new);
         if (err <= 1.0) {
             tau = last ? tau1 : tau + hs;
             in0 = in1;
             memcpy(y, ynew, sizeof ynew);
+            if (pb->phi) memcpy(pb->phi, phi_new, sizeof phi_new);
             for (i = 0; i < NS; ++i) pb->scale[i] = fmax(pb->scale[i], fabs(y[i]));
             pb->steps++;
             fac = err > 0.0 ? 0.9 / sqrt(sqrt(err)) : FAC_MAX;
@@ -210,7 +266,7 @@ typedef struct {
 /* Whether the period-to-period changes (the last 8 in a ring buffer, the newest at index `newest` mod 8) decay fast
  * enough to fall below threshold within `periods_left` periods (with 50 % slack).  The decay per period is judged
  * from the smallest change of the last 4 periods against that of the 4 before: minima, because a period right after
- * an extrapolation jump changes more. */
+ * a Newton step changes more. */
 static int will_converge(const double changes[8], long newest, double threshold, double periods_left) {
     double recent = INFINITY, before = INFINITY, ratio;
     int i;
@@ -223,13 +279,10 @@ static int will_converge(const double changes[8], long newest, double threshold,
     return log(threshold / recent) / log(ratio) <= 1.5 * periods_left + 2.0;
 }
 
-#define MPE_L NS /* modes of the transient extrapolated: as many as states */
-#define MAX_MULTIPLIER 0.99 /* the slowest transient extrapolated decays by 1 % per period */
-
 /* Whether the polynomial sum_{i<=n} a[i] z^i (a[n] != 0) has all its roots strictly inside the unit circle
  * (Schur-Cohn: |a[0]| < |a[n]|, and the same for (a[n] P(z) - a[0] P*(z))/z, P* the reversed polynomial). */
 static int schur_stable(const double *a_in, int n) {
-    double a[MPE_L + 1], b[MPE_L + 1];
+    double a[NS + 1], b[NS + 1];
     int i;
     for (i = 0; i <= n; ++i) a[i] = a_in[i];
     for (; n > 0; --n) {
@@ -242,149 +295,201 @@ static int schur_stable(const double *a_in, int n) {
     return 1;
 }
 
-/* Minimal polynomial extrapolation of the period map's fixed point from the states x[0..MPE_L+1] at successive period
- * boundaries: with u_i = x[i+1] - x[i], find c minimising |sum_{i<MPE_L} c_i u_i + u_L| (c_L = 1) and return
- * s = sum_i c_i x[i] / sum_i c_i, the fixed point of an affine map whose transient has MPE_L modes.  Columns that are
- * (nearly) dependent are dropped.  Returns 0 and writes s when the extrapolation is usable: finite, a contracting
- * sequence, a jump below 50 times the last step (multipliers up to about 0.98), and
- * estimated multipliers (the roots of sum_i c_i z^i) within MAX_MULTIPLIER. */
-static int extrapolate(double x[MPE_L + 2][NS], double *s) {
-    double u[MPE_L + 1][NS], q[MPE_L][NS], r[MPE_L][MPE_L], rhs_[MPE_L], c[MPE_L + 1], scaled[MPE_L + 1];
-    double sum = 0.0, jump = 0.0, last = 0.0, first = 0.0;
-    int i, j, l, kept[MPE_L], nk = 0;
-    for (i = 0; i <= MPE_L; ++i)
-        for (j = 0; j < NS; ++j) u[i][j] = x[i + 1][j] - x[i][j];
-    for (j = 0; j < NS; ++j) { last += u[MPE_L][j] * u[MPE_L][j]; first += u[0][j] * u[0][j]; }
-    if (!(last < first) || !isfinite(first)) return -1;
-    /* modified Gram-Schmidt on the columns u_0..u_{MPE_L-1} */
-    for (i = 0; i < MPE_L; ++i) {
-        double norm0 = 0.0, norm = 0.0, col[NS];
-        for (j = 0; j < NS; ++j) { col[j] = u[i][j]; norm0 += col[j] * col[j]; }
-        for (l = 0; l < nk; ++l) {
-            double dot = 0.0;
-            for (j = 0; j < NS; ++j) dot += q[l][j] * col[j];
-            r[l][nk] = dot;
-            for (j = 0; j < NS; ++j) col[j] -= dot * q[l][j];
-        }
-        for (j = 0; j < NS; ++j) norm += col[j] * col[j];
-        if (!(norm > 1e-20 * norm0) || norm0 == 0.0) continue;
-        norm = sqrt(norm);
-        r[nk][nk] = norm;
-        for (j = 0; j < NS; ++j) q[nk][j] = col[j] / norm;
-        kept[nk++] = i;
+/* Whether every eigenvalue of the NS x NS matrix mat (row-major) lies within radius: the characteristic polynomial
+ * by Faddeev-LeVerrier, its roots scaled by 1/radius, then Schur-Cohn. */
+static int eigenvalues_within(const double *mat, double radius) {
+    double c[NS + 1], mk[NS * NS], prod[NS * NS], scaled[NS + 1];
+    int i, j, l, k;
+    memset(mk, 0, sizeof mk);
+    c[NS] = 1.0;
+    for (k = 1; k <= NS; ++k) { /* M_k = mat M_{k-1} + c_{n-k+1} I;  c_{n-k} = -tr(mat M_k) / k */
+        double trace = 0.0;
+        for (i = 0; i < NS; ++i)
+            for (j = 0; j < NS; ++j) {
+                double acc = i == j ? c[NS - k + 1] : 0.0;
+                for (l = 0; l < NS; ++l) acc += mat[i * NS + l] * mk[l * NS + j];
+                prod[i * NS + j] = acc;
+            }
+        memcpy(mk, prod, sizeof mk);
+        for (i = 0; i < NS; ++i)
+            for (l = 0; l < NS; ++l) trace += mat[i * NS + l] * mk[l * NS + i];
+        c[NS - k] = -trace / k;
     }
-    for (l = 0; l < nk; ++l) {
-        rhs_[l] = 0.0;
-        for (j = 0; j < NS; ++j) rhs_[l] -= q[l][j] * u[MPE_L][j];
+    for (i = 0; i <= NS; ++i) scaled[i] = c[i] * pow(radius, i);
+    return schur_stable(scaled, NS);
+}
+
+/* d = (I - mono)^{-1} (x1 - x0): how far the fixed point of the period map P lies from x0, where one period led to
+ * x1 = P(x0) and mono is (an estimate of) dP/dx.  0, or -1 when I - mono is singular. */
+static int fixed_point_offset(const double *x0, const double *x1, const double *mono, double *d) {
+    double a[NS * NS];
+    int piv[NS], i, j;
+    for (i = 0; i < NS; ++i) {
+        for (j = 0; j < NS; ++j) a[i * NS + j] = (i == j ? 1.0 : 0.0) - mono[i * NS + j];
+        d[i] = x1[i] - x0[i];
     }
-    for (i = 0; i <= MPE_L; ++i) c[i] = 0.0;
-    for (l = nk - 1; l >= 0; --l) { /* back substitution R c = Q^T (-u_L) */
-        double acc = rhs_[l];
-        for (j = l + 1; j < nk; ++j) acc -= r[l][j] * c[kept[j]];
-        c[kept[l]] = acc / r[l][l];
+    if (lu_factor(a, piv, NS) != 0) return -1;
+    lu_solve(a, piv, d, NS);
+    return 0;
+}
+
+/* Newton's step for the fixed point of the period map from x0: x = x0 + d (fixed_point_offset).  Returns 0 and
+ * writes x when the orbit it aims at is clearly attracting (multipliers within MAX_MULTIPLIER) and the jump from x1
+ * is at most MAX_JUMP times |x1 - x0|, both on the error control's scale; -1 otherwise (no step). */
+static int newton_step(const double *x0, const double *x1, const double *mono, const double *scale, double *x) {
+    double d[NS], moved = 0.0, jump = 0.0;
+    int i;
+    if (!eigenvalues_within(mono, MAX_MULTIPLIER) || fixed_point_offset(x0, x1, mono, d) != 0) return -1;
+    for (i = 0; i < NS; ++i) {
+        moved = fmax(moved, fabs(x1[i] - x0[i]) / scale[i]);
+        x[i] = x0[i] + d[i];
+        if (!isfinite(x[i])) return -1;
+        jump = fmax(jump, fabs(x[i] - x1[i]) / scale[i]);
     }
-    c[MPE_L] = 1.0;
-    /* The roots of sum_i c_i z^i estimate the period map's multipliers.  A fixed point that is not clearly
-     * attracting is no steady state (a measurement never settles there: g2-like plants have unstable periodic
-     * orbits beside subharmonic ones), however well it can be extrapolated: the roots must lie within
-     * MAX_MULTIPLIER, i.e. those of sum_i c_i MAX_MULTIPLIER^i z^i within the unit circle. */
-    for (i = 0; i <= MPE_L; ++i) scaled[i] = c[i] * pow(MAX_MULTIPLIER, i);
-    if (!schur_stable(scaled, MPE_L)) return -1;
-    for (i = 0; i <= MPE_L; ++i) sum += c[i];
-    if (!(fabs(sum) > 1e-12)) return -1;
-    for (j = 0; j < NS; ++j) {
-        double acc = 0.0;
-        for (i = 0; i <= MPE_L; ++i) acc += c[i] * x[i][j];
-        s[j] = acc / sum;
-        jump += (s[j] - x[MPE_L + 1][j]) * (s[j] - x[MPE_L + 1][j]);
-    }
-    for (j = 0; j < NS; ++j) if (!isfinite(s[j])) return -1;
-    return jump <= 2500.0 * last ? 0 : -1;
+    return jump <= MAX_JUMP * moved ? 0 : -1;
 }
 
 /* Steady state under u = m*sin(2*pi*f*t): out = re S1, im S1, DC, mean square, converged, settle time, steps,
- * rejected steps (S1 as in servofmu/simulation/batch.py; NaN features when the integration fails).  Convergence is judged by
- * two successive whole periods integrated at rtol.  With accelerate, the state at the start of a period is replaced
- * by the extrapolated fixed point of the period map every MPE_L+1 periods; with give_up, an experiment whose
- * changes do not decay fast enough to converge within max_time stops early. */
-static void sine_task(const double *params, int n_plant, double m, double f, const SineOptions *o, double *out) {
+ * rejected steps (S1 as in servofmu/simulation/batch.py; NaN features when the integration fails).  A period
+ * integrated at rtol that ends where it began (within the threshold, on the error control's scale) is the periodic
+ * orbit, and its features are the steady state's.
+ * With accelerate (Newton's method on the period map, "shooting"), a period integrates the variational equations
+ * too, and its end is replaced by Newton's step towards the fixed point; a step after which the period moves more
+ * than before it is undone, and the run goes on plainly.  With give_up, an experiment whose period-to-period
+ * changes do not decay fast enough to converge within max_time stops early.
+ * start (ORBIT doubles, or NULL, or NaN states: from rest) is where a nearby orbit ended.  From there the
+ * transient is short: every period is integrated at rtol, the first plainly, and when it does not close, Newton's
+ * step with the nearby orbit's monodromy matrix follows (when the step after that does not close either, the
+ * run's own matrix is computed).  orbit (ORBIT doubles, or NULL) receives the same of this run. */
+static void sine_task(const double *params, int n_plant, double m, double f, const SineOptions *o,
+                      const double *start, double *out, double *orbit) {
     Eval ev;
     Problem pb;
-    double y[NY] = {0}, T = 1.0 / f, prev_s1r = 0, prev_s1i = 0, prev_dc = 0, hist[MPE_L + 2][NS];
+    double y[NY] = {0}, T = 1.0 / f, changes[8] = {0}, flow[NPHI], flow_from[NS], phi[NPHI], y_plain[NS];
     double threshold = fmax(o->tol, RTOL_SCATTER * o->rtol); /* smaller changes are the integrator's */
-    double changes[8] = {0};
-    /* the last extrapolation: the state it replaced, the features of the period before, and the change then */
-    double y_before[NS], before_s1r = 0, before_s1i = 0, before_dc = 0, before_change = 0;
-    long period, tight_from = o->rtol < LOOSE_RTOL ? -1 : 0, extrapolated_at = -1;
-    int n_hist = 1, i, accelerate = (int)o->accelerate;
+    double mismatch_before_jump = 0.0;
+    long period, tight_from = o->rtol < LOOSE_RTOL ? -1 : 0, jumped_at = -1;
+    /* flow: the variational equations over a period (NPHI: the monodromy matrix, then the integrals' derivatives);
+     * newton: Newton's steps allowed; have_flow: flow is known; refresh: the next period integrates the variational
+     * equations (from the second period of a run from rest: the first is far from any orbit); jump_fresh: the last
+     * step was taken with a matrix from the period just before it; refused_fresh: a fresh matrix refused a step */
+    int i, newton = (int)o->accelerate, have_flow = 0, refresh, warm = start != NULL, jump_fresh = 0;
+    int refused_fresh = 0;
+    for (i = 0; warm && i < 2 * NS; ++i) warm = isfinite(start[i]);
+    if (warm) tight_from = 0;
     problem_init(&pb, &ev, params, n_plant, tight_from < 0 ? LOOSE_RTOL : o->rtol, o->max_steps);
+    if (warm) {
+        for (i = 0; i < NS; ++i) {
+            y[i] = start[i];
+            pb.scale[i] = fmax(pb.scale[i], start[NS + i]);
+        }
+        have_flow = 1;
+        for (i = 0; i < NPHI; ++i) have_flow &= isfinite(flow[i] = start[2 * NS + i]);
+        memcpy(flow_from, y, sizeof flow_from);
+    }
+    refresh = !have_flow;
     pb.nq = NQ;
     pb.sine = 1;
     pb.m = m;
     pb.omega = TWO_PI * f;
     pb.q_time = T;
     out[4] = 0.0;
-    memcpy(hist[0], y, sizeof hist[0]);
     for (period = 1;; ++period) {
-        double h = o->h_start * T, s1r, s1i, dc, change;
+        double h = o->h_start * T, mismatch = 0.0, y0[NS], x[NS], d[NS];
+        int converged;
+        int variational = newton && refresh && (warm || period >= 2);
+        memcpy(y0, y, sizeof y0);
         for (i = 0; i < NQ; ++i) y[NS + i] = 0.0;
+        if (variational) {
+            for (i = 0; i < NPHI; ++i) phi[i] = i < NS * NS && i % (NS + 1) == 0 ? 1.0 : 0.0;
+            pb.phi = phi;
+        }
         if (integrate(&ev, &pb, y, 0.0, T, &h) != 0) {
             out[0] = out[1] = out[2] = out[3] = NAN;
             out[4] = 0.0;
             out[5] = period * T;
             break;
         }
-        s1r = 2.0 / T * y[NS + 2];
-        s1i = 2.0 / T * y[NS + 1];
-        dc = y[NS] / T;
-        out[0] = s1r; out[1] = s1i; out[2] = dc; out[3] = y[NS + 3] / T; out[5] = period * T;
-        if (period >= 2) {
-            change = fmax(hypot(s1r - prev_s1r, s1i - prev_s1i), fabs(dc - prev_dc)) / hypot(s1r, s1i);
-            if (period == extrapolated_at + 2 && change > before_change && before_change < NOISE_FLOOR * threshold) {
-                /* Two periods after an extrapolation the change should be below the one before it; near the
-                 * integrator's noise floor the extrapolation fits noise instead.  Go back to the state it replaced
-                 * and let the period map converge on its own from there (a few periods). */
-                memcpy(y, y_before, sizeof y_before);
-                prev_s1r = before_s1r; prev_s1i = before_s1i; prev_dc = before_dc;
-                accelerate = 0;
+        pb.phi = NULL;
+        if (variational) {
+            memcpy(flow, phi, sizeof flow);
+            memcpy(flow_from, y0, sizeof flow_from);
+            have_flow = 1;
+            refresh = 0;
+        }
+        for (i = 0; i < NS; ++i) mismatch = fmax(mismatch, fabs(y[i] - y0[i]) / pb.scale[i]);
+        converged = tight_from >= 0 && period > tight_from && period >= o->min_periods;
+        if (converged && newton && have_flow && fixed_point_offset(y0, y, flow, d) == 0) {
+            /* To first order the orbit's integrals are this period's plus d(integrals)/d(start) times the fixed
+             * point's offset d: corrected so, the features err by about (the derivatives' error)·|d| + |d|^2 instead
+             * of |d|, and the period counts as the orbit's when that is below the threshold — or as before when the
+             * period closed by itself.  The features are then independent of where the run began to second order
+             * (smooth in the parameters, whatever the start). */
+            double offset = 0.0, stale = 0.0;
+            int c;
+            for (i = 0; i < NS; ++i) {
+                offset = fmax(offset, fabs(d[i]) / pb.scale[i]);
+                stale = fmax(stale, fabs(y0[i] - flow_from[i]) / pb.scale[i]);
+            }
+            converged = mismatch < threshold || (FLOW_ERROR + stale) * offset + offset * offset < o->rtol;
+            for (i = 0; converged && i < NQ; ++i)
+                for (c = 0; c < NS; ++c) y[NS + i] += flow[(NS + i) * NS + c] * d[c];
+        } else
+            converged = converged && mismatch < threshold;
+        out[0] = 2.0 / T * y[NS + 2];
+        out[1] = 2.0 / T * y[NS + 1];
+        out[2] = y[NS] / T;
+        out[3] = y[NS + 3] / T;
+        out[5] = period * T;
+        if (converged) {
+            out[4] = 1.0;
+            break;
+        }
+        if (jumped_at == period - 1) {
+            if (mismatch >= mismatch_before_jump) {
+                /* Newton's step did not bring the orbit closer (too far from it for the linearisation, or a matrix
+                 * from elsewhere): go back to where the plain period had led.  With a matrix of the period just
+                 * before, Newton's method is given up and the run goes on plainly; with an older or a nearby
+                 * orbit's, the next period computes a fresh one. */
+                memcpy(y, y_plain, sizeof y_plain);
+                if (jump_fresh) newton = 0;
+                else refresh = 1;
                 continue;
             }
-            changes[(period - 2) % 8] = change;
-            if (tight_from < 0 && change < SWITCH_CHANGE) {
-                tight_from = period;
-                pb.rtol = o->rtol;
-                n_hist = 0;
-            }
-            if (tight_from >= 0 && period >= tight_from + 2 && period >= o->min_periods && change < threshold) {
-                out[4] = 1.0;
-                break;
-            }
-            if (period >= o->min_periods && period * T >= o->max_time) break;
-            if (o->give_up && period >= 17 && !will_converge(changes, period - 2, threshold, o->max_time * f - period))
-                break;
+            /* A matrix is reused while its steps keep shrinking the period's mismatch at least tenfold (the chord
+             * method); when they no longer do, the next period computes a fresh one. */
+            if (mismatch > CHORD_RATIO * mismatch_before_jump) refresh = 1;
         }
-        prev_s1r = s1r; prev_s1i = s1i; prev_dc = dc;
-        if (accelerate) {
-            memcpy(hist[n_hist++], y, sizeof hist[0]);
-            if (n_hist == MPE_L + 2) {
-                double fixed[NS];
-                if (extrapolate(hist, fixed) == 0) {
-                    memcpy(y_before, y, sizeof y_before);
-                    before_s1r = s1r; before_s1i = s1i; before_dc = dc;
-                    before_change = period >= 2 ? change : INFINITY;
-                    extrapolated_at = period;
-                    memcpy(y, fixed, sizeof fixed);
-                    memcpy(hist[0], fixed, sizeof fixed);
-                    n_hist = 1;
-                } else { /* keep the newest MPE_L+1 states */
-                    memmove(hist[0], hist[1], sizeof(double) * NS * (MPE_L + 1));
-                    n_hist = MPE_L + 1;
-                }
+        changes[(period - 1) % 8] = mismatch;
+        if (tight_from < 0 && mismatch < SWITCH_CHANGE) {
+            tight_from = period;
+            pb.rtol = o->rtol;
+        }
+        if (period >= o->min_periods && period * T >= o->max_time) break;
+        if (o->give_up && period >= 17 && !will_converge(changes, period - 1, threshold, o->max_time * f - period))
+            break;
+        if (newton && have_flow) {
+            if (newton_step(y0, y, flow, pb.scale, x) == 0) {
+                memcpy(y_plain, y, sizeof y_plain);
+                memcpy(y, x, sizeof x);
+                mismatch_before_jump = mismatch;
+                jumped_at = period;
+                jump_fresh = variational;
+            } else if (!refused_fresh) { /* refused: an older matrix is renewed once, a fresh one is believed */
+                refused_fresh = variational;
+                refresh = !variational;
             }
         }
     }
     out[6] = (double)pb.steps;
     out[7] = (double)pb.rejected;
+    if (orbit != NULL) {
+        for (i = 0; i < NS; ++i) {
+            orbit[i] = y[i];
+            orbit[NS + i] = pb.scale[i];
+        }
+        for (i = 0; i < NPHI; ++i) orbit[2 * NS + i] = have_flow ? flow[i] : NAN;
+    }
 }
 
 /* v and the position (its integral, the first quadrature) at the sample times t[0..n), all states zero at t[0]:
@@ -428,7 +533,8 @@ typedef struct {
     long n_samples;
     double m, omega;
     SineOptions sine;
-    double *out;
+    const double *start; /* sine: ORBIT doubles per task, or NULL */
+    double *out, *orbits;  /* sine: NF and ORBIT doubles per task */
 } Job;
 
 static void *sine_worker(void *arg) {
@@ -438,11 +544,14 @@ static void *sine_worker(void *arg) {
         long set = task / job->n_exp, e = task % job->n_exp;
         double *out = job->out + task * NF;
         int i;
+        double *orbit = job->orbits + task * ORBIT;
         if (!job->valid[set]) {
             for (i = 0; i < NF; ++i) out[i] = (i < 4 || i == 5) ? NAN : 0.0; /* no features, no steps */
+            for (i = 0; i < ORBIT; ++i) orbit[i] = NAN;
             continue;
         }
-        sine_task(job->params + set * job->n_plant, job->n_plant, job->amp[e], job->freq[e], &job->sine, out);
+        sine_task(job->params + set * job->n_plant, job->n_plant, job->amp[e], job->freq[e], &job->sine,
+                  job->start ? job->start + task * ORBIT : NULL, out, orbit);
     }
     return NULL;
 }
@@ -482,10 +591,12 @@ int sb_sizes(int *ns, int *np, int *nf) {
     return 0;
 }
 
-/* Tasks [0, n_sets*n_exp): set = task / n_exp, experiment = task % n_exp; out has NF doubles per task. */
+/* Tasks [0, n_sets*n_exp): set = task / n_exp, experiment = task % n_exp; out has NF doubles per task, orbits
+ * ORBIT; start (ORBIT doubles per task) may be NULL: every task from rest. */
 int sb_sine(long n_sets, int n_plant, const double *params, const unsigned char *valid, int n_exp, const double *amp,
             const double *freq, double rtol, double tol, double max_time, long min_periods, double h_start,
-            long max_steps, long accelerate, long give_up, int n_threads, double *out) {
+            long max_steps, long accelerate, long give_up, int n_threads, const double *start, double *out,
+            double *orbits) {
     Job job;
     if (n_plant != SB_NP) return -1;
     memset(&job, 0, sizeof job);
@@ -504,7 +615,9 @@ int sb_sine(long n_sets, int n_plant, const double *params, const unsigned char 
     job.sine.max_steps = max_steps;
     job.sine.accelerate = accelerate;
     job.sine.give_up = give_up;
+    job.start = start;
     job.out = out;
+    job.orbits = orbits;
     run_threads(sine_worker, &job, n_threads);
     return 0;
 }

@@ -1,0 +1,216 @@
+"""Many data files identified in one call — a fleet of axes (`servofmu identify A.h5 B.h5 ... --output-dir DIR`).
+
+Every data file is identified on its own, exactly as `servofmu identify DATA -o RESULT.h5` identifies it (nothing
+is shared between files, and a fit's result does not depend on the threads it runs on, so the results are those of
+one-file runs), in local worker processes or on a Dask cluster (servofmu.simulation.parallel).  Its result goes to
+DIR/<data file's name>-result.h5 as soon as it is done, written atomically.  With ``resume``, a result already in
+DIR that was identified from the same data (SHA-256) with the same structure, network, method, seed and polish is
+kept, so that a run interrupted and started again only identifies the files it had not finished.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import UserError
+from ..model.plant import load_plant
+from ..runtime import Progress
+from ..simulation.parallel import Workers
+from .identifier import PSOANNIdentifier, load_identification_inputs
+from .results import read_result, result_from_estimator, write_result
+
+__all__ = ["FileJob", "FileOutcome", "identify_files", "result_path", "outcomes_table", "outcomes_json"]
+
+
+@dataclass(frozen=True)
+class FileJob:
+    """One data file to identify and where its result goes (what a worker is sent)."""
+
+    data_file: str
+    result_file: str
+    structure_file: str
+    ann_file: str | None
+    method: str
+    seed: int
+    polish: bool
+    skip: float
+    threads: int | None
+    command: str
+
+
+@dataclass(frozen=True)
+class FileOutcome:
+    """How one data file fared: ``status`` is "identified", "kept" (a finished result that ``resume`` kept) or
+    "failed" (``message`` says why, in one line); ``names``/``theta``, ``fitness``, ``seconds`` and ``evaluations``
+    as in its result (empty and NaN when it failed)."""
+
+    data_file: str
+    result_file: str
+    status: str
+    message: str = ""
+    names: tuple[str, ...] = ()
+    theta: tuple[float, ...] = ()
+    fitness: float = float("nan")
+    seconds: float = float("nan")
+    evaluations: int = 0
+
+
+def result_path(output_dir: Path, data_file: str | Path) -> Path:
+    """Where the result of ``data_file`` goes: DIR/<its name without .h5>-result.h5."""
+    return Path(output_dir) / f"{Path(data_file).stem}-result.h5"
+
+
+def identify_files(data_files, structure_file, output_dir, ann_file=None, method: str = "pso-ann", seed: int = 0,
+                   polish: bool = True, skip: float = 0.0, resume: bool = False, scheduler: str | None = None,
+                   workers: int | None = None, command: str = "",
+                   progress: Progress | None = None) -> list[FileOutcome]:
+    """Identify every data file and write one result per file into ``output_dir``.
+
+    Parameters
+    ----------
+    data_files : list of str or Path
+        Stepped-sine data files (`servofmu measure`) or records (`servofmu import`), all of the structure's plant.
+    structure_file, ann_file : str or Path
+        As for `servofmu identify`: the structure, and the network (for the methods that need one).
+    output_dir : str or Path
+        An existing folder; the result of A.h5 is written to output_dir/A-result.h5.
+    method, seed, polish
+        As for :class:`servofmu.PSOANNIdentifier`.
+    skip : float
+        Records: seconds left out at the start of every record (as `servofmu identify --skip`).
+    resume : bool
+        Keep the results already in ``output_dir`` that were identified from the same data with the same settings;
+        identify the others.  Without it, a result already there is refused.
+    scheduler : str, optional
+        A Dask scheduler address (tcp://HOST:PORT); default: local worker processes.
+    workers : int, optional
+        Local worker processes (default: one per core; 0: this process, one file after the other).
+    command : str
+        The command line, for the results' provenance.
+    progress : Progress, optional
+        Called with (files done, files).
+
+    Returns
+    -------
+    list of FileOutcome
+        One per data file, in the order given.  A file that cannot be identified (unreadable, another plan than
+        the network's, ...) fails on its own; the others go on.
+
+    Raises
+    ------
+    UserError
+        For a missing folder, two data files with the same name, an unusable structure or network, or (without
+        ``resume``) a result already in the folder, and with ``resume`` for a result there of other data or
+        settings; nothing has been identified then.
+    """
+    output_dir = Path(output_dir)
+    if not output_dir.is_dir():
+        raise UserError(f"{output_dir}: no such folder (the output folder must exist)")
+    data_files = [str(d) for d in data_files]
+    if not data_files:
+        raise UserError("no data files to identify")
+    results = [str(result_path(output_dir, d)) for d in data_files]
+    seen: dict[str, str] = {}
+    for d, r in zip(data_files, results):
+        if r in seen:
+            raise UserError(f"{d} and {seen[r]} would both be identified into {r}: give data files distinct names")
+        seen[r] = d
+    structure = load_plant(structure_file)  # a bad structure or network fails once, here, not in every worker
+    if ann_file is not None:
+        from .ann import load_ann
+
+        load_ann(ann_file)
+    in_process = scheduler is None and workers == 0
+    jobs = [FileJob(data_file=d, result_file=r, structure_file=str(structure_file),
+                    ann_file=None if ann_file is None else str(ann_file), method=method, seed=seed, polish=polish,
+                    skip=skip, threads=None if in_process else 1, command=command)
+            for d, r in zip(data_files, results)]
+    outcomes: list[FileOutcome | None] = [None] * len(jobs)
+    for i, job in enumerate(jobs):
+        if Path(job.result_file).exists():
+            if not resume:
+                raise UserError(f"{job.result_file}: exists already (--resume keeps finished results; or choose "
+                                "another output folder)")
+            outcomes[i] = _kept(job, structure.to_toml())
+    todo = [i for i, o in enumerate(outcomes) if o is None]
+    done = len(jobs) - len(todo)
+    if progress is not None:
+        progress(done, len(jobs))
+    with Workers(scheduler=scheduler, workers=workers) as pool:
+        for k, outcome in pool.imap(identify_file, [jobs[i] for i in todo]):
+            outcomes[todo[k]] = outcome
+            done += 1
+            if progress is not None:
+                progress(done, len(jobs))
+    return outcomes
+
+
+def identify_file(_, job: FileJob) -> FileOutcome:
+    """Worker task: identify one data file and write its result; a user error becomes a failed outcome."""
+    try:
+        structure, data, ann, provenance = load_identification_inputs(
+            job.data_file, job.structure_file, job.ann_file, job.method, command=job.command, skip=job.skip)
+        est = PSOANNIdentifier(structure, ann=ann, method=job.method, seed=job.seed, polish=job.polish,
+                               threads=job.threads).fit(data)
+        from ..runtime import utc_now
+
+        provenance.update(seed=job.seed, polish=job.polish, date=utc_now())
+        result = result_from_estimator(est, job.method, provenance)
+        write_result(job.result_file, result)
+    except (UserError, OSError) as exc:
+        return FileOutcome(job.data_file, job.result_file, "failed", message=_one_line(exc))
+    return _outcome(job, result, "identified")
+
+
+def _kept(job: FileJob, structure_toml: str) -> FileOutcome:
+    """The outcome of a result that ``resume`` keeps, after checking that it is this job's."""
+    result = read_result(job.result_file)
+    prov = result.provenance
+    try:
+        sha = hashlib.sha256(Path(job.data_file).read_bytes()).hexdigest()
+    except OSError as exc:
+        raise UserError(f"{job.data_file}: cannot read ({exc.strerror or exc})") from exc
+    ann = job.ann_file or ""
+    same = (prov.get("data_sha256") == sha and result.method == job.method and prov.get("seed") == job.seed
+            and prov.get("polish") == job.polish and prov.get("ann_file", "") == ann
+            and prov.get("skip", 0.0) == job.skip
+            and result.structure.to_toml() == structure_toml)
+    if not same:
+        raise UserError(f"{job.result_file}: was identified from other data or with other settings than this run's "
+                        "(remove it to identify it again)")
+    return _outcome(job, result, "kept")
+
+
+def _outcome(job: FileJob, result, status: str) -> FileOutcome:
+    return FileOutcome(job.data_file, job.result_file, status, names=tuple(result.names),
+                       theta=tuple(float(v) for v in result.theta), fitness=result.fitness, seconds=result.seconds,
+                       evaluations=result.evaluations)
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and not isinstance(exc, UserError):
+        return f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}"
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def outcomes_table(outcomes: list[FileOutcome]) -> str:
+    """The summary: one row per data file (status, fitness, seconds, the identified parameters), aligned; a failed
+    file's row ends with why."""
+    names = next((o.names for o in outcomes if o.names), ())
+    head = ["data file", "status", "fitness", "seconds", *names]
+    rows = [[o.data_file, o.status, f"{o.fitness:.3g}", f"{o.seconds:.2f}", *(f"{v:.10g}" for v in o.theta)]
+            if o.status != "failed" else [o.data_file, o.status, "-", "-", o.message] for o in outcomes]
+    aligned = [head] + [r for r in rows if len(r) == len(head)]
+    widths = [max(len(r[i]) for r in aligned) for i in range(len(head))]
+    widths[:4] = [max(w, *(len(r[i]) for r in rows)) for i, w in enumerate(widths[:4])]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths + [0])).rstrip() for r in [head, *rows])
+
+
+def outcomes_json(outcomes: list[FileOutcome]) -> str:
+    """The summary as one JSON array (one object per data file)."""
+    return json.dumps([{"data_file": o.data_file, "result_file": o.result_file, "status": o.status,
+                        **({"message": o.message} if o.message else {}),
+                        "parameters": dict(zip(o.names, o.theta)), "fitness": o.fitness, "seconds": o.seconds,
+                        "evaluations": o.evaluations} for o in outcomes], allow_nan=True)
