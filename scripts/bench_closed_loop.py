@@ -28,7 +28,7 @@ from servofmu.control.controller import load_controller
 from servofmu.control.cosim import cosimulate, write_cosim_records
 from servofmu.control.fmus import build_controller_fmu
 from servofmu.control.system import write_system
-from servofmu.identification.prior import identified_mask
+from servofmu.identification.prior import identified_mask, identified_names
 from servofmu.output.demo import reference_trajectories
 from servofmu.runtime import available_cores
 
@@ -107,27 +107,50 @@ def main() -> None:
                   f"loop, actuator noise {SNR_DB:g} dB below the force command (a white force per sample).", "",
                   "| plant | noise-free, exact encoder: worst rel. error | noisy: worst rel. error | median | "
                   "95 % intervals covering the truth | s per fit |", "|---|---|---|---|---|---|"]
-        identified = {}
+        identified, sources = {}, {}
         for name in PLANTS:
             clean, data = run_axis(folder, fmus[name], exact, refs["identify"], f"{name}-clean")
             _, exact_error, _ = identify(name, data, base, 0)
             force_noise = float(np.std(clean["force_command"])) / 10 ** (SNR_DB / 20)
-            errors, covered, fit_seconds = [], [], []
-            for seed in range(args.seeds):
-                noisy = base.with_values(force_noise=force_noise, noise_seed=seed)
-                _, data = run_axis(folder, fmus[name], noisy, refs["identify"], f"{name}-noisy")
-                t0 = time.perf_counter()
-                est, error, cover = identify(name, data, base, seed)
-                fit_seconds.append(time.perf_counter() - t0)
-                errors.append(error)
-                covered.append(cover)
-                if seed == 0:
-                    identified[name] = est.plant_
-            covered = np.array(covered)
-            lines.append(f"| {name} | {exact_error:.1e} | {max(errors):.2e} | {np.median(errors):.2e} | "
-                         f"{100 * covered.mean():.1f} % ({covered.sum()} of {covered.size}) | "
-                         f"{np.median(fit_seconds):.2f} |")
+            runs = {}
+            for label, ctrl in (("both", base), ("actuator noise only", exact)):
+                errors, covered, fit_seconds = [], [], []
+                for seed in range(args.seeds):
+                    noisy = ctrl.with_values(force_noise=force_noise, noise_seed=seed)
+                    _, data = run_axis(folder, fmus[name], noisy, refs["identify"], f"{name}-noisy")
+                    t0 = time.perf_counter()
+                    est, _, cover = identify(name, data, base, seed)
+                    fit_seconds.append(time.perf_counter() - t0)
+                    errors.append(est.theta_ / truth(name) - 1)
+                    covered.append(cover)
+                    if seed == 0 and label == "both":
+                        identified[name] = est.plant_
+                runs[label] = np.array(errors), np.array(covered), np.median(fit_seconds)
+            errors, covered, seconds = runs["both"]
+            worst = np.max(np.abs(errors), axis=1)
+            lines.append(f"| {name} | {exact_error:.1e} | {worst.max():.2e} | {np.median(worst):.2e} | "
+                         f"{100 * covered.mean():.1f} % ({covered.sum()} of {covered.size}) | {seconds:.2f} |")
             print(lines[-1], flush=True)
+            _, data = run_axis(folder, fmus[name], base, refs["identify"], f"{name}-quantised")
+            quantised = identify(name, data, base, 0)[0].theta_ / truth(name) - 1
+            names = identified_names(sf.load_plant(name))
+            for label, errors, covered in (("1 µm encoder and actuator noise", *runs["both"][:2]),
+                                           ("actuator noise only", *runs["actuator noise only"][:2]),
+                                           ("1 µm encoder only (no noise)", quantised[None], None)):
+                cells = [f"{100 * np.mean(e):+.3f}" + ("" if covered is None else f" ({100 * c.mean():.0f} %)")
+                         for e, c in zip(errors.T, covered.T if covered is not None else [None] * len(names))]
+                sources.setdefault(name, [f"| {name}: disturbance | " + " | ".join(names) + " |",
+                                          "|---" * (len(names) + 1) + "|"]).append(
+                    f"| {label} | " + " | ".join(cells) + " |")
+        lines += ["", "### Where the error comes from", "",
+                  "Mean relative error of each parameter in % (in brackets: how often its 95 % interval covers the "
+                  f"truth) over the {args.seeds} seeds, with both disturbances, with the actuator noise alone (exact "
+                  "encoder), and with the quantised encoder alone (one run, no noise).  The identification simulates "
+                  "the loop without the quantiser (it would make the criterion piecewise constant): the encoder's "
+                  "steps, fed back through the controller, jitter the force, and the friction averages that jitter "
+                  "at low speed — a bias the intervals do not include.", "",
+                  *(line for table in sources.values() for line in (*table, ""))][:-1]
+        print("\n".join(lines[-5:]), flush=True)
 
         # 3. compensation
         lines += ["", "## 3. Friction compensation on a reversing stroke (0.05 m, 0.5 Hz, 4 s)", "",
