@@ -257,7 +257,7 @@ def cmd_identify_files(args) -> None:
         outcomes = identify_files(args.data, args.structure, args.output_dir, ann_file=args.ann,
                                   method=args.method or ("pso-ann" if args.ann else "pso"), seed=args.seed,
                                   polish=not args.no_polish, skip=args.skip, resume=args.resume,
-                                  scheduler=args.scheduler, workers=args.workers,
+                                  overwrite=args.force, scheduler=args.scheduler, workers=args.workers,
                                   command=getattr(args, "command_line", ""), progress=bar.update if bar else None)
     finally:
         if bar:

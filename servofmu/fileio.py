@@ -15,12 +15,16 @@ from typing import Callable
 from .errors import MAX_MAGNITUDE, UserError
 
 __all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
-           "open_hdf5", "read_hdf5", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER"]
+           "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER"]
 
 # Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers, which hold the
 # attributes, carry checksums, so a flipped bit in an attribute is found on reading, as Fletcher-32 finds one in
 # an array (store_array).
 HDF5_LIBVER = ("v110", "latest")
+
+# What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
+# header), and the KeyError ... of a missing or malformed item.
+READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
 
 
 def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
@@ -187,6 +191,8 @@ def read_error_reason(exc: BaseException) -> str:
     text = (str(exc).strip("'\"").splitlines() or [type(exc).__name__])[0]
     if "checksum" in text or "filter returned failure" in text:
         return "checksum mismatch: the file was changed or damaged after it was written"
+    if isinstance(exc, KeyError):
+        return f"missing or bad {text}"
     return text.split("(")[-1].rstrip(")") if "(" in text else text
 
 
@@ -201,7 +207,7 @@ def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schem
             return read(f, version)
         except UserError:
             raise
-        except (OSError, KeyError, ValueError, TypeError, IndexError) as exc:
+        except READ_ERRORS as exc:
             raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
 
 
@@ -244,7 +250,7 @@ def check_format(f, path: str | Path, formats: str | tuple[str, ...], schema_ver
     accepted = (formats,) if isinstance(formats, str) else tuple(formats)
     try:
         kind, version = hdf5_attr(f, "format", None), hdf5_attr(f, "schema_version", None)
-    except (OSError, KeyError, ValueError, TypeError) as exc:
+    except READ_ERRORS as exc:
         raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
     if kind not in accepted:
         raise UserError(f"{path}: not a servofmu {what} (format attribute {kind!r}, expected "

@@ -60,6 +60,11 @@ def find_compiler() -> str:
     return cc
 
 
+# What a compiler says when it cannot write its output or temporary files, and the OS's reason.
+_WRITE_FAILURES = {"File size limit exceeded": "File too large", "File too large": "File too large",
+                   "No space left on device": "No space left on device"}
+
+
 def compile_shared(sources: Sequence[Path], target: Path, include: Sequence[Path] = (),
                    extra_flags: Sequence[str] = (), what: str = "") -> None:
     """Compile C ``sources`` into the shared library ``target`` (flags :data:`CFLAGS` plus ``extra_flags``)."""
@@ -67,6 +72,9 @@ def compile_shared(sources: Sequence[Path], target: Path, include: Sequence[Path
     cmd = [*cc.split(), *CFLAGS, *extra_flags, *[f"-I{d}" for d in include], *map(str, sources),
            "-o", str(target), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
+    for symptom, reason in _WRITE_FAILURES.items():  # the compiler could not write: the disk's fault, not the code's
+        if proc.returncode != 0 and symptom in proc.stderr:
+            raise CompileError(f"cannot write {target} ({what or 'compiled code'}): {reason}")
     if proc.returncode != 0:
         first = next((line for line in proc.stderr.splitlines() if "error" in line), proc.stderr.strip()[:300])
         raise CompileError(f"C compiler {cc} failed{' on ' + what if what else ''}: {first}")
@@ -99,9 +107,20 @@ TEMPORARY_PREFIX = "servofmu-"
 _folders: set[str] = set()
 
 
+def _temporary_root() -> str | None:
+    """$TMPDIR as given (None: tempfile's choice, which probes by writing a file and, when the disk is full,
+    names no reason)."""
+    return tempfile.tempdir or os.environ.get("TMPDIR") or None
+
+
 def make_temporary_folder(purpose: str) -> Path:
     """A new temporary folder, removed at the latest when this process exits (see :func:`temporary_folder`)."""
-    path = tempfile.mkdtemp(prefix=f"{TEMPORARY_PREFIX}{os.getpid()}-{purpose}-")
+    root = _temporary_root()
+    try:
+        path = tempfile.mkdtemp(prefix=f"{TEMPORARY_PREFIX}{os.getpid()}-{purpose}-", dir=root)
+    except OSError as exc:
+        raise UserError(f"cannot make a temporary folder in {root or 'the temporary directory'}: "
+                        f"{exc.strerror or exc}") from exc
     _folders.add(path)
     return Path(path)
 
@@ -138,7 +157,7 @@ def _alive(pid: int) -> bool:
 
 def sweep_temporary_folders() -> None:
     """Remove the temporary folders of servofmu processes that no longer run (killed with SIGKILL)."""
-    root = Path(tempfile.gettempdir())
+    root = Path(_temporary_root() or tempfile.gettempdir())
     try:
         entries = list(root.iterdir())
     except OSError:

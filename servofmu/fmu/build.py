@@ -118,28 +118,31 @@ def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variable
     find_compiler()  # before any work: a missing compiler is the commonest failure
     headers = fmi_header_dir()
     with temporary_folder("build") as tmp:
-        root = Path(tmp) / "fmu"
-        src = root / "sources"
-        src.mkdir(parents=True)
-        token = write_sources(src)
-        api = f"fmi{fmi_version}_api.c"
-        shutil.copy(C_DIR / api, src / api)
-        sources = [*sources, api]
-        (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
-        info = {"description": summary, "generationTool": f"servofmu {__version__}",
-                "generationDateAndTime": utc_now()}
-        if fmi_version == 3:
-            md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
-                                                    provenance, continuous=continuous)
-        else:
-            md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
-                                                    sources, provenance, continuous=continuous)
-        (root / "modelDescription.xml").write_bytes(md)
-        _write_documentation(root, title or identifier, summary, equations, variables, provenance)
-        bindir = root / "binaries" / platform_folder(fmi_version)
-        bindir.mkdir(parents=True)
-        compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
-                       include=[src, headers], what=f"the FMU {identifier}")
+        try:
+            root = Path(tmp) / "fmu"
+            src = root / "sources"
+            src.mkdir(parents=True)
+            token = write_sources(src)
+            api = f"fmi{fmi_version}_api.c"
+            shutil.copy(C_DIR / api, src / api)
+            sources = [*sources, api]
+            (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
+            info = {"description": summary, "generationTool": f"servofmu {__version__}",
+                    "generationDateAndTime": utc_now()}
+            if fmi_version == 3:
+                md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                        provenance, continuous=continuous)
+            else:
+                md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                        sources, provenance, continuous=continuous)
+            (root / "modelDescription.xml").write_bytes(md)
+            _write_documentation(root, title or identifier, summary, equations, variables, provenance)
+            bindir = root / "binaries" / platform_folder(fmi_version)
+            bindir.mkdir(parents=True)
+            compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
+                           include=[src, headers], what=f"the FMU {identifier}")
+        except OSError as exc:  # a full disk or a file-size limit while the FMU's files are written
+            raise BuildError(f"cannot write {exc.filename or tmp}: {exc.strerror or exc}") from exc
         _pack(root, output)
     return output
 

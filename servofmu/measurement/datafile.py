@@ -21,6 +21,7 @@ from ..fileio import (
     check_output_path,
     check_values,
     hdf5_attr,
+    READ_ERRORS,
     open_hdf5,
     read_error_reason,
     store_array,
@@ -459,10 +460,11 @@ def read_data_file(path: str | Path) -> DataFile:
             parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
                 if "parameters" in prov else {}
             complete = bool(hdf5_attr(f, "complete"))
-        except (KeyError, ValueError, TypeError, OSError) as exc:
-            raise UserError(f"{path}: damaged servofmu data file (missing or bad {read_error_reason(exc)})") \
-                from exc
-        check_stored_data(path, f, plan, experiments, records)
+            check_stored_data(path, f, plan, experiments, records)
+        except UserError:
+            raise
+        except READ_ERRORS as exc:
+            raise UserError(f"{path}: damaged servofmu data file ({read_error_reason(exc)})") from exc
         if plan is not None:
             specs = {s.index: s for s in plan.experiments}
             for e in experiments:

@@ -164,6 +164,10 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     with temporary_folder("simulate") as folder:
         try:
             unzipped = extract(str(info.path), unzipdir=str(folder))
+        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
+            raise UserError(f"{info.path}: cannot write its extracted copy in {folder}: {exc.strerror or exc}") \
+                from exc
+        try:
             return simulate_fmu(unzipped, fmi_type="ModelExchange" if interface == "me" else "CoSimulation",
                                 stop_time=stop_time, output_interval=interval, relative_tolerance=relative_tolerance,
                                 start_values=starts, input=input_signal, output=outputs)

@@ -22,6 +22,7 @@ import hashlib
 import json
 import os
 import resource
+import select
 import shutil
 import subprocess
 import sys
@@ -65,10 +66,22 @@ def run_case(case: dict, scratch: Path) -> dict:
     filler = fill(folder, int(fault["free"])) if mounted else None
     os.environ["TMPDIR"] = str(temp)
     tempfile.tempdir = None
-    # stdout and stderr into a pipe (a pipe has no file-size limit), drained by a thread
+    # stdout and stderr into a pipe (a pipe has no file-size limit), drained by a thread until the command is
+    # over: not until end of file, since a helper process (multiprocessing's resource tracker) keeps the pipe open
     read_end, write_end = os.pipe()
-    captured = []
-    reader = threading.Thread(target=lambda: captured.extend(iter(lambda: os.read(read_end, 65536), b"")))
+    captured, over = [], threading.Event()
+
+    def drain():
+        while True:
+            if select.select([read_end], [], [], 0.1)[0]:
+                chunk = os.read(read_end, 65536)
+                if not chunk:  # every writer closed it
+                    return
+                captured.append(chunk)
+            elif over.is_set():
+                return
+
+    reader = threading.Thread(target=drain)
     reader.start()
     saved = os.dup(2), os.dup(1)
     limits = resource.getrlimit(resource.RLIMIT_FSIZE)
@@ -94,6 +107,7 @@ def run_case(case: dict, scratch: Path) -> dict:
         os.dup2(saved[1], 1)
         for fd in (*saved, write_end):
             os.close(fd)
+        over.set()
         reader.join()
         os.close(read_end)
         os.chdir(scratch)
