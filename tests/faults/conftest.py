@@ -12,6 +12,16 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def pytest_collection_modifyitems(config, items):
+    from harness import FULL
+
+    if not FULL:
+        skip = pytest.mark.skip(reason="a long fault case: SERVOFMU_FAULTS=all runs it (scripts/fault_suite.py)")
+        for item in items:
+            if item.get_closest_marker("long"):
+                item.add_marker(skip)
+
+
 def servofmu(*argv) -> None:
     """Run a command in this process (quicker than a subprocess); it must succeed."""
     from servofmu.cli import main

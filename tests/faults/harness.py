@@ -1,8 +1,8 @@
 """What every case of the fault-injection suite shares: the subcommands under test, running them (in the driver
 process or as a user does), and the checks of a clean failure.
 
-SERVOFMU_FAULTS=all selects every case (scripts/bench_faults.py); by default a sample that still covers every
-subcommand and every kind of fault.
+SERVOFMU_FAULTS=all runs every case (scripts/fault_suite.py); by default the cases marked ``long`` are skipped and a
+sample remains that still covers every subcommand and every kind of fault.
 """
 from __future__ import annotations
 
@@ -171,5 +171,48 @@ def no_partial_files(names) -> None:
 
 
 def sample(cases: list, every: int) -> list:
-    """All cases with SERVOFMU_FAULTS=all, else every ``every``-th (deterministic, spread over the table)."""
-    return cases if FULL else cases[::every]
+    """Every case; all but every ``every``-th (deterministic, spread over the table) marked ``long``: skipped
+    unless SERVOFMU_FAULTS=all (scripts/fault_suite.py)."""
+    return [case if i % every == 0 else pytest.param(*case, marks=pytest.mark.long) for i, case in enumerate(cases)]
+
+
+# ---------------------------------------------------------------------------
+# Damage
+# ---------------------------------------------------------------------------
+def stored_ranges(path: Path, names=None) -> list[tuple[str, int, int]]:
+    """(dataset, first byte, byte count) of every stored piece (chunk, or contiguous block) of the file's numeric
+    datasets (or of ``names``): where a flipped bit damages an array."""
+    import h5py
+
+    ranges = []
+    with h5py.File(path, "r") as f:
+        found = []
+        f.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset)
+                     and obj.dtype.kind in "biufc" and obj.size else None)
+        for name in names or found:
+            ds = f[name]
+            if ds.chunks is None:
+                if ds.id.get_offset() is not None:
+                    ranges.append((name, ds.id.get_offset(), ds.id.get_storage_size()))
+                continue
+            for k in range(ds.id.get_num_chunks()):
+                info = ds.id.get_chunk_info(k)
+                ranges.append((name, info.byte_offset, info.size))
+    return ranges
+
+
+def flip_bit(path: Path, rng, names=None) -> str:
+    """Flip one bit, drawn with ``rng``, in the stored arrays of ``path``; the dataset it fell in."""
+    ranges = stored_ranges(path, names)
+    sizes = [n for _, _, n in ranges]
+    k = int(rng.integers(sum(sizes)))
+    for name, offset, n in ranges:
+        if k < n:
+            with open(path, "r+b") as fh:
+                fh.seek(offset + k)
+                byte = fh.read(1)[0]
+                fh.seek(offset + k)
+                fh.write(bytes([byte ^ (1 << int(rng.integers(8)))]))
+            return name
+        k -= n
+    raise AssertionError("unreachable")
