@@ -86,20 +86,22 @@ def rewrite(source: Path, target: Path, fletcher32: bool) -> None:
     write_hdf5(target, fill)
 
 
-def timed(function, repeats: int) -> float:
-    times = []
+def timed(functions, repeats: int) -> list[float]:
+    """Median seconds of each function, the runs interleaved (a busy machine slows both alike)."""
+    times = [[] for _ in functions]
     for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+        for function, t in zip(functions, times):
+            start = time.perf_counter()
+            function()
+            t.append(time.perf_counter() - start)
+    return [statistics.median(t) for t in times]
 
 
 def main_bench() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flips", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--out", default="docs/bench-integrity.md")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -119,9 +121,9 @@ def main_bench() -> None:
             rows.append((name, path.stat().st_size, len(ranges), sum(n for *_, n in ranges), outcome))
         rewrite(tmp / "data.h5", tmp / "with.h5", True)
         rewrite(tmp / "data.h5", tmp / "without.h5", False)
-        write = [timed(lambda: rewrite(tmp / "data.h5", tmp / f"{k}.h5", k == "with"), args.repeats)
-                 for k in ("with", "without")]
-        read = [timed(lambda: read_data_file(tmp / f"{k}.h5"), args.repeats) for k in ("with", "without")]
+        write = timed([lambda k=k: rewrite(tmp / "data.h5", tmp / f"{k}.h5", k == "with") for k in ("with", "without")],
+                      args.repeats)
+        read = timed([lambda k=k: read_data_file(tmp / f"{k}.h5") for k in ("with", "without")], args.repeats)
         sizes = [(tmp / f"{k}.h5").stat().st_size for k in ("with", "without")]
 
     total = sum(r[4]["detected"] for r in rows)

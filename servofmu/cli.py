@@ -92,12 +92,13 @@ class _ProgressBar:
         self._unit, self._scale, self._bar = unit, scale, None
 
     def update(self, done: int, total: int) -> None:
+        total, done = (total, done) if self._scale == 1 else (total / self._scale, done / self._scale)
         if self._bar is None:  # created on first use: a run that fails early shows no bar
             from tqdm import tqdm
             self._bar = tqdm(total=total, unit=self._unit, file=sys.stderr, dynamic_ncols=True,
                              bar_format=None if self._scale == 1 else
                              "{l_bar}{bar}| {n:.2f}/{total:g} [{elapsed}<{remaining}]")
-        self._bar.total, self._bar.n = (total, done) if self._scale == 1 else (total / self._scale, done / self._scale)
+        self._bar.total, self._bar.n = total, done
         self._bar.refresh()
 
     def warn(self, text: str) -> None:
