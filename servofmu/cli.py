@@ -2,28 +2,45 @@
 
 This is the only place that prints, configures logging or shows progress bars.
 A UserError (or an OSError) ends the command with one line on stderr and exit
-status 2; no traceback.
+status 2; no traceback.  Ctrl-C (exit 130) and SIGTERM or SIGHUP (exit 128 + the
+signal's number) end it the same way, after the same clean-up: temporary folders
+removed, worker processes stopped, no partial output left.
+
+One rule for every output (docs/reliability.md): every ``-o`` of every subcommand
+is checked before any work — its folder exists and is writable, and it does not
+exist yet unless ``--force`` (replace it) or the subcommand's ``--resume`` or
+``--append`` is given.
 """
 from __future__ import annotations
 
 import argparse
 import shlex
+import signal
 import sys
 from pathlib import Path
 
 from .errors import UserError
-from .fileio import check_output_path
 
 __all__ = ["main", "build_parser"]
 
 EXIT_USER_ERROR = 2
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # what `timeout`, systemd, batch schedulers and a closed terminal send
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a bad command line in one line."""
+    """argparse that reports a bad command line in one line, and that knows a subcommand's outputs: every ``-o``
+    is one (``args.outputs`` names them), and a subcommand with outputs gets ``--force``."""
 
     def error(self, message):
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}\n")
+
+    def add_argument(self, *flags, **kwargs):
+        action = super().add_argument(*flags, **kwargs)
+        if "-o" in flags:
+            if not self.get_default("outputs"):
+                super().add_argument("--force", action="store_true", help="replace an existing output")
+            self.set_defaults(outputs=(*(self.get_default("outputs") or ()), action.dest))
+        return action
 
 
 def _float_list(text: str) -> list[float]:
@@ -41,17 +58,15 @@ def cmd_build(args) -> None:
     from .model.plant import load_plant
 
     plant = load_plant(args.plant)
-    output = Path(args.output) if args.output else Path(f"{plant.name}.fmu")
+    output = Path(args.output) if args.output else claim_output(args, f"{plant.name}.fmu")
     build_fmu(plant, output, fmi_version=args.fmi_version)
     print(f"wrote {output} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation)")
 
 
 def cmd_simulate(args) -> None:
-    from .fileio import atomic_write, check_output_path
+    from .fileio import atomic_write
     from .simulation.fmpy_runs import format_csv, read_input_csv, simulate
 
-    if args.output:
-        check_output_path(args.output)
     if args.input and (args.amplitude is not None or args.frequency is not None):
         raise UserError("give either --input or --amplitude/--frequency, not both")
     signal = read_input_csv(args.input, args.input_name) if args.input else None
@@ -70,17 +85,20 @@ def cmd_simulate(args) -> None:
 # measure / import / plot
 # ---------------------------------------------------------------------------
 class _ProgressBar:
-    """A tqdm bar on stderr driven by progress(done, total) callbacks; warnings go above it."""
+    """A tqdm bar on stderr driven by progress(done, total) callbacks; warnings go above it.  ``scale``: how many
+    of the callback's units make one ``unit`` (measure counts thousandths of an experiment)."""
 
-    def __init__(self, unit: str):
-        self._unit, self._bar = unit, None
+    def __init__(self, unit: str, scale: int = 1):
+        self._unit, self._scale, self._bar = unit, scale, None
 
     def update(self, done: int, total: int) -> None:
+        total, done = (total, done) if self._scale == 1 else (total / self._scale, done / self._scale)
         if self._bar is None:  # created on first use: a run that fails early shows no bar
             from tqdm import tqdm
-            self._bar = tqdm(total=total, unit=self._unit, file=sys.stderr, dynamic_ncols=True)
-        self._bar.total = total
-        self._bar.n = done
+            self._bar = tqdm(total=total, unit=self._unit, file=sys.stderr, dynamic_ncols=True,
+                             bar_format=None if self._scale == 1 else
+                             "{l_bar}{bar}| {n:.2f}/{total:g} [{elapsed}<{remaining}]")
+        self._bar.total, self._bar.n = total, done
         self._bar.refresh()
 
     def warn(self, text: str) -> None:
@@ -91,19 +109,21 @@ class _ProgressBar:
 
     def close(self) -> None:
         if self._bar is not None:
+            self._bar.leave = sys.exc_info()[0] is None  # a failed run ends with its one error line, no bar
             self._bar.close()
 
 
 def cmd_measure(args) -> None:
-    from .measurement.measure import MeasureOptions, measure
+    from .measurement.measure import PROGRESS_SCALE, MeasureOptions, measure
 
     given = {"input": args.input, "output": args.output, "tolerance": args.tolerance, "max_time": args.max_time,
              "samples_per_period": args.samples_per_period, "noise_snr_db": args.noise_snr, "seed": args.seed}
     options = MeasureOptions(**{k: v for k, v in given.items() if v is not None})
-    bar = _ProgressBar("experiment")
+    bar = _ProgressBar("experiment", scale=PROGRESS_SCALE)
     try:
         data = measure(args.fmu, args.data, amplitudes=args.amplitudes, frequencies=args.frequencies, options=options,
-                       scheduler=args.scheduler, workers=args.workers, resume=args.resume,
+                       scheduler=args.scheduler, workers=args.workers, resume=args.resume, overwrite=args.force,
+                       max_steps=args.max_steps,
                        command=getattr(args, "command_line", ""), progress=bar.update, warn=bar.warn)
     finally:
         bar.close()
@@ -121,6 +141,7 @@ def cmd_import(args) -> None:
 
     data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output,
                           kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
+                          overwrite=args.force,
                           command=getattr(args, "command_line", ""), intersample=args.intersample)
     for r in data.records[-len(args.files):]:
         line = f"{r.source}: {len(r.series.time)} samples at {r.sample_rate:.6g} Hz, {r.kind}, input {r.intersample}"
@@ -140,7 +161,7 @@ def cmd_plot(args) -> None:
 
     data = read_data_file(args.data)
     what = args.what or ("time" if data.kind == "records" else "bode")
-    out = Path(args.output) if args.output else Path(args.data).with_suffix(".png")
+    out = Path(args.output) if args.output else claim_output(args, Path(args.data).with_suffix(".png"))
     (bode_figure if what == "bode" else time_series_figure)(data, out)
     print(f"wrote {out}")
 
@@ -159,7 +180,7 @@ def cmd_dataset(args) -> None:
     bar = _ProgressBar("plant")
     try:
         ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
-                               resume=args.resume, scheduler=args.scheduler,
+                               resume=args.resume, overwrite=args.force, scheduler=args.scheduler,
                                command=getattr(args, "command_line", ""), progress=bar.update)
     finally:
         bar.close()
@@ -205,7 +226,6 @@ def cmd_identify(args) -> None:
     else:
         structure, data, ann, provenance = load_identification_inputs(args.data, args.structure, args.ann, method,
                                                                       command=command, skip=args.skip)
-    check_output_path(args.output)
     bar = None if args.json else _ProgressBar("iteration")
     est = PSOANNIdentifier(structure, ann=ann, method=method, seed=args.seed, polish=not args.no_polish,
                            progress=bar.update if bar else None)
@@ -238,7 +258,7 @@ def cmd_identify_files(args) -> None:
         outcomes = identify_files(args.data, args.structure, args.output_dir, ann_file=args.ann,
                                   method=args.method or ("pso-ann" if args.ann else "pso"), seed=args.seed,
                                   polish=not args.no_polish, skip=args.skip, resume=args.resume,
-                                  scheduler=args.scheduler, workers=args.workers,
+                                  overwrite=args.force, scheduler=args.scheduler, workers=args.workers,
                                   command=getattr(args, "command_line", ""), progress=bar.update if bar else None)
     finally:
         if bar:
@@ -291,8 +311,6 @@ def cmd_compare(args) -> None:
     truth = load_plant(args.truth) if args.truth else None
     if truth is not None:
         check_truth(structure, truth, args.truth)
-    if args.output:
-        check_output_path(args.output)
     def report(done: int, total: int) -> None:
         if done < total:
             print(f"running {methods[done]} ...", file=sys.stderr)
@@ -356,7 +374,7 @@ def cmd_controller(args) -> None:
             plant = load_plant(source)
         spec = friction_feedforward(spec, plant)
         provenance = {"friction_feedforward": f"{plant.friction.model} friction of {source.name}"}
-    output = Path(args.output) if args.output else Path(f"{spec.name}.fmu")
+    output = Path(args.output) if args.output else claim_output(args, f"{spec.name}.fmu")
     build_controller_fmu(spec, output, fmi_version=args.fmi_version, provenance=provenance)
     print(f"wrote {output} (FMI {args.fmi_version}.0 Co-Simulation, sampled every {spec.sample_time:g} s"
           + (f"; friction feed-forward from {args.compensate}" if args.compensate else "") + ")")
@@ -380,10 +398,9 @@ def cmd_cosim(args) -> None:
 
     from .control.cosim import cosimulate, write_cosim_records
 
-    check_output_path(args.output, overwrite=args.append)
     result = cosimulate(args.system, args.stop_time, engine=args.engine)
     data = write_cosim_records(result, args.system, args.output, command=getattr(args, "command_line", ""),
-                               append=args.append)
+                               append=args.append, overwrite=args.force)
     error = result["reference"] - result["position"]
     print(f"wrote {args.output}: {len(data.records)} record(s); {result.engine}, {result.time.size - 1} steps of "
           f"{result.time[1]:g} s; tracking error RMS {np.sqrt(np.mean(error ** 2)):.3g} m, peak "
@@ -410,7 +427,10 @@ def cmd_compensate(args) -> None:
 def cmd_demo(args) -> None:
     from .output.demo import run_demo
 
-    run_demo(Path(args.out), report=print)
+    out = Path(args.out)
+    if out.is_dir() and any(out.iterdir()) and not args.force:
+        raise UserError(f"{out}: exists already and is not empty (give --force to replace the demo's files in it)")
+    run_demo(out, report=print)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -418,6 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .identification.methods import METHODS as IDENTIFY_METHODS
     from .identification.methods import NEEDS_ANN as IDENTIFY_NEEDS_ANN
     from .model.signals import INTERSAMPLE
+    from .measurement.measure import MAX_STEPS
     from .output.formats import FORMATS as EXPORT_FORMATS
     from .output.formats import SUFFIX_FORMATS
 
@@ -458,6 +479,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-time", type=float, help="simulated seconds before an experiment counts as not settled "
                                                   "(default 60)")
     p.add_argument("--samples-per-period", type=int, help="samples per period of the analysed window (default 8192)")
+    p.add_argument("--max-steps", type=float, default=MAX_STEPS,
+                   help=f"refuse a plan whose experiments could take more FMU steps each (default {MAX_STEPS:g})")
     p.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT (default: local processes)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: this process)")
     p.add_argument("--resume", action="store_true", help="continue DATA.h5 where an interrupted run stopped")
@@ -618,6 +641,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")
+    p.add_argument("--force", action="store_true", help="replace the demo's files in an existing --out folder")
     p.set_defaults(func=cmd_demo)
     return parser
 
@@ -627,11 +651,46 @@ def _version() -> str:
     return __version__
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP: unwinds like Ctrl-C, so that the same clean-up runs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum, frame) -> None:
+    for s in STOP_SIGNALS:  # once: the clean-up is not interrupted by a second signal
+        signal.signal(s, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+def claim_output(args, path) -> Path:
+    """``path`` as the output of the command ``args``: a writable folder, and no existing file unless --force (or
+    the command's --resume or --append) says what to do with it."""
+    from .fileio import check_output_path
+
+    keep = [f"--{name} to {what} it" for name, what in (("resume", "continue"), ("append", "add to"))
+            if hasattr(args, name)]
+    if getattr(args, "force", False) or any(getattr(args, name, False) for name in ("resume", "append")):
+        return check_output_path(path)
+    if Path(path).exists() and not Path(path).is_dir():
+        raise UserError(f"{path}: exists already (give --force to replace it{''.join(', or ' + k for k in keep)})")
+    return check_output_path(path)
+
+
 def main(argv: list[str] | None = None) -> int:
+    from .runtime import sweep_temporary_folders
+
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
+    handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
     try:
+        sweep_temporary_folders()
+        for dest in getattr(args, "outputs", ()):  # before any work (see the module's docstring)
+            if getattr(args, dest):
+                claim_output(args, getattr(args, dest))
         args.func(args)
     except UserError as exc:
         print(f"servofmu {args.command}: error: {exc}", file=sys.stderr)
@@ -640,9 +699,15 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"servofmu {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except Terminated as exc:
+        print(f"servofmu {args.command}: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print(f"servofmu {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
     return 0
 
 

@@ -9,7 +9,16 @@ from __future__ import annotations
 import math
 from numbers import Integral, Real
 
-__all__ = ["UserError", "is_real", "check_int", "check_range", "check_positive", "check_optional_real"]
+__all__ = ["UserError", "is_real", "check_int", "check_range", "check_positive", "check_optional_real",
+           "name_problem", "MAX_NAME_LENGTH", "MAX_MAGNITUDE"]
+
+# No number servofmu reads (a plant's parameter, a stored value) comes near this; anything beyond is a mistake, damage
+# or a foreign file (and its square would overflow).
+MAX_MAGNITUDE = 1e100
+
+# Model names become C identifiers and file names (NAME.so inside an FMU, NAME.fmu): short enough for any file
+# system and compiler.
+MAX_NAME_LENGTH = 64
 
 
 class UserError(ValueError):
@@ -58,3 +67,14 @@ def check_optional_real(what: str, value) -> None:
     """Refuse ``value`` unless it is None or a finite real number."""
     if value is not None and not is_real(value):
         raise UserError(f"{what} must be a finite number or None, not {value!r}")
+
+
+def name_problem(name) -> str | None:
+    """Why ``name`` cannot name a model (a plant, a controller: an FMU's model identifier, a C identifier and a
+    file name), or None when it can."""
+    if not isinstance(name, str) or not name.isascii() or not name.replace("_", "").isalnum() \
+            or not name[:1].isalpha():
+        return "must be an identifier (letters, digits, underscores; starts with a letter)"
+    if len(name) > MAX_NAME_LENGTH:
+        return f"must be at most {MAX_NAME_LENGTH} characters long, not {len(name)}"
+    return None

@@ -7,18 +7,29 @@ and refuses newer ones (written by a later servofmu) and foreign files, naming t
 """
 from __future__ import annotations
 
+import errno
 import os
-import shutil
 from pathlib import Path
 from typing import Callable
 
-from .errors import UserError
+from .errors import MAX_MAGNITUDE, UserError
 
-__all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "hdf5_attr", "open_hdf5", "check_format"]
+__all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
+           "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER"]
+
+# Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers, which hold the
+# attributes, carry checksums, so a flipped bit in an attribute is found on reading, as Fletcher-32 finds one in
+# an array (store_array).
+HDF5_LIBVER = ("v110", "latest")
+
+# What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
+# header), and the KeyError ... of a missing or malformed item.
+READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
 
 
 def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
-    """An output path whose folder exists (and, unless ``overwrite``, that does not exist yet)."""
+    """An output path whose folder exists and is writable (and, unless ``overwrite``, that does not exist yet):
+    checked before any long work, so that a run never computes to the end to find it cannot save."""
     path = Path(path)
     if not path.parent.is_dir():
         raise UserError(f"{path}: folder {path.parent} does not exist")
@@ -26,6 +37,13 @@ def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
         raise UserError(f"{path}: is a folder, not a file")
     if not overwrite and path.exists():
         raise UserError(f"{path}: exists already (choose another name or remove it)")
+    probe = partial_path(path)  # the file every write starts with: can it be made?
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT, 0o644)
+        os.close(fd)
+        probe.unlink()
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return path
 
 
@@ -35,38 +53,17 @@ def partial_path(path: Path) -> Path:
 
 
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
-    path = check_output_path(path)
-    tmp = partial_path(path)
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data.encode() if isinstance(data, str) else data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror})") from exc
-    return path
-
-
-def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None = None) -> Path:
-    """Write the HDF5 file ``path`` anew: copy ``start_from`` (or start empty), let ``edit(h5py.File)`` fill it,
-    then rename it into place, so that a killed or failed run leaves the previous file or a complete new one."""
-    import h5py
-
+    """Write ``data`` to ``path`` through ``.NAME.part`` and one rename: every file servofmu writes goes through
+    here, so a full disk, a quota or a file-size limit ends as one UserError naming the file (``cannot write
+    FILE: reason``), with no partial file left and the previous ``path`` untouched."""
     path = Path(path)
     part = partial_path(path)
     try:
-        if start_from is not None:
-            shutil.copyfile(start_from, part)
-        with h5py.File(part, "r+" if start_from is not None else "w") as f:
-            edit(f)
-        with open(part, "rb+") as fh:
-            os.fsync(fh.fileno())
+        _write_part(part, memoryview(data.encode() if isinstance(data, str) else data))
         os.replace(part, path)
     except OSError as exc:
         part.unlink(missing_ok=True)
-        raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from exc
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
     except BaseException:
         part.unlink(missing_ok=True)
         raise
@@ -79,6 +76,83 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
     except OSError:
         pass
     return path
+
+
+def _write_part(part: Path, data: memoryview) -> None:
+    """``data`` into the file ``part``, on the disk (fsync).  Where the system allows (Linux: O_TMPFILE) the file
+    is written without a name and linked in as ``part`` once complete, so that a run killed while writing
+    leaves nothing behind; elsewhere it is written under its name."""
+    fd = None
+    if hasattr(os, "O_TMPFILE") and os.path.isdir("/proc/self/fd"):
+        try:
+            fd = os.open(part.parent, os.O_TMPFILE | os.O_WRONLY, 0o644)
+        except OSError as exc:
+            if exc.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL):
+                raise
+    unnamed = fd is not None
+    if not unnamed:
+        fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        while data:
+            data = data[os.write(fd, data):]
+        os.fsync(fd)
+        if unnamed:
+            part.unlink(missing_ok=True)  # a stale one of a killed run
+            proc = os.open("/proc/self/fd", os.O_RDONLY)  # linkat(..., AT_SYMLINK_FOLLOW) needs a directory fd
+            try:
+                os.link(str(fd), part, src_dir_fd=proc, follow_symlinks=True)
+            finally:
+                os.close(proc)
+    finally:
+        os.close(fd)
+
+
+def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None = None) -> Path:
+    """Write the HDF5 file ``path`` anew: start from a copy of ``start_from`` (or empty), let ``edit(h5py.File)``
+    fill it, then write it with :func:`atomic_write`.
+
+    The file is built in memory: HDF5 never writes to the disk itself, so a write that fails (disk full, size
+    limit) is a plain OSError of atomic_write, not an error inside the HDF5 library."""
+    import h5py
+
+    path = Path(path)
+    image = None
+    if start_from is not None:
+        try:
+            image = Path(start_from).read_bytes()
+        except OSError as exc:
+            raise UserError(f"cannot read {start_from}: {exc.strerror or exc}") from exc
+    try:
+        f = h5py.File.in_memory(image, libver=HDF5_LIBVER) if image is not None else \
+            h5py.File.in_memory(libver=HDF5_LIBVER)
+        with f:
+            edit(f)
+            f.flush()
+            image = f.id.get_file_image()
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    return atomic_write(path, image)
+
+
+def store_array(group, name: str, data, **attrs):
+    """Store an array as every servofmu file does: with a Fletcher-32 checksum (a flipped bit is found on
+    reading), compressed when large; ``attrs`` become its attributes.  Returns the dataset.
+
+    Text is stored as fixed-length UTF-8 (variable-length strings live in a heap no filter covers)."""
+    import h5py
+    import numpy as np
+
+    data = np.asarray(data)
+    if data.dtype.kind in "OUS":
+        encoded = [str(x.decode() if isinstance(x, bytes) else x).encode() for x in data.ravel()]
+        dtype = h5py.string_dtype("utf-8", max([1, *map(len, encoded)]))
+        data = np.array(encoded, dtype=dtype).reshape(data.shape)
+    options = {"fletcher32": True} if data.ndim else {}  # HDF5 filters need a chunked (non-scalar) dataset
+    if data.size > 256:
+        options.update(compression="gzip", shuffle=True)
+    ds = group.create_dataset(name, data=data, **options)
+    ds.attrs.update(attrs)
+    return ds
 
 
 def hdf5_attr(obj, key: str, default=...):
@@ -108,8 +182,61 @@ def open_hdf5(path: str | Path, what: str):
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        why = str(exc).split("(")[-1].rstrip(")") if "(" in str(exc) else str(exc)
-        raise UserError(f"{path}: not a readable {what} (not an HDF5 file, or a damaged one: {why})") from exc
+        raise UserError(f"{path}: not a readable {what} (not an HDF5 file, or a damaged one: "
+                        f"{read_error_reason(exc)})") from exc
+
+
+def read_error_reason(exc: BaseException) -> str:
+    """What went wrong reading an HDF5 file, in a few words: a failed checksum says so."""
+    text = (str(exc).strip("'\"").splitlines() or [type(exc).__name__])[0]
+    if "checksum" in text or "filter returned failure" in text:
+        return "checksum mismatch: the file was changed or damaged after it was written"
+    if isinstance(exc, KeyError):
+        return f"missing or bad {text}"
+    return text.split("(")[-1].rstrip(")") if "(" in text else text
+
+
+def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schema_version: int, read: Callable):
+    """Read a servofmu HDF5 file: open it, check its format and version (:func:`check_format`), and return
+    ``read(f, version)``.  Whatever goes wrong inside ``read`` (a missing or malformed item, a failed checksum) is
+    one UserError naming the file: ``FILE: damaged WHAT (reason)``."""
+    path = Path(path)
+    with open_hdf5(path, what) as f:
+        try:
+            _, version = check_format(f, path, formats, schema_version, what)
+            return read(f, version)
+        except UserError:
+            raise
+        except READ_ERRORS as exc:
+            raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
+
+
+def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True):
+    """The one check of stored numbers, used by every reader: ``values`` as an array of ``shape`` (None: any;
+    an entry None: any length along that axis), finite unless ``finite`` is False, and never beyond
+    ±:data:`MAX_MAGNITUDE`.  A violation is a UserError naming ``source`` (the file) and ``name``.
+    Returns the array."""
+    import numpy as np
+
+    try:
+        a = np.asarray(values)
+        if a.dtype.kind not in "biufc":
+            raise TypeError
+    except (TypeError, ValueError):
+        raise UserError(f"{source}: {name} is not numeric (a damaged or foreign file)") from None
+    if shape is not None and (a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape))):
+        expected = "×".join("n" if n is None else str(n) for n in shape) or "a scalar"
+        raise UserError(f"{source}: {name} has shape {'×'.join(map(str, a.shape)) or 'scalar'}, expected "
+                        f"{expected} (a damaged or foreign file)")
+    parts = (a.real, a.imag) if a.dtype.kind == "c" else (a,)
+    with np.errstate(invalid="ignore"):
+        for part in parts:
+            if finite and not np.all(np.isfinite(part)):
+                raise UserError(f"{source}: {name} holds NaN or Inf (a damaged or foreign file)")
+            if np.any(np.abs(part[np.isfinite(part)]) > MAX_MAGNITUDE):
+                raise UserError(f"{source}: {name} holds a value beyond ±{MAX_MAGNITUDE:g} (a damaged or foreign "
+                                "file)")
+    return a
 
 
 def check_format(f, path: str | Path, formats: str | tuple[str, ...], schema_version: int,
@@ -121,11 +248,13 @@ def check_format(f, path: str | Path, formats: str | tuple[str, ...], schema_ver
     ``path`` and saying it is not a ``what``.
     """
     accepted = (formats,) if isinstance(formats, str) else tuple(formats)
-    kind = hdf5_attr(f, "format", None)
+    try:
+        kind, version = hdf5_attr(f, "format", None), hdf5_attr(f, "schema_version", None)
+    except READ_ERRORS as exc:
+        raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
     if kind not in accepted:
         raise UserError(f"{path}: not a servofmu {what} (format attribute {kind!r}, expected "
                         f"{' or '.join(map(repr, accepted))})")
-    version = hdf5_attr(f, "schema_version", None)
     if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= schema_version:
         raise UserError(f"{path}: {what} schema version {version!r} is not supported (this servofmu reads "
                         f"versions 1 to {schema_version}; a newer file needs a newer servofmu)")

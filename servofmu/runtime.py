@@ -1,18 +1,22 @@
-"""What every stage takes from the machine it runs on: cores, the clock, a C compiler, a cache folder, and the
-one progress protocol of long-running library calls."""
+"""What every stage takes from the machine it runs on: cores, memory, the clock, a C compiler, a cache folder,
+temporary folders, and the one progress protocol of long-running library calls."""
 from __future__ import annotations
 
+import atexit
+import contextlib
 import datetime as _dt
 import os
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Iterator, Protocol, Sequence
 
 from .errors import UserError
 
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
-           "CompileError", "compiler_signature", "CFLAGS"]
+           "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
+           "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX"]
 
 # Flags of every shared library servofmu compiles (FMU binaries and the batch simulator).
 CFLAGS = ("-shared", "-fPIC", "-O2", "-std=c99")
@@ -56,6 +60,11 @@ def find_compiler() -> str:
     return cc
 
 
+# What a compiler says when it cannot write its output or temporary files, and the OS's reason.
+_WRITE_FAILURES = {"File size limit exceeded": "File too large", "File too large": "File too large",
+                   "No space left on device": "No space left on device"}
+
+
 def compile_shared(sources: Sequence[Path], target: Path, include: Sequence[Path] = (),
                    extra_flags: Sequence[str] = (), what: str = "") -> None:
     """Compile C ``sources`` into the shared library ``target`` (flags :data:`CFLAGS` plus ``extra_flags``)."""
@@ -63,6 +72,9 @@ def compile_shared(sources: Sequence[Path], target: Path, include: Sequence[Path
     cmd = [*cc.split(), *CFLAGS, *extra_flags, *[f"-I{d}" for d in include], *map(str, sources),
            "-o", str(target), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
+    for symptom, reason in _WRITE_FAILURES.items():  # the compiler could not write: the disk's fault, not the code's
+        if proc.returncode != 0 and symptom in proc.stderr:
+            raise CompileError(f"cannot write {target} ({what or 'compiled code'}): {reason}")
     if proc.returncode != 0:
         first = next((line for line in proc.stderr.splitlines() if "error" in line), proc.stderr.strip()[:300])
         raise CompileError(f"C compiler {cc} failed{' on ' + what if what else ''}: {first}")
@@ -82,3 +94,104 @@ def cache_dir() -> Path:
     if os.environ.get("SERVOFMU_CACHE"):
         return Path(os.environ["SERVOFMU_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "servofmu"
+
+
+# ---------------------------------------------------------------------------
+# Temporary folders
+# ---------------------------------------------------------------------------
+# Every temporary folder servofmu makes is named servofmu-PID-PURPOSE-XXXXXXXX in the system's temporary
+# directory and registered here: removed when the work is done, when the process exits (also by SIGTERM or
+# Ctrl-C, which the command line turns into exceptions), by a worker's signal handler, and — for a process that
+# was killed with SIGKILL and could not clean up — by the next servofmu command (sweep_temporary_folders).
+TEMPORARY_PREFIX = "servofmu-"
+_folders: set[str] = set()
+
+
+def _temporary_root() -> str | None:
+    """$TMPDIR as given (None: tempfile's choice, which probes by writing a file and, when the disk is full,
+    names no reason)."""
+    return tempfile.tempdir or os.environ.get("TMPDIR") or None
+
+
+def make_temporary_folder(purpose: str) -> Path:
+    """A new temporary folder, removed at the latest when this process exits (see :func:`temporary_folder`)."""
+    root = _temporary_root()
+    try:
+        path = tempfile.mkdtemp(prefix=f"{TEMPORARY_PREFIX}{os.getpid()}-{purpose}-", dir=root)
+    except OSError as exc:
+        raise UserError(f"cannot make a temporary folder in {root or 'the temporary directory'}: "
+                        f"{exc.strerror or exc}") from exc
+    _folders.add(path)
+    return Path(path)
+
+
+def remove_temporary_folders(*paths: str | Path) -> None:
+    """Remove the given temporary folders (default: every one this process made and has not removed yet)."""
+    for path in [str(p) for p in paths] if paths else list(_folders):
+        shutil.rmtree(path, ignore_errors=True)
+        _folders.discard(path)
+
+
+@contextlib.contextmanager
+def temporary_folder(purpose: str) -> Iterator[Path]:
+    """``with temporary_folder("build") as path``: a temporary folder for the block, removed however it ends."""
+    path = make_temporary_folder(purpose)
+    try:
+        yield path
+    finally:
+        remove_temporary_folders(path)
+
+
+atexit.register(remove_temporary_folders)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def sweep_temporary_folders() -> None:
+    """Remove the temporary folders of servofmu processes that no longer run (killed with SIGKILL)."""
+    root = Path(_temporary_root() or tempfile.gettempdir())
+    try:
+        entries = list(root.iterdir())
+    except OSError:
+        return
+    for entry in entries:
+        parts = entry.name.split("-")
+        if entry.name.startswith(TEMPORARY_PREFIX) and len(parts) > 2 and parts[1].isdigit() \
+                and int(parts[1]) != os.getpid() and not _alive(int(parts[1])) and entry.is_dir():
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------
+# Memory
+# ---------------------------------------------------------------------------
+def _memory_bytes() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_memory(what: str, needed: float, how: str) -> None:
+    """Refuse up front work whose memory estimate ``needed`` (bytes) exceeds half of this machine's memory:
+    one line with the estimate, instead of a MemoryError (or the kernel's OOM killer) partway through.  ``how``
+    says how to make the work smaller."""
+    total = _memory_bytes()
+    if total is not None and needed > total / 2:
+        raise UserError(f"{what} needs about {_bytes(needed)} of memory, more than half of this machine's "
+                        f"{_bytes(total)}; {how}")
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} PB"

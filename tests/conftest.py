@@ -1,9 +1,43 @@
-"""Fixtures shared by the test modules."""
+"""Fixtures shared by the test modules, and the temporary-directory check every test passes."""
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
+
+# Every test runs with a temporary directory of this session's own (inherited by the commands it starts), so that
+# what servofmu leaves there is seen: nothing may be left by any test (no_temporary_leftovers).
+SESSION_TMP = Path(tempfile.mkdtemp(prefix="servofmu-tests-"))
+
+
+def pytest_configure(config):
+    os.environ["TMPDIR"] = str(SESSION_TMP)
+    tempfile.tempdir = None
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(SESSION_TMP, ignore_errors=True)
+
+
+def _leftovers(before: set) -> set:
+    return {p.name for p in SESSION_TMP.iterdir() if not p.name.startswith("pytest-of-")} - before
+
+
+@pytest.fixture(autouse=True)
+def no_temporary_leftovers():
+    """The test leaves nothing in the temporary directory (worker processes of a killed command get a few seconds
+    to notice and remove their folders)."""
+    before = _leftovers(set())
+    yield
+    deadline = time.monotonic() + 10
+    while _leftovers(before) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _leftovers(before), f"left in the temporary directory: {sorted(_leftovers(before))}"
 
 
 @pytest.fixture(scope="session")

@@ -363,7 +363,7 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(result_file, tmp_path, cas
     for existing in (False, True):
         if existing:
             out.write_text("keep me")
-        proc = run("export", str(source), *args, "-o", str(out))
+        proc = run("export", str(source), *args, "-o", str(out), *(["--force"] if existing else []))
         assert_one_line_error(proc, *fragments)
         assert (out.read_text() == "keep me") if existing else not out.exists()
         assert {p.name for p in tmp_path.iterdir()} <= {"foreign.h5", "corrupt.h5", out.name}  # no leftovers

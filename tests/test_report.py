@@ -204,23 +204,24 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     out.write_text("an earlier report")
     result, data = g1_result["result"], g1_result["data"]
     # a data file, a comparison file of a format it does not know, a file that is not HDF5
-    assert_one_line_error(run("report", data, "-o", out), str(data), "servofmu-data")
+    assert_one_line_error(run("report", data, "-o", out, "--force"), str(data), "servofmu-data")
     foreign = tmp_path / "foreign.h5"
     with h5py.File(foreign, "w") as f:
         f.attrs["format"] = "something-else"
-    assert_one_line_error(run("report", foreign, "-o", out), str(foreign), "something-else")
-    assert_one_line_error(run("report", g1_result["truth"], "-o", out), "truth.toml", "not a readable")
+    assert_one_line_error(run("report", foreign, "-o", out, "--force"), str(foreign), "something-else")
+    assert_one_line_error(run("report", g1_result["truth"], "-o", out, "--force"), "truth.toml", "not a readable")
     # data other than the result was identified from
     other = tmp_path / "other.h5"
     other.write_bytes(data.read_bytes())
     with h5py.File(other, "a") as f:
         f.attrs["note"] = "changed"
-    assert_one_line_error(run("report", result, "--data", other, "-o", out), str(other), "SHA-256")
+    assert_one_line_error(run("report", result, "--data", other, "-o", out, "--force"), str(other), "SHA-256")
     # the data file cannot be found: the result alone in another folder
     alone = tmp_path / "alone"
     alone.mkdir()
     (alone / "r.h5").write_bytes(result.read_bytes())
-    assert_one_line_error(run("report", alone / "r.h5", "-o", out, cwd=tmp_path), "g1.h5", "give the data file")
+    assert_one_line_error(run("report", alone / "r.h5", "-o", out, "--force", cwd=tmp_path), "g1.h5",
+                          "give the data file")
     # ... and given with --data it is found
     proc = run("report", alone / "r.h5", "--data", data, "-o", tmp_path / "ok.html", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -7,7 +7,6 @@ velocity's harmonic distortion over the reference's whole periods (when the refe
 """
 from __future__ import annotations
 
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 from ..errors import UserError
 from ..measurement.frf import estimate_frequency, harmonics
 from ..model.plant import Plant
+from ..runtime import temporary_folder
 from .controller import PARAMETERS, ControllerSpec, friction_feedforward
 from .cosim import CosimResult, cosimulate
 from .system import parameter_set_xml, read_system
@@ -51,7 +51,7 @@ def _distortion(result: CosimResult) -> float:
 
 def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine: str = "libcosim") -> TrackingRun:
     """The axis archive run with ``controller``'s parameter values bound in place of its own."""
-    with tempfile.TemporaryDirectory(prefix="servofmu-compensate-") as tmp:
+    with temporary_folder("compensate") as tmp:
         variant = Path(tmp) / f"{Path(ssp).stem}.ssp"
         with zipfile.ZipFile(ssp) as src, zipfile.ZipFile(variant, "w", zipfile.ZIP_DEFLATED) as dst:
             for item in src.infolist():
@@ -67,7 +67,7 @@ def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine:
 def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None = None,
                          engine: str = "libcosim") -> list[TrackingRun]:
     """Runs without friction feed-forward, with the identified friction, and (given) with the true friction."""
-    with tempfile.TemporaryDirectory(prefix="servofmu-compensate-") as tmp:
+    with temporary_folder("compensate") as tmp:
         system = read_system(ssp, tmp)
     missing = [p.name for p in PARAMETERS if p.name not in system.controller]
     if missing:

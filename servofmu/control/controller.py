@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, name_problem
 from ..model.plant import Plant
 
 __all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
@@ -134,8 +134,8 @@ def controller_from_dict(data: dict, source: str = "<memory>") -> ControllerSpec
     values = {p.name: p.default for p in PARAMETERS}
     given = set()
     name = data.get("name", Path(source).stem if source != "<memory>" else "controller")
-    if not isinstance(name, str) or not name.replace("_", "").isalnum() or not name[:1].isalpha():
-        fail("name", "must be an identifier (letters, digits, underscores; starts with a letter)")
+    if name_problem(name):
+        fail("name", name_problem(name))
     for key, value in data.items():
         if key == "name":
             continue

@@ -14,7 +14,6 @@ controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference 
 from __future__ import annotations
 
 import hashlib
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -25,7 +24,7 @@ from .. import __version__
 from ..errors import UserError
 from ..fileio import check_output_path
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
-from ..runtime import utc_now
+from ..runtime import temporary_folder, utc_now
 from .system import COMPONENTS, read_system
 
 __all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
@@ -124,7 +123,7 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
     if engine not in ENGINES:
         raise UserError(f"engine must be one of {', '.join(ENGINES)}, not {engine!r}")
     ssp = Path(ssp)
-    with tempfile.TemporaryDirectory(prefix="servofmu-cosim-") as tmp:
+    with temporary_folder("cosim") as tmp:
         system = read_system(ssp, tmp)
         stop = system.stop_time if stop_time is None else float(stop_time)
         n = _steps(stop, system.step_size)
@@ -142,9 +141,10 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
 
 
 def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path, command: str = "",
-                        append: bool = False) -> DataFile:
-    """The run as a records file: one record (see the module docstring), the input held between samples."""
-    output = check_output_path(output, overwrite=False) if not append else Path(output)
+                        append: bool = False, overwrite: bool = False) -> DataFile:
+    """The run as a records file: one record (see the module docstring), the input held between samples; an
+    existing ``output`` is appended to (``append``), replaced (``overwrite``) or refused."""
+    output = check_output_path(output, overwrite=overwrite) if not append else Path(output)
     t = result.time[:-1]
     series = Series(time=t, u=result["force_command"][:-1], v=result["v"][:-1],
                     position=result["position_measured"][1:], reference=result["reference"][:-1])
@@ -159,5 +159,5 @@ def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path
                     note=f"co-simulated on {result.engine}", intersample="zoh")
     provenance = {"package": "servofmu", "package_version": __version__, "command": command, "created": utc_now(),
                   "sources": [Path(ssp).name], "engine": result.engine, "components": list(COMPONENTS)}
-    write_records(output, [record], provenance, append=append)
+    write_records(output, [record], provenance, append=append, overwrite=overwrite)
     return read_data_file(output)

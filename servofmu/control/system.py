@@ -13,8 +13,7 @@ libcosim and FMPy's SSP runner use FMI 2.0 Co-Simulation, so the FMUs of a syste
 """
 from __future__ import annotations
 
-import os
-import tempfile
+import io
 import xml.etree.ElementTree as ET
 import zipfile
 from dataclasses import dataclass
@@ -23,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import check_output_path, partial_path
+from ..fileio import atomic_write, check_output_path
+from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import read_fmu
 from .controller import PARAMETERS, ControllerSpec
 from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
@@ -159,20 +159,16 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
                   "controller": [(n, "input") for n, _, _ in CONTROLLER_INPUTS]
                   + [(n, "output") for n, _, _ in CONTROLLER_OUTPUTS],
                   "plant": list(PLANT_CONNECTORS)}
-    with tempfile.TemporaryDirectory(prefix="servofmu-ssp-") as tmp:
+    with temporary_folder("ssp") as tmp:
         ref_fmu = build_reference_fmu(time, position, Path(tmp) / "reference.fmu", fmi_version=2)
-        part = partial_path(output)
-        try:
-            with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
-                zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors))
-                zf.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
-                                                                     controller.values))))
-                for name, path in (("reference", ref_fmu), ("controller", controller_fmu), ("plant", plant_fmu)):
-                    zf.write(path, f"resources/{name}.fmu")
-            os.replace(part, output)
-        except OSError as exc:
-            part.unlink(missing_ok=True)
-            raise UserError(f"{output}: cannot write ({exc.strerror})") from exc
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
+            zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors))
+            zf.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
+                                                                 controller.values))))
+            for name, path in (("reference", ref_fmu), ("controller", controller_fmu), ("plant", plant_fmu)):
+                zf.write(path, f"resources/{name}.fmu")
+    atomic_write(output, buffer.getvalue())
     return output
 
 

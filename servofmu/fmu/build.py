@@ -9,19 +9,18 @@ is four steps: sources, descriptions and documentation, binary, archive.
 from __future__ import annotations
 
 import html
-import os
+import io
 import platform
 import shutil
-import tempfile
 import zipfile
 from pathlib import Path
 
 from .. import __version__
 from ..errors import UserError
-from ..fileio import check_output_path, partial_path
+from ..fileio import atomic_write, check_output_path
 from ..model.plant import Plant
 from ..model.symbolic import build_model
-from ..runtime import compile_shared, find_compiler, utc_now
+from ..runtime import compile_shared, find_compiler, temporary_folder, utc_now
 from . import description
 from .sources import C_DIR, generate_sources
 from .variables import Variable, fmu_variables
@@ -118,29 +117,32 @@ def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variable
     output = check_output_path(output)
     find_compiler()  # before any work: a missing compiler is the commonest failure
     headers = fmi_header_dir()
-    with tempfile.TemporaryDirectory(prefix="servofmu-build-") as tmp:
-        root = Path(tmp) / "fmu"
-        src = root / "sources"
-        src.mkdir(parents=True)
-        token = write_sources(src)
-        api = f"fmi{fmi_version}_api.c"
-        shutil.copy(C_DIR / api, src / api)
-        sources = [*sources, api]
-        (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
-        info = {"description": summary, "generationTool": f"servofmu {__version__}",
-                "generationDateAndTime": utc_now()}
-        if fmi_version == 3:
-            md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
-                                                    provenance, continuous=continuous)
-        else:
-            md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
-                                                    sources, provenance, continuous=continuous)
-        (root / "modelDescription.xml").write_bytes(md)
-        _write_documentation(root, title or identifier, summary, equations, variables, provenance)
-        bindir = root / "binaries" / platform_folder(fmi_version)
-        bindir.mkdir(parents=True)
-        compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
-                       include=[src, headers], what=f"the FMU {identifier}")
+    with temporary_folder("build") as tmp:
+        try:
+            root = Path(tmp) / "fmu"
+            src = root / "sources"
+            src.mkdir(parents=True)
+            token = write_sources(src)
+            api = f"fmi{fmi_version}_api.c"
+            shutil.copy(C_DIR / api, src / api)
+            sources = [*sources, api]
+            (src / "buildDescription.xml").write_bytes(description.build_description(identifier, sources))
+            info = {"description": summary, "generationTool": f"servofmu {__version__}",
+                    "generationDateAndTime": utc_now()}
+            if fmi_version == 3:
+                md = description.model_description_fmi3(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                        provenance, continuous=continuous)
+            else:
+                md = description.model_description_fmi2(identifier, token, variables, info, DEFAULT_EXPERIMENT,
+                                                        sources, provenance, continuous=continuous)
+            (root / "modelDescription.xml").write_bytes(md)
+            _write_documentation(root, title or identifier, summary, equations, variables, provenance)
+            bindir = root / "binaries" / platform_folder(fmi_version)
+            bindir.mkdir(parents=True)
+            compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
+                           include=[src, headers], what=f"the FMU {identifier}")
+        except OSError as exc:  # a full disk or a file-size limit while the FMU's files are written
+            raise BuildError(f"cannot write {exc.filename or tmp}: {exc.strerror or exc}") from exc
         _pack(root, output)
     return output
 
@@ -168,16 +170,12 @@ def _write_documentation(root: Path, title: str, summary: str, equations: str, v
 
 def _pack(root: Path, output: Path) -> None:
     """Zip ``root`` into ``output`` atomically."""
-    partial = partial_path(output)
-    try:
-        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
-            for path in sorted(root.rglob("*")):
-                if path.is_file():
-                    zf.write(path, path.relative_to(root).as_posix())
-        os.replace(partial, output)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise BuildError(f"{output}: cannot write ({exc.strerror})") from exc
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
+        for path in sorted(root.rglob("*")):
+            if path.is_file():
+                zf.write(path, path.relative_to(root).as_posix())
+    atomic_write(output, buffer.getvalue())
 
 
 def _shared_suffix() -> str:

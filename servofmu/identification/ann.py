@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, check_int, is_real
-from ..fileio import check_format, check_output_path, hdf5_attr, open_hdf5, write_hdf5
-from ..runtime import Progress
+from ..fileio import check_output_path, check_values, hdf5_attr, read_hdf5, store_array, write_hdf5
+from ..runtime import Progress, check_memory
 
 __all__ = ["Network", "FeatureLayout", "AnnModel", "load_ann", "TrainOptions", "train_network", "save_network",
            "load_network"]
@@ -227,6 +227,11 @@ def train_network(X, Y, hidden: int = 20, seed: int = 0, options: TrainOptions =
     check_int("seed", seed, 0)
     X, Y = _check_training_data(X, Y)
     n = X.shape[0]
+    weights = hidden * (X.shape[1] + 1) + Y.shape[1] * (hidden + 1)
+    # weights, gradients and the optimizer's history (L-BFGS keeps 2 x 50 vectors), and the hidden layer's
+    # activations and their gradients for every sample
+    check_memory(f"a network of {hidden} hidden neurons", 8 * (weights * 108 + 4 * n * hidden),
+                 "use fewer hidden neurons")
     n_val = max(1, int(round(options.validation_fraction * n)))
     if n - n_val < 1:
         raise UserError(f"training data: {n} samples are too few for a training and a validation set")
@@ -391,8 +396,6 @@ def _activate(z: np.ndarray, activation: str) -> np.ndarray:
 # ---------------------------------------------------------------------------
 def save_network(net: Network, path: str | Path, layout: FeatureLayout) -> Path:
     """Write ``net`` and the ``layout`` it was trained on to ``path`` (ANN.h5), atomically."""
-    import h5py
-
     if len(layout.feature_names) != net.inputs or len(layout.parameter_names) != net.outputs:
         raise UserError(f"{path}: the layout names {len(layout.feature_names)} features and "
                         f"{len(layout.parameter_names)} parameters, the network has {net.inputs} inputs and "
@@ -404,11 +407,11 @@ def save_network(net: Network, path: str | Path, layout: FeatureLayout) -> Path:
                         "normalisation": net.normalisation, "optimizer": net.optimizer, "seed": net.seed,
                         "best_epoch": net.best_epoch})
         for name in _ARRAYS:
-            f.create_dataset(name, data=getattr(net, name))
+            store_array(f, name, getattr(net, name))
         g = f.create_group("layout")
-        g.create_dataset("feature_names", data=list(layout.feature_names), dtype=h5py.string_dtype())
-        g.create_dataset("parameter_names", data=list(layout.parameter_names), dtype=h5py.string_dtype())
-        g.create_dataset("plan", data=layout.plan)
+        store_array(g, "feature_names", list(layout.feature_names))
+        store_array(g, "parameter_names", list(layout.parameter_names))
+        store_array(g, "plan", layout.plan)
 
     write_hdf5(path, write)
     return path
@@ -419,27 +422,23 @@ def load_network(path: str | Path) -> tuple[Network, FeatureLayout]:
     import h5py
 
     path = Path(path)
-    with open_hdf5(path, "network file") as f:
-        check_format(f, path, FORMAT, SCHEMA_VERSION, "network file")
 
+    def read(f, version):
         def dataset(name):
             if not isinstance(f.get(name), h5py.Dataset):
-                raise KeyError(f"dataset {name}")
+                raise KeyError(f"missing dataset {name}")
             return f[name]
 
-        try:
-            net = Network(**{name: np.asarray(dataset(name)[()], dtype=float) for name in _ARRAYS},
-                          activation=str(hdf5_attr(f, "activation")), normalisation=str(hdf5_attr(f, "normalisation")),
-                          optimizer=str(hdf5_attr(f, "optimizer")), seed=int(hdf5_attr(f, "seed")),
-                          best_epoch=int(hdf5_attr(f, "best_epoch")))
-            layout = FeatureLayout(feature_names=tuple(dataset("layout/feature_names").asstr()[()]),
-                                   parameter_names=tuple(dataset("layout/parameter_names").asstr()[()]),
-                                   plan=np.asarray(dataset("layout/plan")[()], dtype=float))
-        except KeyError as exc:
-            raise UserError(f"{path}: damaged network file (missing {str(exc).strip(chr(34) + chr(39))})") from exc
-        except (ValueError, TypeError, OSError) as exc:
-            why = (str(exc).splitlines() or [type(exc).__name__])[0]
-            raise UserError(f"{path}: damaged network file (bad value: {why})") from exc
+        arrays = {name: check_values(path, name, dataset(name)[()]).astype(float) for name in _ARRAYS}
+        net = Network(**arrays, activation=str(hdf5_attr(f, "activation")),
+                      normalisation=str(hdf5_attr(f, "normalisation")), optimizer=str(hdf5_attr(f, "optimizer")),
+                      seed=int(hdf5_attr(f, "seed")), best_epoch=int(hdf5_attr(f, "best_epoch")))
+        layout = FeatureLayout(feature_names=tuple(dataset("layout/feature_names").asstr()[()]),
+                               parameter_names=tuple(dataset("layout/parameter_names").asstr()[()]),
+                               plan=check_values(path, "layout/plan", dataset("layout/plan")[()]).astype(float))
+        return net, layout
+
+    net, layout = read_hdf5(path, "network file", FORMAT, SCHEMA_VERSION, read)
     _check_loaded(net, layout, path)
     return net, layout
 
@@ -467,17 +466,14 @@ def load_ann(path: str | Path) -> AnnModel:
 
 
 def _check_loaded(net: Network, layout: FeatureLayout, path: Path) -> None:
-    """The arrays of a read file fit together and are finite: a damaged file must not predict nonsense."""
+    """The arrays of a read file fit together: a damaged file must not predict nonsense."""
     h, i = net.w1.shape if net.w1.ndim == 2 else (-1, -1)
     o = net.w2.shape[0] if net.w2.ndim == 2 else -1
-    shapes = {"w1": (h, i), "b1": (h,), "w2": (o, h), "b2": (o,), "x_shift": (i,), "x_scale": (i,),
-              "y_shift": (o,), "y_scale": (o,)}
-    for name, shape in shapes.items():
-        a = getattr(net, name)
-        if min(shape) < 1 or a.shape != shape:
-            raise UserError(f"{path}: damaged network file ({name} has shape {a.shape})")
-        if not np.all(np.isfinite(a)):
-            raise UserError(f"{path}: damaged network file ({name} contains NaN or infinite values)")
+    if min(h, i, o) < 1:
+        raise UserError(f"{path}: damaged network file (weights of shapes {net.w1.shape} and {net.w2.shape})")
+    for name, shape in {"w1": (h, i), "b1": (h,), "w2": (o, h), "b2": (o,), "x_shift": (i,), "x_scale": (i,),
+                        "y_shift": (o,), "y_scale": (o,)}.items():
+        check_values(path, name, getattr(net, name), shape)
     if np.any(net.x_scale <= 0) or np.any(net.y_scale <= 0):
         raise UserError(f"{path}: damaged network file (a normalisation scale is not positive)")
     if net.activation not in ACTIVATIONS or net.normalisation not in NORMALISATIONS:

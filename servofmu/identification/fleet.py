@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import UserError
+from ..fileio import check_output_path
 from ..model.plant import load_plant
 from ..runtime import Progress
 from ..simulation.parallel import Workers
@@ -64,8 +65,8 @@ def result_path(output_dir: Path, data_file: str | Path) -> Path:
 
 def identify_files(data_files, structure_file, output_dir, ann_file=None, method: str = "pso-ann", seed: int = 0,
                    polish: bool = True, skip: float = 0.0, resume: bool = False, scheduler: str | None = None,
-                   workers: int | None = None, command: str = "",
-                   progress: Progress | None = None) -> list[FileOutcome]:
+                   workers: int | None = None, command: str = "", progress: Progress | None = None,
+                   overwrite: bool = False) -> list[FileOutcome]:
     """Identify every data file and write one result per file into ``output_dir``.
 
     Parameters
@@ -103,11 +104,13 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
     UserError
         For a missing folder, two data files with the same name, an unusable structure or network, or (without
         ``resume``) a result already in the folder, and with ``resume`` for a result there of other data or
-        settings; nothing has been identified then.
+        settings; nothing has been identified then.  ``overwrite``: replace results already in the folder (the
+        output rule of every subcommand: refuse an existing output unless told to replace or resume it).
     """
     output_dir = Path(output_dir)
     if not output_dir.is_dir():
         raise UserError(f"{output_dir}: no such folder (the output folder must exist)")
+    check_output_path(result_path(output_dir, "probe"))  # writable, before any work
     data_files = [str(d) for d in data_files]
     if not data_files:
         raise UserError("no data files to identify")
@@ -129,11 +132,11 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
             for d, r in zip(data_files, results)]
     outcomes: list[FileOutcome | None] = [None] * len(jobs)
     for i, job in enumerate(jobs):
-        if Path(job.result_file).exists():
-            if not resume:
-                raise UserError(f"{job.result_file}: exists already (--resume keeps finished results; or choose "
-                                "another output folder)")
+        if Path(job.result_file).exists() and resume:
             outcomes[i] = _kept(job, structure.to_toml())
+        elif Path(job.result_file).exists() and not overwrite:
+            raise UserError(f"{job.result_file}: exists already (give --force to replace it, or --resume to keep "
+                            "finished results)")
     todo = [i for i, o in enumerate(outcomes) if o is None]
     done = len(jobs) - len(todo)
     if progress is not None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, check_int
 from ..measurement.datafile import read_data_file
 from ..model.plant import Plant, load_plant
 from ..runtime import Progress
@@ -171,6 +171,7 @@ class PSOANNIdentifier:
     # ---- the fit ---------------------------------------------------------------------------------------
     def _check(self, data) -> None:
         check_method(self.method)
+        check_int("seed", self.seed, 0)
         if self.method in NEEDS_ANN and self.ann is None:
             raise UserError(f"method {self.method} needs a trained network (see `servofmu train`)")
         if self.method in NEEDS_ANN and not isinstance(data, SineData):

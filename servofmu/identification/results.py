@@ -6,13 +6,13 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from .. import __version__
 from ..errors import UserError
-from ..fileio import check_format, check_output_path, open_hdf5, write_hdf5
+from ..fileio import check_output_path, check_values, hdf5_attr, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
+from ..simulation.batch import valid_parameter_sets
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
@@ -159,15 +159,15 @@ def _fill(group, result: Result) -> None:
                         "evaluations": result.evaluations, "provenance": json.dumps(result.provenance)})
     if result.fit_percent:
         group.attrs["fit_percent"] = json.dumps(result.fit_percent)
-    group.create_dataset("names", data=np.array(result.names, dtype=h5py.string_dtype()))
-    group.create_dataset("theta", data=result.theta)
-    group.create_dataset("intervals", data=result.intervals)
-    group.create_dataset("history", data=result.history)
+    store_array(group, "names", list(result.names))
+    store_array(group, "theta", result.theta)
+    store_array(group, "intervals", result.intervals)
+    store_array(group, "history", result.history)
     st = group.create_group("stages")
-    st.create_dataset("name", data=np.array([s.name for s in result.stages], dtype=h5py.string_dtype()))
-    st.create_dataset("fitness", data=np.array([s.fitness for s in result.stages]))
-    st.create_dataset("seconds", data=np.array([s.seconds for s in result.stages]))
-    st.create_dataset("evaluations", data=np.array([s.evaluations for s in result.stages]))
+    store_array(st, "name", [s.name for s in result.stages])
+    store_array(st, "fitness", np.array([s.fitness for s in result.stages]))
+    store_array(st, "seconds", np.array([s.seconds for s in result.stages]))
+    store_array(st, "evaluations", np.array([s.evaluations for s in result.stages]))
 
 
 def write_result(path: str | Path, result: Result) -> Path:
@@ -212,34 +212,40 @@ def _read(group, path: Path) -> Result:
     a = dict(group.attrs)
     names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in group["names"][()])
     st = group["stages"]
+    stage_names = st["name"][()]
+    arrays = {k: check_values(path, f"stages/{k}", st[k][()], (len(stage_names),), finite=False)
+              for k in ("fitness", "seconds", "evaluations")}
     stages = tuple(Stage(n.decode() if isinstance(n, bytes) else str(n), None, float(fi), float(se), int(ev))
-                   for n, fi, se, ev in zip(st["name"][()], st["fitness"][()], st["seconds"][()],
-                                            st["evaluations"][()]))
+                   for n, fi, se, ev in zip(stage_names, arrays["fitness"], arrays["seconds"], arrays["evaluations"]))
     structure = plant_from_dict(tomllib.loads(a["structure_toml"]), source=f"{path}:structure")
     if list(names) != identified_names(structure):
         raise UserError(f"{path}: parameter names do not match its structure")
-    theta = np.asarray(group["theta"][()], dtype=float)
-    plant = structure.with_parameters(full_vectors(structure, theta)[0])
-    return Result(method=str(a["method"]), structure=structure, plant=plant, names=names, theta=theta,
-                  intervals=group["intervals"][()], fitness=float(a["fitness"]), seconds=float(a["seconds"]), evaluations=int(a["evaluations"]), stages=stages,
-                  history=group["history"][()], provenance=json.loads(a["provenance"]),
+    theta = check_values(path, "theta", group["theta"][()], (len(names),)).astype(float)
+    full = full_vectors(structure, theta)
+    if not valid_parameter_sets(structure, full)[0]:
+        raise UserError(f"{path}: the identified parameters are not a plant the plant file format accepts (a damaged "
+                        "or foreign file)")
+    intervals = check_values(path, "intervals", group["intervals"][()], (len(names), 2), finite=False)
+    history = check_values(path, "history", group["history"][()], (None,), finite=False)
+    fitness = float(check_values(path, "fitness", a["fitness"], (), finite=False))
+    return Result(method=str(a["method"]), structure=structure, plant=structure.with_parameters(full[0]), names=names,
+                  theta=theta, intervals=intervals, fitness=fitness, seconds=float(a["seconds"]),
+                  evaluations=int(a["evaluations"]), stages=stages, history=history,
+                  provenance=json.loads(a["provenance"]),
                   fit_percent=json.loads(a["fit_percent"]) if "fit_percent" in a else None)
 
 
 def read_results(path: str | Path) -> dict[str, Result]:
     """RESULT.h5 (one entry, keyed by its method) or COMPARE.h5 (one per method)."""
     path = Path(path)
-    try:
-        with open_hdf5(path, "result file") as f:
-            kind, _ = check_format(f, path, (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, "result or comparison file")
-            if kind == FORMAT:
-                result = _read(f, path)
-                return {result.method: result}
-            return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
-    except UserError:
-        raise
-    except (OSError, KeyError, ValueError, tomllib.TOMLDecodeError) as exc:
-        raise UserError(f"{path}: not a readable result file ({str(exc).splitlines()[0]})") from exc
+
+    def read(f, version):
+        if hdf5_attr(f, "format") == FORMAT:
+            result = _read(f, path)
+            return {result.method: result}
+        return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
+
+    return read_hdf5(path, "result file", (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, read)
 
 
 def read_result(path: str | Path) -> Result:

@@ -15,9 +15,9 @@ import numpy as np
 
 from .. import __version__
 from ..errors import UserError, check_int
-from ..fileio import check_format, check_output_path, open_hdf5, write_hdf5
+from ..fileio import check_output_path, check_values, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
-from ..runtime import Progress
+from ..runtime import Progress, check_memory
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from ..simulation.parallel import WorkerResource, Workers
 from .criterion import SineData
@@ -70,8 +70,7 @@ def _write(path: Path, arrays: dict, attrs: dict) -> None:
     def fill(f):
         f.attrs.update(attrs)
         for name, a in arrays.items():
-            kw = {"chunks": True, "compression": "gzip", "shuffle": True} if a.size > 64 else {}
-            f.create_dataset(name, data=a, **kw).attrs["unit"] = units.get(name, "1")
+            store_array(f, name, a, unit=units.get(name, "1"))
 
     write_hdf5(path, fill)
 
@@ -81,17 +80,21 @@ def load_training_set(path: str | Path) -> TrainingSet:
     import tomllib
 
     path = Path(path)
-    try:
-        with open_hdf5(path, "training set") as f:
-            check_format(f, path, FORMAT, SCHEMA_VERSION, "training set")
-            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-            arrays = {k: f[k][()] for k in ("amplitudes", "frequencies", "parameters", "H_re", "H_im", "dc",
-                                             "converged", "done")}
-    except UserError:
-        raise
-    except (OSError, KeyError) as exc:
-        raise UserError(f"{path}: not a readable training set ({exc})") from exc
-    structure = plant_from_dict(tomllib.loads(attrs["structure_toml"]), source=f"{path}:structure")
+
+    def read(f, version):
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        structure = plant_from_dict(tomllib.loads(attrs["structure_toml"]), source=f"{path}:structure")
+        a = {k: f[k][()] for k in ("amplitudes", "frequencies", "parameters", "H_re", "H_im", "dc", "converged",
+                                    "done")}
+        n, rows = a["amplitudes"].size, a["done"].size
+        check_values(path, "amplitudes", a["amplitudes"], (None,))
+        check_values(path, "frequencies", a["frequencies"], (n,))
+        check_values(path, "parameters", a["parameters"], (rows, len(identified_names(structure))))
+        for name in ("H_re", "H_im", "dc", "converged"):  # not yet simulated, or without steady state: NaN
+            check_values(path, name, a[name], (rows, n), finite=False)
+        return structure, attrs, a
+
+    structure, attrs, arrays = read_hdf5(path, "training set", FORMAT, SCHEMA_VERSION, read)
     return TrainingSet(path=path, structure=structure, amplitudes=arrays["amplitudes"],
                        frequencies=arrays["frequencies"], parameters=arrays["parameters"],
                        H=arrays["H_re"] + 1j * arrays["H_im"], dc=arrays["dc"],
@@ -107,7 +110,7 @@ def _simulate_chunk(simulator, item):
 
 def make_training_set(structure: Plant, data: SineData, samples: int, output: str | Path, spread: float = 0.5,
                       seed: int = 0, resume: bool = False, scheduler: str | None = None, rtol: float = TRAINING_RTOL,
-                      command: str = "", progress: Progress | None = None) -> TrainingSet:
+                      command: str = "", progress: Progress | None = None, overwrite: bool = False) -> TrainingSet:
     """Draw plants around a structure, simulate them under a measurement's plan and write the training set.
 
     Parameters
@@ -127,6 +130,8 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
         Seed of the prior draw.
     resume : bool
         Complete an existing ``output`` made with the same arguments instead of starting again.
+    overwrite : bool
+        Replace an existing ``output`` (without ``resume``).
     scheduler : str, optional
         A Dask scheduler address; default: this machine, all cores.
     rtol : float
@@ -144,11 +149,16 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     Raises
     ------
     UserError
-        For bad arguments, or a ``resume`` of a file made with other arguments.
+        For bad arguments, a training set too large for this machine's memory, an existing ``output`` (without
+        ``resume`` or ``overwrite``), or a ``resume`` of a file made with other arguments.
     """
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)
-    output = check_output_path(output, overwrite=resume)
+    output = check_output_path(output, overwrite=resume or overwrite)
+    # the arrays below, the file's image in memory and its copy on every write
+    check_memory(f"a training set of {samples} plants", 4 * 8 * samples * (2 * len(structure.parameter_names())
+                                                                            + 4 * data.amplitudes.size),
+                 "use fewer --samples")
     theta = sample_identified(structure, samples, spread, np.random.default_rng(seed))
     full = full_vectors(structure, theta)
     attrs = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "structure_toml": structure.to_toml(),

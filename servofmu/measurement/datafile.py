@@ -16,7 +16,17 @@ import h5py
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import check_format, check_output_path, hdf5_attr, open_hdf5, write_hdf5
+from ..fileio import (
+    check_format,
+    check_output_path,
+    check_values,
+    hdf5_attr,
+    READ_ERRORS,
+    open_hdf5,
+    read_error_reason,
+    store_array,
+    write_hdf5,
+)
 from ..model.signals import INTERSAMPLE
 from .excitation import ExperimentSpec, Plan
 
@@ -177,10 +187,8 @@ def _set_attrs(obj, values: dict) -> None:
 
 def _write_series(group: h5py.Group, series: Series) -> None:
     for name, data in series.signals().items():
-        data = np.asarray(data, dtype=float)
-        ds = group.create_dataset(name, data=data, compression="gzip" if data.size > 256 else None,
-                                  shuffle=data.size > 256)
-        ds.attrs["unit"], ds.attrs["description"] = SIGNAL_INFO[name]
+        unit, description = SIGNAL_INFO[name]
+        store_array(group, name, np.asarray(data, dtype=float), unit=unit, description=description)
 
 
 def _write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict) -> None:
@@ -204,8 +212,7 @@ def create_measurement(path: str | Path, plan: Plan, provenance: dict, parameter
         specs = plan.experiments
         for name, values, unit in (("amplitude", [s.amplitude for s in specs], "N"),
                                    ("frequency", [s.frequency for s in specs], "Hz")):
-            ds = g.create_dataset(name, data=np.asarray(values, dtype=float))
-            ds.attrs["unit"] = unit
+            store_array(g, name, np.asarray(values, dtype=float), unit=unit)
         g.attrs["amplitudes"] = np.asarray(plan.amplitudes, dtype=float)
         g.attrs["frequencies"] = np.asarray(plan.frequencies, dtype=float)
         g.attrs["description"] = "experiment k (group experiments/exp_k) drives the plant with " \
@@ -243,8 +250,8 @@ def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> No
                 "H_noisy": None if r.H_noisy is None else np.complex128(r.H_noisy), "dc_noisy": r.dc_noisy,
                 "units": {k: v for k, v in RESULT_UNITS.items()},
             })
-            g.create_dataset("harmonics", data=np.asarray(r.harmonics, dtype=complex)).attrs["description"] = \
-                "phasors S_1..S_K of v over the window (m/s)"
+            store_array(g, "harmonics", np.asarray(r.harmonics, dtype=complex),
+                        description="phasors S_1..S_K of v over the window (m/s)")
             _write_series(g.create_group("transient"), r.transient)
             _write_series(g.create_group("window"), r.window)
 
@@ -260,8 +267,10 @@ def mark_complete(path: str | Path) -> None:
     write_hdf5(path, edit, path)
 
 
-def write_records(path: str | Path, records: list[Record], provenance: dict, append: bool = False) -> Path:
-    """A records file with ``records`` (or, with ``append``, the existing one plus ``records``)."""
+def write_records(path: str | Path, records: list[Record], provenance: dict, append: bool = False,
+                  overwrite: bool = False) -> Path:
+    """A records file with ``records`` (or, with ``append``, the existing one plus ``records``); without either
+    ``append`` or ``overwrite``, an existing file is refused."""
     path = Path(path)
     if append and path.exists():
         existing = read_data_file(path)
@@ -269,7 +278,7 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
             raise UserError(f"{path}: is a {existing.kind} file; records can only be appended to a records file")
         offset = len(existing.records)
     else:
-        check_output_path(path, overwrite=False)
+        check_output_path(path, overwrite=overwrite)
         offset = 0
 
     start_from = path if (append and path.exists()) else None
@@ -302,7 +311,7 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
                                "dc_u": a.dc_u, "dc": a.dc, "distortion": a.distortion,
                                "converged": bool(a.converged), "settling_time": a.settling_time,
                                "window_start": a.window_start, "window_periods": np.int64(a.window_periods)})
-                g.create_dataset("harmonics", data=np.asarray(a.harmonics, dtype=complex))
+                store_array(g, "harmonics", np.asarray(a.harmonics, dtype=complex))
             _write_series(g, r.series)
 
     write_hdf5(path, edit, start_from)
@@ -365,6 +374,44 @@ def _read_record(g: h5py.Group, version: int) -> Record:
                   intersample=str(hdf5_attr(g, "intersample")) if version >= 2 else "foh")
 
 
+def check_stored_data(path: Path, f: h5py.File, plan: Plan | None, experiments, records) -> None:
+    """The values a data file holds are what servofmu writes (fileio.check_values): finite numbers within
+    bounds, signals of one length, and a plan whose per-experiment datasets match it."""
+    if plan is not None:
+        n = len(plan.experiments)
+        for name, values in (("amplitude", [e.amplitude for e in plan.experiments]),
+                             ("frequency", [e.frequency for e in plan.experiments])):
+            stored = check_values(path, f"plan/{name}", f["plan"][name][()], (None,))
+            if stored.shape != (n,) or not np.array_equal(stored, values):
+                raise UserError(f"{path}: plan/{name} does not match the plan's {len(plan.amplitudes)} amplitudes × "
+                                f"{len(plan.frequencies)} frequencies (a damaged or foreign file)")
+
+    def series(where: str, s: Series) -> None:
+        for name, values in s.signals().items():
+            check_values(path, f"{where}/{name}", values, (s.time.size,))
+
+    for e in experiments:
+        where = experiment_group_name(e.index)
+        for name in ("amplitude", "frequency", "U1", "V1", "H", "dc", "settling_time", "window_start",
+                     "hold_error", "noise_sigma", "H_noisy", "dc_noisy"):
+            if getattr(e, name) is not None:
+                check_values(path, f"{where}/{name}", getattr(e, name), ())
+        for name in ("distortion", "last_change", "remaining_error"):  # inf when it did not settle
+            check_values(path, f"{where}/{name}", getattr(e, name), (), finite=False)
+        check_values(path, f"{where}/harmonics", e.harmonics, (None,))
+        series(f"{where}/transient", e.transient)
+        series(f"{where}/window", e.window)
+    for r in records:
+        where = f"rec_{r.index:04d}"
+        series(where, r.series)
+        check_values(path, f"{where}/sample_rate", r.sample_rate, ())
+        if r.analysis is not None:
+            for name in ("frequency", "amplitude", "U1", "V1", "dc_u", "dc", "settling_time", "window_start"):
+                check_values(path, f"{where}/{name}", getattr(r.analysis, name), ())
+            check_values(path, f"{where}/H", r.analysis.H, (), finite=False)  # NaN when U1 is 0
+            check_values(path, f"{where}/harmonics", r.analysis.harmonics, (None,))
+
+
 def read_data_file(path: str | Path) -> DataFile:
     """Read a data file written by ``measure`` or ``import``.
 
@@ -413,9 +460,11 @@ def read_data_file(path: str | Path) -> DataFile:
             parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
                 if "parameters" in prov else {}
             complete = bool(hdf5_attr(f, "complete"))
-        except (KeyError, ValueError, TypeError, OSError) as exc:
-            raise UserError(f"{path}: damaged servofmu data file (missing or bad {str(exc).strip(chr(39))})") \
-                from exc
+            check_stored_data(path, f, plan, experiments, records)
+        except UserError:
+            raise
+        except READ_ERRORS as exc:
+            raise UserError(f"{path}: damaged servofmu data file ({read_error_reason(exc)})") from exc
         if plan is not None:
             specs = {s.index: s for s in plan.experiments}
             for e in experiments:

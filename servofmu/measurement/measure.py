@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import math
 import platform
+import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -26,18 +27,21 @@ import numpy as np
 from .. import __version__
 from ..errors import UserError
 from ..fileio import check_output_path
-from ..runtime import Progress, utc_now
+from ..runtime import Progress, check_memory, utc_now
 from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
-from ..simulation.parallel import WorkerResource, Workers
+from ..simulation.parallel import WorkerResource, Workers, report
 from .datafile import ExperimentResult, Series, add_experiments, create_measurement, mark_complete, read_data_file
 from .excitation import DEFAULT_AMPLITUDES, ExperimentSpec, Plan, corner_frequency, default_frequencies
 from .frf import HARMONICS, SteadyStateDetector, harmonics
 
-__all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "estimate_bandwidth", "check_fmu"]
+__all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "estimate_bandwidth", "check_fmu", "check_work",
+           "MAX_STEPS", "PROGRESS_SCALE"]
 
 SOLVER = "the FMU's own Co-Simulation solver (servofmu FMUs: adaptive RODAS4), driven through FMPy"
 REAL_TYPES = ("Real", "Float64")
+REPORT_EVERY = 1.0  # s between progress reports of a running experiment
+PROGRESS_SCALE = 1000  # measure's progress counts thousandths of an experiment
 
 
 @dataclass(frozen=True)
@@ -110,7 +114,10 @@ class _Periods:
     """Runs whole periods of one experiment on a started FMU and keeps the last output value."""
 
     def __init__(self, runner: FmuRunner, spec: ExperimentSpec, opt: MeasureOptions):
-        self.runner, self.m, self.f = runner, spec.amplitude, spec.frequency
+        self.runner, self.m, self.f, self.index = runner, spec.amplitude, spec.frequency, spec.index
+        # the most periods the experiment may run (settling up to max_time, then the window): what progress is of
+        self.budget = max(opt.min_periods, math.ceil(opt.max_time * self.f)) + opt.window_periods
+        self._reported = time.monotonic()
         if runner.builtin:
             self.settle_samples = opt.settle_samples_per_period
             runner.start(opt.tolerance, {runner.input_name: 0.0, EXCITATION[0]: self.m, EXCITATION[1]: self.f})
@@ -137,6 +144,9 @@ class _Periods:
             if not self.runner.builtin:
                 self.runner.set_input(float(held[i]))
             v[i + 1] = self.runner.step(t[i], t[i + 1] - t[i])
+            if time.monotonic() - self._reported > REPORT_EVERY:  # for a long experiment's progress
+                report(self.index, min(1.0, (period + (i + 1) / n) / self.budget))
+                self._reported = time.monotonic()
         self.last = v[-1]
         return t, v
 
@@ -326,6 +336,37 @@ def _fmt(values) -> str:
     return ",".join(f"{v:g}" for v in values)
 
 
+MAX_STEPS = 1e8  # FMU steps per experiment: about a quarter of an hour of a servofmu FMU, however absurd the plan
+
+
+def check_work(plan: Plan, options: MeasureOptions, builtin: bool, max_steps: float = MAX_STEPS) -> None:
+    """Refuse up front a plan whose work is unbounded in practice, with the estimate in the message.
+
+    Per experiment: the ``min_periods`` a steady state needs must fit in ``max_time`` (so that max_time is honoured
+    at low frequencies); the FMU steps of settling (up to ``max_time``) and of the window must stay within
+    ``max_steps``; and the file of all experiments must fit in memory (it is rewritten, in memory, after each)."""
+    settle_n = options.settle_samples_per_period if builtin else options.samples_per_period
+    window = options.window_periods * options.samples_per_period + 1
+    file_bytes = 0.0
+    for f in plan.frequencies:
+        needed = options.min_periods / f
+        if needed > options.max_time:
+            raise UserError(f"frequency {f:g} Hz: the {options.min_periods} periods a steady state needs last "
+                            f"{needed:.3g} s, more than max_time {options.max_time:g} s (raise --max-time to "
+                            f"{needed:.3g}, or measure above {options.min_periods / options.max_time:.3g} Hz)")
+        periods = max(options.min_periods, math.ceil(options.max_time * f))
+        steps = periods * settle_n + window
+        if steps > max_steps:
+            raise UserError(f"frequency {f:g} Hz: an experiment may take {steps:.3g} FMU steps ({periods:.3g} "
+                            f"periods of {settle_n} steps within max_time {options.max_time:g} s, plus the window), "
+                            f"more than max_steps {max_steps:.3g} (lower --max-time, --samples-per-period or the "
+                            "frequency, or raise --max-steps)")
+        # window and transient: time, u, v (and v_noisy) as float64
+        file_bytes += len(plan.amplitudes) * 8 * 4 * (window + periods * options.settle_samples_per_period)
+    check_memory(f"a measurement of {len(plan)} experiments", 3 * file_bytes,
+                 "lower --samples-per-period or --max-time, or measure fewer frequencies")
+
+
 def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: float) -> float:
     """The plant's bandwidth (Hz) from its step response (excitation.corner_frequency)."""
     runner = factory()
@@ -339,7 +380,7 @@ def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: f
 def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=None,
             options: MeasureOptions | None = None, scheduler: str | None = None, workers: int | None = None,
             resume: bool = False, command: str = "", progress: Progress | None = None,
-            warn: Callable[[str], None] | None = None):
+            warn: Callable[[str], None] | None = None, overwrite: bool = False, max_steps: float = MAX_STEPS):
     """Stepped-sine measurement of an FMU into a data file.
 
     For every (amplitude, frequency) the FMU runs in Co-Simulation from rest until its response is periodic; the
@@ -364,10 +405,15 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
         Local worker processes (default one per core; 0: this process).
     resume : bool
         Continue an existing ``output`` where an interrupted run stopped.
+    overwrite : bool
+        Replace an existing ``output`` (without ``resume``): it is replaced when the new file is first written.
+    max_steps : float
+        Refuse a plan any of whose experiments could take more FMU steps than this (see :func:`check_work`).
     command : str
         The command line, for provenance.
     progress : Progress, optional
-        Called with (experiments stored, experiments) after every stored experiment.
+        Called with (done, total) in thousandths of an experiment (PROGRESS_SCALE): as experiments run (each
+        counts the periods it has run out of the most it may run) and when each is stored.
     warn : callable, optional
         ``warn(text)`` for experiments that did not reach a steady state.
 
@@ -379,22 +425,24 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
     Raises
     ------
     UserError
-        For an unusable FMU, bad options, an existing output (without ``resume``), or a failing simulation.
+        For an unusable FMU, bad options, an existing output (without ``resume`` or ``overwrite``), work beyond
+        the bounds of :func:`check_work`, or a failing simulation.
     """
     options = (options or MeasureOptions()).validate()
     if options.noise_snr_db is not None and options.seed is None:
         options = replace(options, seed=0)  # recorded in the provenance like a given seed
     out = check_output_path(output)
     existing = None
-    if out.exists():
-        if not resume:
-            raise UserError(f"{out}: exists already (resume it, or choose another name)")
+    if out.exists() and resume:
         existing = read_data_file(out)
+    elif out.exists() and not overwrite:
+        raise UserError(f"{out}: exists already (resume it, or choose another name)")
     info = read_fmu(fmu)
     check_fmu(info, options)
     data = info.path.read_bytes()
     sha = hashlib.sha256(data).hexdigest()
     factory = FmuRunnerFactory(data=data, name=info.path.name, input=options.input, output=options.output)
+    factory().close()  # an FMU whose binary cannot be loaded fails here, before anything is written
 
     if amplitudes is None:
         amplitudes = existing.plan.amplitudes if existing is not None and existing.plan else DEFAULT_AMPLITUDES
@@ -408,6 +456,7 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
         frequencies = default_frequencies(bandwidth)
         source = f"1-2-5 grid over 0.25..15 x the bandwidth {bandwidth:.6g} Hz estimated from a step response"
     plan = Plan(tuple(amplitudes), tuple(frequencies))
+    check_work(plan, options, info.has_builtin_excitation, max_steps)
     prov = provenance_for(info, sha, options, command, source)
     if existing is not None:
         _check_resume(out, existing, prov, plan)
@@ -415,19 +464,31 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
     total, done = len(plan), len(plan) - len(todo)
     jobs = [Job(spec, options) for spec in todo]
     resource = WorkerResource(key=f"fmu:{sha}:{options.input}:{options.output}", factory=factory)
-    with Workers(scheduler=scheduler, workers=workers) as pool:  # connects first: a bad scheduler writes nothing
-        if existing is None:
-            create_measurement(out, plan, prov, fmu_parameters(info))
+    running: dict[int, float] = {}  # experiment index -> fraction done
+
+    def show(index: int | None = None, fraction: float = 0.0) -> None:
+        if index is not None:
+            running[index] = fraction
         if progress:
-            progress(done, total)
-        for _, result in pool.imap(run_experiment, jobs, resource=resource):
-            add_experiments(out, [result])
-            done += 1
-            if warn and not result.converged:
-                warn(f"experiment {result.index} (amplitude {result.amplitude:g}, frequency {result.frequency:g} Hz)"
-                     f" reached no steady state within {options.max_time:g} s (last change per period "
-                     f"{result.last_change:.2g}); it is stored with converged = false")
-            if progress:
-                progress(done, total)
+            progress(int(PROGRESS_SCALE * (done + sum(running.values()))), PROGRESS_SCALE * total)
+
+    with Workers(scheduler=scheduler, workers=workers, on_report=show) as pool:  # connects first: a bad
+        if existing is None:                                                     # scheduler writes nothing
+            create_measurement(out, plan, prov, fmu_parameters(info))
+        try:
+            show()
+            for _, result in pool.imap(run_experiment, jobs, resource=resource):
+                add_experiments(out, [result])
+                done += 1
+                running.pop(result.index, None)
+                if warn and not result.converged:
+                    warn(f"experiment {result.index} (amplitude {result.amplitude:g}, frequency "
+                         f"{result.frequency:g} Hz) reached no steady state within {options.max_time:g} s (last "
+                         f"change per period {result.last_change:.2g}); it is stored with converged = false")
+                show()
+        except BaseException:
+            if existing is None and done == 0:  # nothing measured: leave no empty file to trip over
+                out.unlink(missing_ok=True)
+            raise
     mark_complete(out)
     return read_data_file(out)

@@ -241,7 +241,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
 
 def import_records(paths, output: str | Path, time: str, input: str, output_column: str, kind: str = "velocity",
                    cutoff: float | None = None, frequency: float | None = None, append: bool = False,
-                   command: str = "", intersample: str = "zoh"):
+                   command: str = "", intersample: str = "zoh", overwrite: bool = False):
     """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
 
     Parameters
@@ -260,6 +260,8 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
         The excitation frequency of sinusoidal records, when it is not to be detected.
     append : bool
         Add the records to an existing records file.
+    overwrite : bool
+        Replace an existing ``output``.
     intersample : {"zoh", "foh"}
         How the input behaves between samples: held (a digital drive's command; the default) or linear.  Every
         replay of the record (identify, validate) applies it.
@@ -275,10 +277,10 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
     ------
     UserError
         For unreadable files, missing columns, NaN or non-increasing time, an existing output (without
-        ``append``).
+        ``append`` or ``overwrite``).
     """
     output = Path(output)
-    if output.exists() and not append:
+    if output.exists() and not (append or overwrite):
         raise UserError(f"{output}: exists already (append the records to it, or choose another name)")
     offset = len(read_data_file(output).records) if append and output.exists() else 0
     records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
@@ -286,6 +288,6 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
                for i, p in enumerate(paths)]
     provenance = {"package": "servofmu", "package_version": __version__, "command": command,
                   "created": utc_now(), "sources": [r.source for r in records]}
-    write_records(output, records, provenance, append=append)
+    write_records(output, records, provenance, append=append, overwrite=overwrite)
     return read_data_file(output)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
 __all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict", "resolve_plant_path",
            "example_files", "parameter_info", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
@@ -187,9 +187,9 @@ class ParameterRules:
     """What values of a plant's parameter vector the plant file format accepts (docs/plant-format.md), as data
     for every checker (the batch simulator vectorised, the FMU in C):
 
-    every value finite; ``low[i] ≤ x[i] ≤ high[i]`` (``low_open[i]``: low itself excluded); ``x[i] ≠ 0`` where
-    ``nonzero[i]``; ``x[a] ≥ x[b]`` for every pair (a, b) of ``at_least``; and for every pair (re, im) of
-    ``not_zero_root`` (a root with dc_gain), not both zero (im is −1 for a real root)."""
+    every value finite; ``low[i] ≤ x[i] ≤ high[i]`` (within ±MAX_MAGNITUDE; ``low_open[i]``: low itself
+    excluded); ``x[i] ≠ 0`` where ``nonzero[i]``; ``x[a] ≥ x[b]`` for every pair (a, b) of ``at_least``; and for
+    every pair (re, im) of ``not_zero_root`` (a root with dc_gain), not both zero (im is −1 for a real root)."""
 
     low: tuple[float, ...]
     high: tuple[float, ...]
@@ -202,7 +202,7 @@ class ParameterRules:
 def parameter_rules(plant: Plant) -> ParameterRules:
     """The value rules of plant_from_dict for ``plant``'s structure."""
     names = plant.parameter_names()
-    low, high = [-math.inf] * len(names), [math.inf] * len(names)
+    low, high = [-MAX_MAGNITUDE] * len(names), [MAX_MAGNITUDE] * len(names)
     low_open, nonzero = [False] * len(names), [False] * len(names)
     index = {n: i for i, n in enumerate(names)}
     not_zero_root = []
@@ -316,8 +316,8 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
         if not isinstance(data.get(section), dict):
             fail(section, "missing section")
     name = data.get("name", Path(source).stem)
-    if not isinstance(name, str) or not name.replace("_", "").isalnum() or not name[:1].isalpha():
-        fail("name", "must be an identifier (letters, digits, underscores; starts with a letter)")
+    if name_problem(name):
+        fail("name", name_problem(name))
 
     lin = data["linear"]
     _check_keys(lin, {"poles", "zeros", "dc_gain", "gain"}, "linear.", fail)
@@ -378,6 +378,8 @@ def _check_keys(table: dict, allowed: set, prefix: str, fail):
 def _number(value, key, fail) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         fail(key, f"must be a finite number, not {value!r}")
+    if abs(value) > MAX_MAGNITUDE:
+        fail(key, f"must be within ±{MAX_MAGNITUDE:g}, not {value!r}")
     return float(value)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from ..baselines import BASELINE_METHODS, BASELINE_NEEDS_ANN
 from ..baselines.casadi_nls import fit_casadi_nls
 from ..baselines.chen2002 import fit_chen2002
-from ..errors import UserError
+from ..errors import UserError, check_int
 from ..identification import methods as identifier_methods
 from ..identification.criterion import POLISH_RTOL, SineCriterion, central_jacobian, intervals_from_jacobian
 from ..identification.identifier import PSOANNIdentifier
@@ -81,6 +81,7 @@ def run_methods(structure: Plant, data, methods: list[str], ann=None, seed: int 
     dict
         method -> :class:`servofmu.Result`, in the order given.
     """
+    check_int("seed", seed, 0)
     provenance = dict(provenance or {})
     out, ann_theta = {}, None
     crit = SineCriterion(structure, data, BatchSimulator(structure))

@@ -1,12 +1,13 @@
 """Figures of a data file: Bode plot of the first harmonics, time series of records and windows."""
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import check_output_path, partial_path
+from ..fileio import atomic_write, check_output_path
 from ..measurement.datafile import DataFile
 
 __all__ = ["bode_figure", "time_series_figure", "bode_points", "pyplot", "MAX_PANELS"]
@@ -25,13 +26,12 @@ def pyplot():
 
 def _save(fig, path: Path) -> None:
     path = check_output_path(path)
-    part = partial_path(path)
+    buffer = io.BytesIO()
     try:
-        fig.savefig(part, dpi=110, format=path.suffix.lstrip(".") or "png")
-        part.replace(path)
-    except (OSError, ValueError) as exc:
-        part.unlink(missing_ok=True)
+        fig.savefig(buffer, dpi=110, format=path.suffix.lstrip(".") or "png")
+    except ValueError as exc:  # a format matplotlib does not know
         raise UserError(f"{path}: cannot write the figure ({exc})") from exc
+    atomic_write(path, buffer.getvalue())
 
 
 def bode_points(data_file: DataFile) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:

@@ -13,7 +13,6 @@ against the identified linear G(jω), of the friction force against velocity, an
 """
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -28,7 +27,7 @@ from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_re
 from ..identification.results import Result, paper_rows, read_results
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant, parameter_info
-from ..runtime import utc_now
+from ..runtime import temporary_folder, utc_now
 from ..simulation.batch import BatchSimulator
 from .export import file_sha256
 from .html import escape, figure, number, page, png_bytes, table
@@ -161,7 +160,7 @@ def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile)
 # Figures (PNG bytes)
 # ---------------------------------------------------------------------------
 def _bode_png(data_file: DataFile, references: dict, title: str) -> bytes:
-    with tempfile.TemporaryDirectory() as tmp:
+    with temporary_folder("figure") as tmp:
         path = bode_figure(data_file, Path(tmp) / "bode.png", references=references, title=title)
         return path.read_bytes()
 

@@ -65,7 +65,6 @@ import functools
 import hashlib
 import importlib.util
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -76,7 +75,7 @@ from .. import __version__
 from ..errors import UserError
 from ..model.plant import Plant, parameter_rules
 from ..model.signals import INTERSAMPLE
-from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature
+from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature, temporary_folder
 
 if TYPE_CHECKING:  # CasADi is loaded only to generate code, which a cached library spares
     import casadi as ca
@@ -432,7 +431,7 @@ def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = N
     extra = extra or {}
     name = f"{driver.stem}-{plant.name}-{library_key(plant, driver, extra)[:24]}.so"
     target = cache_dir() / name
-    with tempfile.TemporaryDirectory(prefix="servofmu-batch-") as tmp:
+    with temporary_folder("batch") as tmp:
         if not target.is_file():
             target = _build(plant, driver, extra, Path(tmp), target)
         lib = ctypes.CDLL(str(target))  # inside: a library left in the temporary folder is mapped before it goes

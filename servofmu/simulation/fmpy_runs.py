@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..runtime import check_memory, temporary_folder
 
 __all__ = ["FmuInfo", "read_fmu", "read_input_csv", "simulate", "format_csv", "hold_table", "replay_record", "EXCITATION"]
 
@@ -129,7 +130,7 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     UserError
         For a file that is not an FMU, unknown variables, bad options or a failing simulation.
     """
-    from fmpy import simulate_fmu
+    from fmpy import extract, simulate_fmu
 
     info = fmu if isinstance(fmu, FmuInfo) else read_fmu(fmu)
     if interface not in ("me", "cs"):
@@ -153,13 +154,26 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     if input_signal is not None:
         info.require(*[n for n in input_signal.dtype.names if n != "time"])
     interval = output_interval or min(info.default_step or 1e-3, stop_time / 100)
-    try:
-        return simulate_fmu(str(info.path), fmi_type="ModelExchange" if interface == "me" else "CoSimulation",
-                            stop_time=stop_time, output_interval=interval, relative_tolerance=relative_tolerance,
-                            start_values=starts, input=input_signal, output=outputs)
-    except Exception as exc:  # a failing FMU: report it, not our stack
-        raise UserError(f"{info.path}: simulation failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") \
-            from exc
+    if not interval > 0:
+        raise UserError(f"output_interval must be positive, not {interval}")
+    rows = stop_time / interval
+    check_memory(f"{info.path}: {rows:.3g} output rows ({stop_time:g} s every {interval:g} s)",
+                 rows * 8 * (2 + len(outputs or info.outputs())),
+                 "give a longer output interval or a shorter stop time")
+    # extracted into servofmu's own temporary folder: removed however the run ends (FMPy's is not, on SIGTERM)
+    with temporary_folder("simulate") as folder:
+        try:
+            unzipped = extract(str(info.path), unzipdir=str(folder))
+        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
+            raise UserError(f"{info.path}: cannot write its extracted copy in {folder}: {exc.strerror or exc}") \
+                from exc
+        try:
+            return simulate_fmu(unzipped, fmi_type="ModelExchange" if interface == "me" else "CoSimulation",
+                                stop_time=stop_time, output_interval=interval, relative_tolerance=relative_tolerance,
+                                start_values=starts, input=input_signal, output=outputs)
+        except Exception as exc:  # a failing FMU: report it, not our stack
+            raise UserError(f"{info.path}: simulation failed: "
+                            f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from exc
 
 
 def hold_table(time: np.ndarray, u: np.ndarray, hold: str, name: str = "u") -> np.ndarray:

@@ -2,13 +2,12 @@
 through FMPy (FMI 2.0 and 3.0 Co-Simulation).  What measure, records and co-simulation runs share."""
 from __future__ import annotations
 
-import shutil
-import tempfile
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import UserError
+from ..runtime import make_temporary_folder, remove_temporary_folders
 from .fmpy_runs import EXCITATION
 
 __all__ = ["FmuError", "FmuRunner", "FmuRunnerFactory"]
@@ -38,11 +37,15 @@ class FmuRunner:
         from fmpy import extract, read_model_description
 
         self.name = name
-        self._dir = tempfile.mkdtemp(prefix="servofmu-fmu-")
-        self._cleanup = weakref.finalize(self, shutil.rmtree, self._dir, True)
+        self._dir = make_temporary_folder("fmu")
+        self._cleanup = weakref.finalize(self, remove_temporary_folders, self._dir)
         archive = Path(self._dir) / "model.fmu"
-        archive.write_bytes(data)
-        unzipdir = extract(str(archive), unzipdir=str(Path(self._dir) / "unzipped"))
+        try:
+            archive.write_bytes(data)
+            unzipdir = extract(str(archive), unzipdir=str(Path(self._dir) / "unzipped"))
+        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
+            raise FmuError(f"{name}: cannot write its extracted copy in {self._dir}: {exc.strerror or exc}") \
+                from exc
         md = read_model_description(unzipdir, validate=False)
         self.fmi3 = md.fmiVersion.startswith("3")
         self.variables = {v.name: v for v in md.modelVariables}
@@ -55,7 +58,7 @@ class FmuRunner:
                     instanceName="servofmu")
         if self.fmi3:
             from fmpy.fmi3 import FMU3Slave
-            self.fmu = FMU3Slave(**args)
+            self.fmu = self._load(FMU3Slave, args)
             self._call("instantiate", lambda: self.fmu.instantiate(logMessage=self._log3))
             self._get, self._set = self.fmu.getFloat64, self.fmu.setFloat64
         else:
@@ -76,10 +79,18 @@ class FmuRunner:
             callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
             addLoggerProxy(byref(callbacks))
             self._callbacks = callbacks  # keep alive while the FMU lives
-            self.fmu = FMU2Slave(**args)
+            self.fmu = self._load(FMU2Slave, args)
             self._call("instantiate", lambda: self.fmu.instantiate(callbacks=callbacks))
             self._get, self._set = self.fmu.getReal, self.fmu.setReal
         self._vr_in, self._vr_out = self.vr[input_name], self.vr[output_name]
+
+    def _load(self, kind, args):
+        """The FMU's shared library loaded; a missing or broken binary is one FmuError naming the FMU."""
+        try:
+            return kind(**args)
+        except Exception as exc:  # fmpy raises plain Exceptions, ctypes OSError
+            raise FmuError(f"{self.name}: cannot load the FMU's binary for this platform "
+                           f"({(str(exc).splitlines() or [type(exc).__name__])[0]})") from exc
 
     # FMU log messages are collected, never printed; the last one explains a failure.
     def _log3(self, env, status, category, message):

@@ -14,11 +14,16 @@ dataclasses); on a Dask cluster, servofmu must be installed on the workers.
   ``workers=0`` runs everything in this process, one task after the other.
 - ``scheduler="tcp://HOST:PORT"``: the tasks run on the Dask distributed cluster behind that scheduler;
   the resource is sent to the workers once (scatter with broadcast).
+
+A task may call :func:`report` to say how far it is (``Workers(on_report=...)`` receives it).  When the run
+fails or is interrupted (Ctrl-C, SIGTERM), local workers are stopped at once, not waited for, and remove
+their temporary folders.
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -27,9 +32,12 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
 
 from ..errors import UserError
-from ..runtime import available_cores
+from ..runtime import available_cores, remove_temporary_folders, sweep_temporary_folders
 
-__all__ = ["Workers", "WorkerResource"]
+__all__ = ["Workers", "WorkerResource", "report"]
+
+REPORT_INTERVAL = 0.25  # s: how often the main process delivers what workers report()
+STOP_TIMEOUT = 5.0  # s a worker gets to end on SIGTERM before it is killed
 
 
 @dataclass(frozen=True)
@@ -42,6 +50,17 @@ class WorkerResource:
 
 
 _local = threading.local()
+# Where report() delivers: the main process's queue in a local worker, the Workers' callback when the tasks run in
+# the process that made the Workers, nothing on a Dask cluster.
+_report_to: Callable | None = None
+
+
+def report(*message) -> None:
+    """Tell the process that runs the tasks how far this task is: delivered as ``on_report(*message)`` of the
+    :class:`Workers` (local processes and this process; a no-op on a Dask cluster).  Messages must be picklable
+    and should be rare (a few per second)."""
+    if _report_to is not None:
+        _report_to(message)
 
 
 def _resource(resource: WorkerResource | None):
@@ -59,25 +78,38 @@ def _call(task, resource, item):
     return task(_resource(resource), item)
 
 
-def _exit_with_parent(parent: int) -> None:
-    """Local worker processes end when the process that started them is gone (e.g. killed with -9)."""
+def _worker_setup(parent: int, reports) -> None:
+    """How a local worker process ends: Ctrl-C is the main process's to handle (it stops the workers); SIGTERM
+    (sent by the main process, or by anyone) and the death of the main process (killed with -9) end it at once,
+    its temporary folders (extracted FMUs) removed first."""
+    def leave(*_):
+        remove_temporary_folders()
+        os._exit(1)
+
     def watch():
         while True:
             time.sleep(0.5)
             if os.getppid() != parent:
-                os._exit(1)
+                leave()
 
+    global _report_to
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, leave)
+    _report_to = reports.put if reports is not None else None
     threading.Thread(target=watch, daemon=True).start()
 
 
 class Workers:
     """Local processes (default), this process (``workers=0``) or a Dask cluster (``scheduler``)."""
 
-    def __init__(self, scheduler: str | None = None, workers: int | None = None):
+    def __init__(self, scheduler: str | None = None, workers: int | None = None,
+                 on_report: Callable | None = None):
         if workers is not None and workers < 0:
             raise UserError(f"workers must be 0 or more, not {workers}")
         self.scheduler = scheduler
         self.workers = available_cores() if workers is None else workers
+        self.on_report = on_report  # receives what tasks send with report()
+        self._reports = None
         self._client = None
         self._pool = None
 
@@ -92,8 +124,25 @@ class Workers:
             self._client = _connect(self.scheduler)
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, *_) -> None:
+        if kind is not None and self._pool is not None:  # failed or interrupted: no waiting for running tasks
+            self._stop_local()
         self.close()
+
+    def _stop_local(self) -> None:
+        """End the local worker processes now: SIGTERM (they remove their temporary folders), and SIGKILL for one
+        stuck in a long call into an FMU, whose folders are then removed here."""
+        pool, self._pool = self._pool, None
+        processes = list((pool._processes or {}).values())  # before Python 3.14 the executor's only handle on them
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join(timeout=STOP_TIMEOUT)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        sweep_temporary_folders()
 
     def close(self) -> None:
         if self._pool is not None:
@@ -112,19 +161,36 @@ class Workers:
         if self.scheduler:
             return self._imap_dask(task, items, resource)
         if self.workers == 0:
-            return ((i, _call(task, resource, item)) for i, item in enumerate(items))
+            return self._imap_here(task, items, resource)
         return self._imap_local(task, items, resource)
+
+    def _imap_here(self, task, items, resource):
+        global _report_to
+        for i, item in enumerate(items):
+            _report_to = (lambda message: self.on_report(*message)) if self.on_report else None
+            try:
+                result = _call(task, resource, item)
+            finally:
+                _report_to = None
+            yield i, result
+
+    def _deliver_reports(self) -> None:
+        while self._reports is not None and not self._reports.empty():
+            self.on_report(*self._reports.get())
 
     def _imap_local(self, task, items, resource):
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)),
-                                             mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_exit_with_parent, initargs=(os.getpid(),))
+            context = multiprocessing.get_context("spawn")
+            self._reports = context.SimpleQueue() if self.on_report else None
+            self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=context,
+                                             initializer=_worker_setup, initargs=(os.getpid(), self._reports))
         futures = {self._pool.submit(_call, task, resource, item): i for i, item in enumerate(items)}
         try:
             pending = set(futures)
             while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                done, pending = wait(pending, return_when=FIRST_COMPLETED,
+                                     timeout=REPORT_INTERVAL if self._reports is not None else None)
+                self._deliver_reports()
                 for fut in sorted(done, key=futures.get):
                     try:
                         result = fut.result()

@@ -1,0 +1,74 @@
+"""Writers that continue an interrupted file (measure, dataset) stopped by SIGTERM, SIGINT (Ctrl-C) or SIGKILL at a
+seeded random moment: one line and exit 128 + the signal (none for SIGKILL, which cannot be handled), no partial
+file, no temporary folder left, no worker left; then --resume finishes identical to an uninterrupted run."""
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+from harness import assert_one_line, no_partial_files, run_servofmu, sample
+from test_write_faults import same_measurement, same_training_set
+
+COMMANDS = {
+    "measure": (["measure", "{g1_fmu}", "--amplitudes", "2,1,0.6", "--frequencies", "0.5,1,2,5,10", "--workers",
+                 "2", "-o", "out.h5"], same_measurement),
+    "dataset": (["dataset", "g1", "--like", "{data}", "--samples", "400", "-o", "out.h5"], same_training_set),
+}
+SIGNALS = {"SIGTERM": (signal.SIGTERM, 143, "terminated (SIGTERM)"), "SIGINT": (signal.SIGINT, 130, "interrupted"),
+           "SIGKILL": (signal.SIGKILL, -9, None)}
+CASES = [(c, s, seed) for seed in range(3) for c in COMMANDS for s in SIGNALS]
+
+
+def command_line(command: str, inputs: dict) -> list[str]:
+    return [a.format(**{k: str(v) for k, v in inputs.items()}) for a in COMMANDS[command][0]]
+
+
+@pytest.fixture(scope="module")
+def references(inputs, tmp_path_factory):
+    """command -> (its output uninterrupted, seconds it took)."""
+    out = {}
+    for command in COMMANDS:
+        folder = tmp_path_factory.mktemp(f"uninterrupted-{command}")
+        start = time.monotonic()
+        proc = run_servofmu(command_line(command, inputs), folder, folder)
+        _, err = proc.communicate(timeout=600)
+        assert proc.returncode == 0, err
+        out[command] = (folder / "out.h5", time.monotonic() - start)
+    return out
+
+
+@pytest.mark.parametrize("command, name, seed", sample(CASES, every=5))
+def test_a_signal_at_a_random_moment_damages_nothing_and_resume_finishes(inputs, references, tmp_path, command,
+                                                                         name, seed):
+    argv, same = command_line(command, inputs), COMMANDS[command][1]
+    reference, seconds = references[command]
+    signum, status, message = SIGNALS[name]
+    temp = tmp_path / "tmp"
+    work = tmp_path / "work"
+    temp.mkdir()
+    work.mkdir()
+    proc = run_servofmu(argv, work, temp)
+    time.sleep(seconds * np.random.default_rng([seed, len(command), signum]).uniform(0.1, 0.9))
+    if signum == signal.SIGINT:  # Ctrl-C reaches the terminal's whole process group
+        os.killpg(proc.pid, signum)
+    else:
+        proc.send_signal(signum)
+    out, err = proc.communicate(timeout=120)
+    if proc.returncode in (0, -signum) and "wrote" in out:  # after main() returned: the default handler ends it
+        pytest.skip("the command finished before the signal")
+    if message is not None:
+        assert_one_line(err, proc.returncode, status, message)
+    else:
+        assert proc.returncode == status
+    no_partial_files(p.name for p in work.iterdir())
+    again = run_servofmu([*argv, "--resume"], work, temp)
+    _, err = again.communicate(timeout=600)
+    assert again.returncode == 0, err
+    same(work / "out.h5", reference)
+    deadline = time.monotonic() + 10  # what a killed run left is removed by the next command (the resume)
+    while list(temp.iterdir()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not list(temp.iterdir())
