@@ -24,8 +24,15 @@ def pytest_unconfigure(config):
     shutil.rmtree(SESSION_TMP, ignore_errors=True)
 
 
+# Folders the test process itself makes through libraries it uses in-process, removed when it exits: servofmu's
+# own (servofmu-PID-..., removed at exit), Dask's scratch space, fmuloader's and torch's folders.  What the commands
+# a test starts leave behind is still seen.
+_IN_PROCESS = (f"servofmu-{os.getpid()}-", "dask-scratch-space", "fmuloader_", "torchinductor_")
+
+
 def _leftovers(before: set) -> set:
-    return {p.name for p in SESSION_TMP.iterdir() if not p.name.startswith("pytest-of-")} - before
+    return {p.name for p in SESSION_TMP.iterdir()
+            if not p.name.startswith(("pytest-of-", *_IN_PROCESS))} - before
 
 
 @pytest.fixture(autouse=True)

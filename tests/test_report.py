@@ -226,5 +226,5 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     proc = run("report", alone / "r.h5", "--data", data, "-o", tmp_path / "ok.html", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "<table id=\"parameters\">" in (tmp_path / "ok.html").read_text()
-    assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out), "no_such_plant")
+    assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out, "--force"), "no_such_plant")
     assert out.read_text() == "an earlier report"  # nothing written by a failed run
