@@ -92,6 +92,7 @@ class _ProgressBar:
         self._unit, self._scale, self._bar = unit, scale, None
 
     def update(self, done: int, total: int) -> None:
+        _stop_if_asked()
         total, done = (total, done) if self._scale == 1 else (total / self._scale, done / self._scale)
         if self._bar is None:  # created on first use: a run that fails early shows no bar
             from tqdm import tqdm
@@ -659,10 +660,21 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+_stop_signals: list[int] = []  # the signal that asked to stop, kept: see _stop_if_asked
+
+
 def _terminate(signum, frame) -> None:
     for s in STOP_SIGNALS:  # once: the clean-up is not interrupted by a second signal
         signal.signal(s, signal.SIG_IGN)
+    _stop_signals.append(signum)
     raise Terminated(signum)
+
+
+def _stop_if_asked() -> None:
+    """Raise Terminated again if a stop signal came: the handler's exception is lost when the signal arrives while
+    Python runs a finaliser or a weakref callback (garbage collection), which swallow exceptions."""
+    if _stop_signals:
+        raise Terminated(_stop_signals[0])
 
 
 def claim_output(args, path) -> Path:
@@ -685,6 +697,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
+    _stop_signals.clear()
     handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
     try:
         sweep_temporary_folders()
@@ -692,6 +705,7 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, dest):
                 claim_output(args, getattr(args, dest))
         args.func(args)
+        _stop_if_asked()
     except UserError as exc:
         print(f"servofmu {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR

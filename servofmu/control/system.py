@@ -13,6 +13,7 @@ libcosim and FMPy's SSP runner use FMI 2.0 Co-Simulation, so the FMUs of a syste
 """
 from __future__ import annotations
 
+import errno
 import io
 import xml.etree.ElementTree as ET
 import zipfile
@@ -181,7 +182,11 @@ def read_system(path: str | Path, folder: str | Path) -> System:
     try:
         with zipfile.ZipFile(path) as zf:
             zf.extractall(folder)
-    except (zipfile.BadZipFile, OSError) as exc:
+    except zipfile.BadZipFile as exc:
+        raise UserError(f"{path}: not an SSP archive ({exc})") from exc
+    except OSError as exc:  # reading it, or a full disk or a file-size limit while extracting it
+        if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            raise UserError(f"cannot write the extracted {path.name} in {folder}: {exc.strerror}") from exc
         raise UserError(f"{path}: not an SSP archive ({exc})") from exc
     ssd = folder / "SystemStructure.ssd"
     try:

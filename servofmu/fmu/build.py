@@ -142,7 +142,7 @@ def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variable
             compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
                            include=[src, headers], what=f"the FMU {identifier}")
         except OSError as exc:  # a full disk or a file-size limit while the FMU's files are written
-            raise BuildError(f"cannot write {exc.filename or tmp}: {exc.strerror or exc}") from exc
+            raise BuildError(f"cannot write {exc.filename2 or exc.filename or tmp}: {exc.strerror or exc}") from exc
         _pack(root, output)
     return output
 

@@ -76,6 +76,21 @@ def test_3_a_plan_beyond_the_bounds_is_refused_up_front_with_the_estimate(inputs
     assert not (tmp_path / "out.h5").exists()
 
 
+def test_3_a_running_experiment_reports_its_progress(inputs, tmp_path, monkeypatch):
+    """Not only finished experiments: a long one (a high-order plant's) shows how far it is."""
+    import servofmu.measurement.measure as measure_module
+
+    monkeypatch.setattr(measure_module, "REPORT_EVERY", 0.0)  # report at every period
+    seen = []
+    measure_module.measure(inputs["g1_fmu"], tmp_path / "out.h5", amplitudes=[2.0], frequencies=[5.0], workers=0,
+                           progress=lambda done, total: seen.append((done, total)))
+    scale = measure_module.PROGRESS_SCALE
+    assert all(total == scale for _, total in seen)
+    within = [done for done, _ in seen if 0 < done < scale]
+    assert within and within == sorted(within)
+    assert seen[-1] == (scale, scale)
+
+
 # ---- 5. silent corruption -----------------------------------------------------------------------------------------
 def test_5_a_flipped_bit_in_a_stored_first_harmonic_is_damage(inputs, tmp_path):
     from servofmu.measurement.datafile import read_data_file
@@ -171,10 +186,10 @@ def wait_for(condition, timeout: float = 120) -> None:
 def test_7_sigterm_is_one_line_exit_143_and_leaves_no_temporary_folder(inputs, tmp_path):
     temp = tmp_path / "tmp"
     temp.mkdir()
-    proc = run_servofmu(["measure", inputs["g1_fmu"], "--amplitudes", "2,1,0.6", "--frequencies", "0.5,1,2,5",
-                         "--workers", "2", "-o", "out.h5"], tmp_path, temp)
-    wait_for(lambda: any(p.name.startswith("servofmu-") for p in temp.iterdir()))  # workers hold FMUs
-    time.sleep(0.5)
+    # long enough (36 experiments, down to 0.2 Hz) to be stopped while its workers hold extracted FMUs
+    proc = run_servofmu(["measure", inputs["g1_fmu"], "--amplitudes", "2,1,0.6", "--frequencies",
+                         "0.2,0.3,0.5,0.7,1,1.5,2,3,5,7,10,15", "--workers", "2", "-o", "out.h5"], tmp_path, temp)
+    wait_for(lambda: any(p.name.startswith("servofmu-") for p in temp.iterdir()))
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert_one_line(err, proc.returncode, 143, "servofmu measure: terminated (SIGTERM)")
