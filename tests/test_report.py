@@ -11,7 +11,7 @@ from clitools import assert_one_line_error, run
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 
-from servofmu.identification.criterion import sine_data
+from servofmu.identification.criterion import POLISH_RTOL, sine_data
 from servofmu.identification.results import write_comparison, write_result
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import measure
@@ -133,9 +133,10 @@ def test_report_renders_in_chromium(report, browser, g1_result):
         assert r[4] == pytest.approx(dc, rel=1e-5)
         assert r[5] == pytest.approx(abs(H), rel=1e-6)  # model |H|
         assert r[8] < 1e-8                               # |ΔH|/|H|
-    # the fitness recomputed from the page's own simulations is the identification's
+    # the fitness recomputed from the page's own simulations is the identification's, within the simulations'
+    # tolerance (a noise-free fit ends at that level: two runs to the same orbit differ by about as much)
     refit = browser.find_element("id", "refit").text
-    assert float(refit.split(":")[1].split()[0]) == pytest.approx(fitness, rel=0.05), refit
+    assert float(refit.split(":")[1].split()[0]) == pytest.approx(fitness, rel=0.05, abs=POLISH_RTOL), refit
 
     rows = table(browser, "stages")
     assert [(r[0], float(r[1])) for r in rows[1:-1]] == [(n, pytest.approx(fit, rel=1e-3)) for n, fit in stages]
@@ -225,5 +226,5 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     proc = run("report", alone / "r.h5", "--data", data, "-o", tmp_path / "ok.html", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "<table id=\"parameters\">" in (tmp_path / "ok.html").read_text()
-    assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out), "no_such_plant")
+    assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out, "--force"), "no_such_plant")
     assert out.read_text() == "an earlier report"  # nothing written by a failed run
