@@ -32,7 +32,8 @@ def classify(module: str, name: str) -> tuple[str, str]:
     if module.endswith("test_signals"):
         return params[0], params[1]
     if module.endswith("test_read_faults"):
-        reader, fault = name[name.index("[") + 1:-1].split("-", 1)
+        reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
+                                 name[name.index("[") + 1:-1]).groups()
         return reader, f"damaged input: {fault}"
     group = re.match(r"test_(\d)_", name)
     return "(reported groups)", f"group {group.group(1)}" if group else name

@@ -670,11 +670,17 @@ def _terminate(signum, frame) -> None:
     raise Terminated(signum)
 
 
+def _interrupt(signum, frame) -> None:
+    """Ctrl-C, as Python's own handler, but kept for _stop_if_asked."""
+    _stop_signals.append(signum)
+    raise KeyboardInterrupt
+
+
 def _stop_if_asked() -> None:
-    """Raise Terminated again if a stop signal came: the handler's exception is lost when the signal arrives while
-    Python runs a finaliser or a weakref callback (garbage collection), which swallow exceptions."""
+    """Raise again if a stop signal came: the handler's exception is lost when the signal arrives while Python runs
+    a finaliser or a weakref callback (garbage collection), which swallow exceptions."""
     if _stop_signals:
-        raise Terminated(_stop_signals[0])
+        raise KeyboardInterrupt if _stop_signals[0] == signal.SIGINT else Terminated(_stop_signals[0])
 
 
 def claim_output(args, path) -> Path:
@@ -699,6 +705,8 @@ def main(argv: list[str] | None = None) -> int:
     args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
     _stop_signals.clear()
     handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where Ctrl-C is ignored
+        handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
     try:
         sweep_temporary_folders()
         for dest in getattr(args, "outputs", ()):  # before any work (see the module's docstring)

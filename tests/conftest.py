@@ -1,6 +1,7 @@
 """Fixtures shared by the test modules, and the temporary-directory check every test passes."""
 from __future__ import annotations
 
+import gc
 import os
 import shutil
 import tempfile
@@ -24,15 +25,13 @@ def pytest_unconfigure(config):
     shutil.rmtree(SESSION_TMP, ignore_errors=True)
 
 
-# Folders the test process itself makes through libraries it uses in-process, removed when it exits: servofmu's
-# own (servofmu-PID-..., removed at exit), Dask's scratch space, fmuloader's and torch's folders.  What the commands
-# a test starts leave behind is still seen.
-_IN_PROCESS = (f"servofmu-{os.getpid()}-", "dask-scratch-space", "fmuloader_", "torchinductor_")
-
-
 def _leftovers(before: set) -> set:
+    """servofmu's temporary folders (other libraries' are theirs to keep), and the fault driver's; not those this
+    process still holds (FMUs of in-process runs, cached for the next run and removed at exit)."""
+    from servofmu.runtime import _folders as held
+
     return {p.name for p in SESSION_TMP.iterdir()
-            if not p.name.startswith(("pytest-of-", *_IN_PROCESS))} - before
+            if p.name.startswith(("servofmu-", "fault-driver-")) and str(p) not in held} - before
 
 
 @pytest.fixture(autouse=True)
@@ -41,6 +40,7 @@ def no_temporary_leftovers():
     to notice and remove their folders)."""
     before = _leftovers(set())
     yield
+    gc.collect()  # FMUs run in this process are removed with their objects
     deadline = time.monotonic() + 10
     while _leftovers(before) and time.monotonic() < deadline:
         time.sleep(0.2)

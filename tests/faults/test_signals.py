@@ -40,7 +40,7 @@ def references(inputs, tmp_path_factory):
     return out
 
 
-@pytest.mark.parametrize("command, name, seed", sample(CASES, every=5))
+@pytest.mark.parametrize("command, name, seed", sample(CASES, every=9))
 def test_a_signal_at_a_random_moment_damages_nothing_and_resume_finishes(inputs, references, tmp_path, command,
                                                                          name, seed):
     argv, same = command_line(command, inputs), COMMANDS[command][1]

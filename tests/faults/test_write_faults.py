@@ -37,7 +37,7 @@ def cases() -> list[tuple[str, str, float, bool]]:
         for j, fraction in enumerate(FRACTIONS):
             table.append((name, "fsize", fraction, False))
             table.append((name, "full", fraction, (i + j) % 2 == 0))
-    return sample(table, every=5)
+    return sample(table, every=8)
 
 
 def same_measurement(a, b) -> None:
