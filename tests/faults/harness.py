@@ -167,6 +167,7 @@ def assert_one_line(stderr: str, rc, expected_rc: int, *fragments: str) -> str:
 
 
 def no_partial_files(names) -> None:
+    names = list(names)
     assert not [n for n in names if n.endswith(".part")], names
 
 
