@@ -676,11 +676,21 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def _stop_if_asked() -> None:
+def _stop_if_asked(*_) -> None:
     """Raise again if a stop signal came: the handler's exception is lost when the signal arrives while Python runs
     a finaliser or a weakref callback (garbage collection), which swallow exceptions."""
     if _stop_signals:
         raise KeyboardInterrupt if _stop_signals[0] == signal.SIGINT else Terminated(_stop_signals[0])
+
+
+def _raise_soon(unraisable) -> None:
+    """``sys.unraisablehook`` while a command runs.  A stop signal's exception raised inside a finaliser is dropped
+    by Python (with a traceback on stderr): raise it again a millisecond later, in ordinary code (SIGALRM runs
+    :func:`_stop_if_asked`), instead."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and _stop_signals:
+        signal.setitimer(signal.ITIMER_REAL, 0.001)
+    else:
+        sys.__unraisablehook__(unraisable)
 
 
 def claim_output(args, path) -> Path:
@@ -698,16 +708,20 @@ def claim_output(args, path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .runtime import sweep_temporary_folders
-
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
-    _stop_signals.clear()
+    _stop_signals.clear()  # the handlers first: Ctrl-C while the modules load is one line too
     handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where Ctrl-C is ignored
         handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
+    handlers[signal.SIGALRM] = signal.signal(signal.SIGALRM, _stop_if_asked)
+    unraisablehook, sys.unraisablehook = sys.unraisablehook, _raise_soon
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    who = f"servofmu {words[0]}" if words else "servofmu"  # (a stop while the modules load names it too)
     try:
+        from .runtime import sweep_temporary_folders
+
+        args = build_parser().parse_args(argv)
+        who = f"servofmu {args.command}"
+        args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
         sweep_temporary_folders()
         for dest in getattr(args, "outputs", ()):  # before any work (see the module's docstring)
             if getattr(args, dest):
@@ -715,19 +729,28 @@ def main(argv: list[str] | None = None) -> int:
         args.func(args)
         _stop_if_asked()
     except UserError as exc:
-        print(f"servofmu {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{who}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"servofmu {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"{who}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except Terminated as exc:
-        print(f"servofmu {args.command}: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
-        return 128 + exc.signum
-    except KeyboardInterrupt:
-        print(f"servofmu {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except BaseException as exc:  # a stop signal, or what it caused (a module interrupted while it loaded)
+        if not isinstance(exc, KeyboardInterrupt) and not (_stop_signals and isinstance(exc, Exception)):
+            raise
+        signum = exc.signum if isinstance(exc, Terminated) else _stop_signals[0] if _stop_signals else signal.SIGINT
+        if signum == signal.SIGINT:
+            # Ctrl-C inside code that exec() runs from a string (dataclasses makes methods so while modules load)
+            # marks the interpreter as ended by Ctrl-C, and it would kill itself with SIGINT at its exit instead
+            # of returning 130; the next exec() of a string that ends normally clears the mark.
+            exec("")
+            print(f"{who}: interrupted", file=sys.stderr)
+            return 130
+        print(f"{who}: terminated ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + signum
     finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        sys.unraisablehook = unraisablehook
         for s, handler in handlers.items():
             signal.signal(s, handler)
     return 0

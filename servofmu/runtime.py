@@ -7,8 +7,10 @@ import contextlib
 import datetime as _dt
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 from typing import Iterator, Protocol, Sequence
 
@@ -16,7 +18,8 @@ from .errors import UserError
 
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
            "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
-           "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX"]
+           "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX",
+           "signals_deferred", "unblock_signals"]
 
 # Flags of every shared library servofmu compiles (FMU binaries and the batch simulator).
 CFLAGS = ("-shared", "-fPIC", "-O2", "-std=c99")
@@ -167,6 +170,40 @@ def sweep_temporary_folders() -> None:
         if entry.name.startswith(TEMPORARY_PREFIX) and len(parts) > 2 and parts[1].isdigit() \
                 and int(parts[1]) != os.getpid() and not _alive(int(parts[1])) and entry.is_dir():
             shutil.rmtree(entry, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------
+# Signals
+# ---------------------------------------------------------------------------
+@contextlib.contextmanager
+def signals_deferred(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
+    """A block that a stop signal must not cut in half: starting worker processes (one stopped halfway through
+    reading its start-up data prints a traceback).  Python-level handlers of ``signals`` run when the block ends,
+    as if the signal had come then; outside the main thread, or where a signal is not handled by Python, nothing
+    changes.  The signals are also blocked in this thread, and so in the processes and threads it starts: a
+    worker unblocks them once its own handlers are set (see :func:`unblock_signals`)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[tuple[int, object]] = []
+    previous = {s: h for s in signals if callable(h := signal.getsignal(s))}
+    for s in previous:
+        signal.signal(s, lambda signum, frame: caught.append((signum, frame)))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            signum, frame = caught[0]
+            previous[signum](signum, frame)
+
+
+def unblock_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)) -> None:
+    """In a process started inside :func:`signals_deferred`: take the stop signals again (set handlers first)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, signals)
 
 
 # ---------------------------------------------------------------------------

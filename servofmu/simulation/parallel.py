@@ -32,7 +32,8 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
 
 from ..errors import UserError
-from ..runtime import available_cores, remove_temporary_folders, sweep_temporary_folders
+from ..runtime import (available_cores, remove_temporary_folders, signals_deferred, sweep_temporary_folders,
+                       unblock_signals)
 
 __all__ = ["Workers", "WorkerResource", "report"]
 
@@ -95,6 +96,7 @@ def _worker_setup(parent: int, reports) -> None:
     global _report_to
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, leave)
+    unblock_signals()  # blocked while the main process started this one
     _report_to = reports.put if reports is not None else None
     threading.Thread(target=watch, daemon=True).start()
 
@@ -134,6 +136,10 @@ class Workers:
         stuck in a long call into an FMU, whose folders are then removed here."""
         pool, self._pool = self._pool, None
         processes = list((pool._processes or {}).values())  # before Python 3.14 the executor's only handle on them
+        results, manager = pool._result_queue, pool._executor_manager_thread  # (shutdown forgets them)
+        # Tasks not yet sent to a worker may fill the pipe to workers that are about to die: the thread that sends
+        # them is not waited for (neither by the pool's shutdown nor at the interpreter's exit).
+        pool._call_queue.cancel_join_thread()
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.terminate()
@@ -142,6 +148,13 @@ class Workers:
             if process.is_alive():
                 process.kill()
                 process.join()
+        # A worker stopped while sending its result leaves the executor's manager thread waiting for the rest of
+        # the message, and the interpreter's exit waiting for that thread.  With every worker gone, closing this
+        # process's end of the result pipe turns the wait into an end of file: the pool counts as broken and ends.
+        if results is not None:
+            results._writer.close()
+        if manager is not None:  # ended before the interpreter's exit wakes it (which fails on a closing pool)
+            manager.join(timeout=STOP_TIMEOUT)
         sweep_temporary_folders()
 
     def close(self) -> None:
@@ -184,22 +197,21 @@ class Workers:
             self._reports = context.SimpleQueue() if self.on_report else None
             self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=context,
                                              initializer=_worker_setup, initargs=(os.getpid(), self._reports))
-        futures = {self._pool.submit(_call, task, resource, item): i for i, item in enumerate(items)}
-        try:
-            pending = set(futures)
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED,
-                                     timeout=REPORT_INTERVAL if self._reports is not None else None)
-                self._deliver_reports()
-                for fut in sorted(done, key=futures.get):
-                    try:
-                        result = fut.result()
-                    except BrokenProcessPool as exc:
-                        raise UserError("a local worker process died (killed, or out of memory?)") from exc
-                    yield futures[fut], result
-        finally:
-            for fut in futures:
-                fut.cancel()
+        with signals_deferred():  # submit() starts the worker processes
+            futures = {self._pool.submit(_call, task, resource, item): i for i, item in enumerate(items)}
+        # Tasks left when the caller stops early are cancelled by the pool's shutdown (__exit__), which also
+        # forgets them; cancelled here, they would stay in the pool's books and break its end.
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED,
+                                 timeout=REPORT_INTERVAL if self._reports is not None else None)
+            self._deliver_reports()
+            for fut in sorted(done, key=futures.get):
+                try:
+                    result = fut.result()
+                except BrokenProcessPool as exc:
+                    raise UserError("a local worker process died (killed, or out of memory?)") from exc
+                yield futures[fut], result
 
     def _imap_dask(self, task, items, resource):
         from distributed import as_completed

@@ -74,3 +74,82 @@ def test_a_signal_at_a_random_moment_damages_nothing_and_resume_finishes(inputs,
     while list(temp.iterdir()) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not list(temp.iterdir())
+
+
+# ---------------------------------------------------------------------------
+# Where a stop signal's exception cannot simply be raised
+# ---------------------------------------------------------------------------
+def test_a_signal_inside_signals_deferred_reaches_its_handler_when_the_block_ends():
+    from servofmu.runtime import signals_deferred
+
+    got = []
+
+    def handler(signum, frame):
+        got.append(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGUSR1, handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with signals_deferred((signal.SIGUSR1,)):
+                os.kill(os.getpid(), signal.SIGUSR1)
+                time.sleep(0.05)  # a handler running now would raise here, inside the block
+                assert got == []
+        assert got == [signal.SIGUSR1]
+        assert signal.getsignal(signal.SIGUSR1) is handler
+        assert signal.SIGUSR1 not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+
+
+def test_sigterm_that_arrives_inside_a_finaliser_still_stops_the_command_with_one_line(monkeypatch, tmp_path,
+                                                                                        capsys):
+    """Python drops an exception raised in __del__ or a weakref callback (with a traceback on stderr); the command
+    line raises it again right after, in ordinary code."""
+    import gc
+
+    from servofmu import cli
+
+    class SignalledWhenCollected:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)  # its handler runs here, inside the finaliser
+
+    def command(args):
+        SignalledWhenCollected()
+        gc.collect()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:  # the work goes on: only the raised-again stop ends it
+            time.sleep(0.01)
+        raise AssertionError("the stop signal was lost")
+
+    monkeypatch.setattr(cli, "cmd_build", command)
+    rc = cli.main(["build", "g1", "-o", str(tmp_path / "g1.fmu")])
+    err = capsys.readouterr().err
+    assert rc == 143
+    assert err.strip().splitlines() == ["servofmu build: terminated (SIGTERM)"], err
+
+
+STOP_MOMENTS = [(name, k) for name in ("SIGTERM", "SIGINT") for k in range(12)]
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("name, k", STOP_MOMENTS)
+def test_a_stop_at_any_moment_of_a_run_with_workers_ends_it_at_once_with_one_line(inputs, references, tmp_path,
+                                                                                   name, k):
+    """Stops spread over the whole run, its start (workers being started) included: no hang (a worker stopped while
+    it sent its result once left the pool's threads waiting for ever), no traceback (from a worker stopped while it
+    read its start-up data, or from the pool's end)."""
+    signum, status, message = SIGNALS[name]
+    _, seconds = references["measure"]
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    proc = run_servofmu(command_line("measure", inputs), tmp_path, temp)
+    time.sleep(0.3 + seconds * k / len(STOP_MOMENTS) * 2)  # past the interpreter's own start-up
+    if signum == signal.SIGINT:
+        os.killpg(proc.pid, signum)
+    else:
+        proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    if proc.returncode in (0, -signum) and (tmp_path / "out.h5").exists():  # after main() returned
+        pytest.skip("the command finished before the signal")
+    assert_one_line(err, proc.returncode, status, message)
