@@ -4,15 +4,22 @@ subcommand and kind of fault.
 The table goes between the markers of docs/reliability.md (or is printed with --print).  Exit status 1 when a case
 failed.
 
-Usage: python scripts/fault_suite.py [--print] [pytest options...]
+With ``--against REV`` it runs instead the tests of the reported groups (tests/faults/test_reported_faults.py) twice
+in one run: against the sources of the earlier revision REV (from git; the inputs still made by this checkout) and
+against this checkout, and writes their outcomes side by side into docs/reliability.md: each test should fail before
+its fix and pass after.
+
+Usage: python scripts/fault_suite.py [--print] [--against REV] [pytest options...]
 """
 from __future__ import annotations
 
 import collections
+import io
 import os
 import re
 import subprocess
 import sys
+import tarfile
 import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -20,6 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "reliability.md"
 BEGIN, END = "<!-- fault-suite counts: begin -->", "<!-- fault-suite counts: end -->"
+BEFORE_BEGIN, BEFORE_END = "<!-- reported groups before and after: begin -->", "<!-- reported groups before and after: end -->"
+REPORTED = "tests/faults/test_reported_faults.py"
 WRITE_KINDS = {"fsize": "file-size limit", "full": "disk full"}
 
 
@@ -30,7 +39,9 @@ def classify(module: str, name: str) -> tuple[str, str]:
     if module.endswith("test_write_faults"):
         return params[0], WRITE_KINDS[params[1]]
     if module.endswith("test_signals"):
-        return params[0], params[1]
+        if name.startswith("test_a_stop_at_any_moment"):  # [SIGNAL-k]: measure with workers, start-up included
+            return "measure", f"{params[0]} at any moment"
+        return (params[0], params[1]) if params else ("(signal handling)", name.removeprefix("test_"))
     if module.endswith("test_read_faults"):
         reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
                                  name[name.index("[") + 1:-1]).groups()
@@ -39,18 +50,49 @@ def classify(module: str, name: str) -> tuple[str, str]:
     return "(reported groups)", f"group {group.group(1)}" if group else name
 
 
-def run(extra: list[str]) -> tuple[dict, int]:
+def pytest_outcomes(where: str, extra: list[str], env: dict) -> tuple[dict[tuple[str, str], str], int]:
+    """(classname, name) -> passed | skipped | failed of every case, and pytest's exit status."""
     with tempfile.TemporaryDirectory(prefix="fault-suite-") as tmp:
         report = Path(tmp) / "junit.xml"
-        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/faults",
-                               f"--junitxml={report}", *extra], cwd=ROOT, env={**os.environ, "SERVOFMU_FAULTS": "all"})
-        counts = collections.defaultdict(collections.Counter)
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", where,
+                               f"--junitxml={report}", *extra], cwd=ROOT,
+                              env={**os.environ, "SERVOFMU_FAULTS": "all", **env})
+        outcomes = {}
         for case in ET.parse(report).getroot().iter("testcase"):
-            key = classify(case.get("classname", ""), case.get("name", ""))
-            outcome = "failed" if case.find("failure") is not None or case.find("error") is not None else \
-                "skipped" if case.find("skipped") is not None else "passed"
-            counts[key][outcome] += 1
-    return counts, proc.returncode
+            key = case.get("classname", ""), case.get("name", "")
+            failed = case.find("failure") is not None or case.find("error") is not None
+            if outcomes.get(key) != "failed":  # an error in the teardown is a second entry of the same case
+                outcomes[key] = "failed" if failed else "skipped" if case.find("skipped") is not None else "passed"
+    return outcomes, proc.returncode
+
+
+def run(extra: list[str]) -> tuple[dict, int]:
+    outcomes, rc = pytest_outcomes("tests/faults", extra, {})
+    counts = collections.defaultdict(collections.Counter)
+    for (module, name), outcome in outcomes.items():
+        counts[classify(module, name)][outcome] += 1
+    return counts, rc
+
+
+def before_and_after(rev: str, extra: list[str]) -> str:
+    """The reported groups' tests against revision ``rev`` and against this checkout, as a table."""
+    with tempfile.TemporaryDirectory(prefix="fault-suite-src-") as src:
+        archive = subprocess.run(["git", "archive", rev], cwd=ROOT, capture_output=True, check=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(src, filter="data")
+        before, _ = pytest_outcomes(REPORTED, extra, {"SERVOFMU_FAULTS_AGAINST": src})
+    after, _ = pytest_outcomes(REPORTED, extra, {})
+    lines = [f"| test | before ({rev}) | now |", "|---|---|---|"]
+    for key in sorted(after, key=lambda k: k[1]):
+        lines.append(f"| `{key[1]}` | {before.get(key, 'not run')} | {after[key]} |")
+    return "\n".join(lines)
+
+
+def write_between(begin: str, end: str, text: str) -> None:
+    doc = DOC.read_text()
+    start, stop = doc.index(begin) + len(begin), doc.index(end)
+    DOC.write_text(doc[:start] + "\n" + text + "\n" + doc[stop:])
+    print(f"wrote the table into {DOC.relative_to(ROOT)}")
 
 
 def table(counts: dict) -> str:
@@ -65,16 +107,23 @@ def table(counts: dict) -> str:
 
 
 def main() -> int:
-    show = "--print" in sys.argv
-    counts, rc = run([a for a in sys.argv[1:] if a != "--print"])
-    text = table(counts)
+    args = sys.argv[1:]
+    show = "--print" in args
+    rev = None
+    if "--against" in args:
+        i = args.index("--against")
+        rev = args[i + 1]
+        del args[i:i + 2]
+    extra = [a for a in args if a != "--print"]
+    if rev is not None:
+        text, rc, markers = before_and_after(rev, extra), 0, (BEFORE_BEGIN, BEFORE_END)
+    else:
+        counts, rc = run(extra)
+        text, markers = table(counts), (BEGIN, END)
     if show or not DOC.exists():
         print(text)
     else:
-        doc = DOC.read_text()
-        start, end = doc.index(BEGIN) + len(BEGIN), doc.index(END)
-        DOC.write_text(doc[:start] + "\n" + text + "\n" + doc[end:])
-        print(f"wrote the counts into {DOC.relative_to(ROOT)}")
+        write_between(*markers, text)
     return 1 if rc else 0
 
 

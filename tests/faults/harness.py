@@ -20,6 +20,10 @@ from pathlib import Path
 import pytest
 
 FULL = os.environ.get("SERVOFMU_FAULTS") == "all"
+# SERVOFMU_FAULTS_AGAINST=SRC: the commands under test run from the servofmu sources in SRC (an earlier revision,
+# scripts/fault_suite.py --against REV), in subprocesses, while the inputs are still made by this checkout — the way
+# to see a test fail on the code before its fix.
+AGAINST = os.environ.get("SERVOFMU_FAULTS_AGAINST")
 DRIVER = Path(__file__).resolve().parent / "driver.py"
 PREVIOUS = b"the previous output, which a failed run must leave as it was\n"
 
@@ -116,8 +120,17 @@ def run_driver(cases: list[dict], folder: Path, in_namespace: bool = False) -> l
     return reports
 
 
+def command_env(**extra: str) -> dict:
+    """The environment of a servofmu process under test."""
+    return {**os.environ, **extra, **({"PYTHONPATH": AGAINST} if AGAINST else {})}
+
+
 def run_here(argv, cwd: Path) -> tuple[int, str]:
     """``servofmu ARGV`` in this process (quicker than a subprocess), run in ``cwd``: (exit status, stderr)."""
+    if AGAINST:
+        proc = subprocess.run([sys.executable, "-m", "servofmu", *map(str, argv)], cwd=cwd, env=command_env(),
+                              capture_output=True, text=True)
+        return proc.returncode, proc.stderr
     from servofmu.cli import main
 
     err, here = io.StringIO(), os.getcwd()
@@ -136,7 +149,7 @@ def run_here(argv, cwd: Path) -> tuple[int, str]:
 def run_servofmu(argv, cwd: Path, tmpdir: Path, **kwargs) -> subprocess.Popen:
     """``python -m servofmu ARGV`` as a user starts it, in a session of its own (Ctrl-C goes to its group)."""
     return subprocess.Popen([sys.executable, "-m", "servofmu", *map(str, argv)], cwd=cwd,
-                            env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            env=command_env(TMPDIR=str(tmpdir)), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs)
 
 

@@ -129,7 +129,8 @@ def test_sigterm_that_arrives_inside_a_finaliser_still_stops_the_command_with_on
     assert err.strip().splitlines() == ["servofmu build: terminated (SIGTERM)"], err
 
 
-STOP_MOMENTS = [(name, k) for name in ("SIGTERM", "SIGINT") for k in range(12)]
+MOMENTS = 12  # per signal, spread evenly over an uninterrupted run's duration
+STOP_MOMENTS = [(name, k) for name in ("SIGTERM", "SIGINT") for k in range(MOMENTS)]
 
 
 @pytest.mark.long
@@ -144,12 +145,12 @@ def test_a_stop_at_any_moment_of_a_run_with_workers_ends_it_at_once_with_one_lin
     temp = tmp_path / "tmp"
     temp.mkdir()
     proc = run_servofmu(command_line("measure", inputs), tmp_path, temp)
-    time.sleep(0.3 + seconds * k / len(STOP_MOMENTS) * 2)  # past the interpreter's own start-up
+    time.sleep(0.3 + seconds * k / MOMENTS)  # 0.3 s: past the interpreter's own start-up
     if signum == signal.SIGINT:
         os.killpg(proc.pid, signum)
     else:
         proc.send_signal(signum)
-    out, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=60)
     if proc.returncode in (0, -signum) and (tmp_path / "out.h5").exists():  # after main() returned
         pytest.skip("the command finished before the signal")
     assert_one_line(err, proc.returncode, status, message)
