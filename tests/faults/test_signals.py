@@ -145,7 +145,7 @@ def test_a_stop_at_any_moment_of_a_run_with_workers_ends_it_at_once_with_one_lin
     temp = tmp_path / "tmp"
     temp.mkdir()
     proc = run_servofmu(command_line("measure", inputs), tmp_path, temp)
-    time.sleep(0.3 + seconds * k / MOMENTS)  # 0.3 s: past the interpreter's own start-up
+    time.sleep(0.3 + 0.8 * seconds * k / MOMENTS)  # 0.3 s: past the interpreter's own start-up
     if signum == signal.SIGINT:
         os.killpg(proc.pid, signum)
     else:
