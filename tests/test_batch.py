@@ -485,3 +485,25 @@ def test_the_cache_key_follows_what_determines_the_library():
     keys = {library_key(g1, DRIVER, {}), library_key(other_values, DRIVER, {}),
             library_key(load_plant("g2"), DRIVER, {}), library_key(g1, DRIVER, {"extra.h": "#define X 1\n"})}
     assert len(keys) == 4
+
+
+def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_bit(monkeypatch):
+    from servofmu.simulation import batch
+
+    if batch.driver_cflags() == batch.EXTRA_CFLAGS:
+        pytest.skip("no build for the processor on this machine")
+    plant = load_plant("g2")
+    rng = np.random.default_rng(3)
+    sets = plant.parameter_vector() * rng.uniform(0.8, 1.2, size=(4, len(plant.parameter_names())))
+    amps, freqs = [2.0, 0.6, 2.0], [1.0, 4.0, 5.0]
+    native = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
+    native_key = batch.library_key(plant, batch.DRIVER, {})
+    monkeypatch.setattr(batch, "_processor", lambda: "another processor")
+    assert batch.library_key(plant, batch.DRIVER, {}) != native_key  # a shared cache never mixes processors
+
+    monkeypatch.setattr(batch, "driver_cflags", lambda: batch.EXTRA_CFLAGS)
+    monkeypatch.setattr(BatchSimulator, "_load", staticmethod(lambda p: batch.compiled_driver(p, batch.DRIVER)))
+    assert batch.library_key(plant, batch.DRIVER, {}) != native_key
+    portable = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
+    for name in ("H", "dc", "distortion", "converged", "settle_time", "steps", "orbit"):
+        assert np.array_equal(getattr(native, name), getattr(portable, name), equal_nan=True), name

@@ -65,6 +65,7 @@ import functools
 import hashlib
 import importlib.util
 import os
+import platform
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -93,6 +94,10 @@ FMU_C_DIR = PACKAGE / "fmu" / "c"  # servo_core.c: the FMU's integrator, which t
 GENERATORS = ("model/plant.py", "model/symbolic.py", "model/signals.py", "fmu/sources.py", "fmu/variables.py",
               "simulation/batch.py")
 EXTRA_CFLAGS = ("-pthread", "-O3")
+# On x86-64 the library is built for this machine's processor: about 10 % faster steady states.  No contraction
+# into fused multiply-adds, so that results stay bit for bit those of a portable build; the processor is part of
+# the cache key, so that a cache shared by several machines never hands one a library it cannot run.
+NATIVE_CFLAGS = ("-march=native", "-ffp-contract=off")
 _HOLD_CODES = {"zoh": 0, "foh": 1, "sine": 2}  # the driver's HOLD_* values
 N_RESULTS = 8  # per sine task: re S1, im S1, DC, mean square, converged, settle time, steps, rejected steps
 H_START = 1e-4  # first step of every period, as a fraction of the period (the same each period: see the driver)
@@ -443,13 +448,38 @@ def compiled_driver(plant: Plant, driver: Path, extra: dict[str, str] | None = N
     return lib
 
 
+@functools.lru_cache(maxsize=None)
+def driver_cflags() -> tuple[str, ...]:
+    """The compiler flags of the batch drivers, beyond runtime.CFLAGS (see NATIVE_CFLAGS)."""
+    if platform.machine().lower() in ("x86_64", "amd64"):
+        return (*EXTRA_CFLAGS, *NATIVE_CFLAGS)
+    return EXTRA_CFLAGS
+
+
+@functools.lru_cache(maxsize=None)
+def _processor() -> str:
+    """What identifies this machine's processor for code built for it: its model and features (Linux), else
+    what the platform module says."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return f"{platform.machine()} {platform.processor()}"
+    first = {}
+    for line in lines:
+        key, _, value = line.partition(":")
+        first.setdefault(key.strip(), value.strip())
+    return " ".join(first.get(k, "") for k in ("vendor_id", "model name", "flags"))
+
+
 def library_key(plant: Plant, driver: Path, extra: dict[str, str]) -> str:
     """The cache key (SHA-256, hex) of a compiled driver: the plant (its file text: the structure, and the
     nominal values that scale the states), servofmu's version, the Python code that generates the C sources
     (GENERATORS), every C file of the driver's, the batch driver's and the FMU core's folders, the ``extra``
-    texts, the CasADi installation, and the compiler with its flags."""
+    texts, the CasADi installation, the compiler with its flags, and the processor when built for it."""
     digest = hashlib.sha256()
-    for text in (plant.to_toml(), __version__, compiler_signature(EXTRA_CFLAGS), _casadi_stamp()):
+    native = driver_cflags() != EXTRA_CFLAGS
+    for text in (plant.to_toml(), __version__, compiler_signature(driver_cflags()), _casadi_stamp(),
+                 _processor() if native else ""):
         digest.update(text.encode() + b"\0")
     folders = {FMU_C_DIR, DRIVER.parent, driver.parent}
     files = [PACKAGE / g for g in GENERATORS] + sorted(f for d in folders for f in d.iterdir()
@@ -481,7 +511,7 @@ def _build(plant: Plant, driver: Path, extra: dict[str, str], src: Path, target:
     built = src / target.name
     # the driver's unit includes batch_eqs.c and servo_core.c; model_eqs.c serves servo_core.c
     compile_shared([driver, src / "model_eqs.c"], built, include=[src, FMU_C_DIR, DRIVER.parent, driver.parent],
-                   extra_flags=EXTRA_CFLAGS, what=f"the {driver.stem} of {plant.name}")
+                   extra_flags=driver_cflags(), what=f"the {driver.stem} of {plant.name}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         partial = target.with_name(f".{target.name}.{os.getpid()}.part")
