@@ -31,7 +31,9 @@ TRUTH = {"g1": {"pole1": -10.0, "dc_gain": 1.0, "fc_pos": 0.5, "fc_neg": 0.4},
 
 # Runs inside each version's own process: times every phase of one identification.
 PHASES = r"""
-import json, sys, time
+import json, os, sys, time
+if os.path.exists(sys.argv[4]):
+    os.unlink(sys.argv[4])  # the output of the previous run (later revisions refuse to replace it)
 t0 = time.perf_counter()
 from servofmu.identification.identifier import PSOANNIdentifier, load_identification_inputs
 from servofmu.identification.results import write_result
@@ -93,13 +95,13 @@ def process_times(version: Version, demo: Path, structure: str, repeats: int, ou
     """Wall times of `servofmu identify` from process start to exit (the first run warms caches, not counted)."""
     args = ["identify", demo / f"{structure}.h5", "--structure", structure, "--ann", demo / f"{structure}-ann.h5",
             "--json", "-o", out]
-    version.servofmu(*args)
     times = []
-    for _ in range(repeats):
+    for _ in range(repeats + 1):
+        out.unlink(missing_ok=True)  # an existing output is refused (no --force before revision 0acfc33)
         t = time.perf_counter()
         version.servofmu(*args)
         times.append(time.perf_counter() - t)
-    return times
+    return times[1:]
 
 
 def phase_times(version: Version, demo: Path, structure: str, repeats: int, out: Path) -> dict:
