@@ -27,7 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "reliability.md"
 BEGIN, END = "<!-- fault-suite counts: begin -->", "<!-- fault-suite counts: end -->"
-BEFORE_BEGIN, BEFORE_END = "<!-- reported groups before and after: begin -->", "<!-- reported groups before and after: end -->"
+BEFORE_BEGIN = "<!-- reported groups before and after: begin -->"
+BEFORE_END = "<!-- reported groups before and after: end -->"
 REPORTED = "tests/faults/test_reported_faults.py"
 WRITE_KINDS = {"fsize": "file-size limit", "full": "disk full"}
 
