@@ -50,6 +50,14 @@ def test_the_wheel_ships_the_example_plants(installed):
     assert "servofmu/fmu/c/servo_core.c" in names and "servofmu/simulation/batch_c/batch_driver.c" in names
 
 
+def test_the_wheel_ships_every_module_and_c_source_of_the_package(installed):
+    wheel, _, _ = installed
+    names = set(zipfile.ZipFile(wheel).namelist())
+    sources = [p.relative_to(ROOT).as_posix() for p in (ROOT / "servofmu").rglob("*")
+               if p.suffix in (".py", ".c", ".h") and "__pycache__" not in p.parts]
+    assert sources and not [s for s in sources if s not in names]
+
+
 def test_installed_wheel_builds_a_named_plant_outside_the_checkout(installed):
     _, bindir, base = installed
     work = base / "build"
