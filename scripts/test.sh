@@ -3,11 +3,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # tests/test_report.py opens a report in headless Chromium through Debian's chromium-driver (never a downloaded one)
-if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then
-    SUDO=""
-    if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-    $SUDO apt-get update
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y chromium chromium-driver
-fi
+bash scripts/system_packages.sh browser
 export PATH="$PWD/.venv/bin:$PATH"  # the venv's cmake for `fmpy compile`
 exec .venv/bin/python -m pytest -q "$@"

@@ -714,14 +714,15 @@ def main(argv: list[str] | None = None) -> int:
         handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
     handlers[signal.SIGALRM] = signal.signal(signal.SIGALRM, _stop_if_asked)
     unraisablehook, sys.unraisablehook = sys.unraisablehook, _raise_soon
-    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    argv = sys.argv[1:] if argv is None else list(argv)
+    words = [a for a in argv if not a.startswith("-")]
     who = f"servofmu {words[0]}" if words else "servofmu"  # (a stop while the modules load names it too)
     try:
         from .runtime import sweep_temporary_folders
 
         args = build_parser().parse_args(argv)
         who = f"servofmu {args.command}"
-        args.command_line = shlex.join(["servofmu", *(sys.argv[1:] if argv is None else argv)])
+        args.command_line = shlex.join(["servofmu", *argv])
         sweep_temporary_folders()
         for dest in getattr(args, "outputs", ()):  # before any work (see the module's docstring)
             if getattr(args, dest):

@@ -7,15 +7,17 @@ and refuses newer ones (written by a later servofmu) and foreign files, naming t
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from .errors import MAX_MAGNITUDE, UserError
 
 __all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
-           "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER"]
+           "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER",
+           "NO_ROOM", "write_failures"]
 
 # Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers, which hold the
 # attributes, carry checksums, so a flipped bit in an attribute is found on reading, as Fletcher-32 finds one in
@@ -25,6 +27,23 @@ HDF5_LIBVER = ("v110", "latest")
 # What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
 # header), and the KeyError ... of a missing or malformed item.
 READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
+
+
+# What the system says when a write cannot be done for lack of room: a full disk, a quota, a file-size limit.
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+@contextlib.contextmanager
+def write_failures(what: str, error: type[UserError] = UserError) -> Iterator[None]:
+    """``with write_failures("the extracted copy of X in DIR")``: a write of the block that fails for lack of room
+    (NO_ROOM) ends as ``error("cannot write WHAT: reason")`` — for writes by zipfile, shutil or FMPy, whose errors
+    name no file.  Other errors pass unchanged."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in NO_ROOM:
+            raise
+        raise error(f"cannot write {what}: {exc.strerror}") from exc
 
 
 def check_output_path(path: str | Path, overwrite: bool = True) -> Path:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..fileio import write_failures
 from ..measurement.frf import estimate_frequency, harmonics
 from ..model.plant import Plant
 from ..runtime import temporary_folder
@@ -53,15 +54,13 @@ def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine:
     """The axis archive run with ``controller``'s parameter values bound in place of its own."""
     with temporary_folder("compensate") as tmp:
         variant = Path(tmp) / f"{Path(ssp).stem}.ssp"
-        try:
-            with zipfile.ZipFile(ssp) as src, zipfile.ZipFile(variant, "w", zipfile.ZIP_DEFLATED) as dst:
-                for item in src.infolist():
-                    if item.filename != "resources/controller.ssv":
-                        dst.writestr(item, src.read(item.filename))
-                dst.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
-                                                                                     controller.values))))
-        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
-            raise UserError(f"cannot write {variant}: {exc.strerror or exc}") from exc
+        with write_failures(str(variant)), zipfile.ZipFile(ssp) as src, \
+                zipfile.ZipFile(variant, "w", zipfile.ZIP_DEFLATED) as dst:
+            for item in src.infolist():
+                if item.filename != "resources/controller.ssv":
+                    dst.writestr(item, src.read(item.filename))
+            dst.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
+                                                                                 controller.values))))
         result = cosimulate(variant, engine=engine)
     e = result["reference"] - result["position"]
     return TrackingRun(label, result, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), _distortion(result))

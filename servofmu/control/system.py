@@ -13,7 +13,6 @@ libcosim and FMPy's SSP runner use FMI 2.0 Co-Simulation, so the FMUs of a syste
 """
 from __future__ import annotations
 
-import errno
 import io
 import xml.etree.ElementTree as ET
 import zipfile
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, check_output_path, write_failures
 from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import read_fmu
 from .controller import PARAMETERS, ControllerSpec
@@ -180,13 +179,9 @@ def read_system(path: str | Path, folder: str | Path) -> System:
     if not path.is_file():
         raise UserError(f"{path}: no such SSP file")
     try:
-        with zipfile.ZipFile(path) as zf:
+        with zipfile.ZipFile(path) as zf, write_failures(f"the extracted copy of {path} in {folder}"):
             zf.extractall(folder)
-    except zipfile.BadZipFile as exc:
-        raise UserError(f"{path}: not an SSP archive ({exc})") from exc
-    except OSError as exc:  # reading it, or a full disk or a file-size limit while extracting it
-        if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
-            raise UserError(f"cannot write the extracted {path.name} in {folder}: {exc.strerror}") from exc
+    except (zipfile.BadZipFile, OSError) as exc:
         raise UserError(f"{path}: not an SSP archive ({exc})") from exc
     ssd = folder / "SystemStructure.ssd"
     try:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, check_output_path, write_failures
 from ..model.plant import Plant
 from ..model.symbolic import build_model
 from ..runtime import compile_shared, find_compiler, temporary_folder, utc_now
@@ -118,7 +118,7 @@ def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variable
     find_compiler()  # before any work: a missing compiler is the commonest failure
     headers = fmi_header_dir()
     with temporary_folder("build") as tmp:
-        try:
+        with write_failures(f"the FMU's files in {tmp}", BuildError):
             root = Path(tmp) / "fmu"
             src = root / "sources"
             src.mkdir(parents=True)
@@ -141,8 +141,6 @@ def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variable
             bindir.mkdir(parents=True)
             compile_shared([src / s for s in sources], bindir / f"{identifier}{_shared_suffix()}",
                            include=[src, headers], what=f"the FMU {identifier}")
-        except OSError as exc:  # a full disk or a file-size limit while the FMU's files are written
-            raise BuildError(f"cannot write {exc.filename2 or exc.filename or tmp}: {exc.strerror or exc}") from exc
         _pack(root, output)
     return output
 

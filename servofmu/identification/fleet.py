@@ -132,9 +132,11 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
             for d, r in zip(data_files, results)]
     outcomes: list[FileOutcome | None] = [None] * len(jobs)
     for i, job in enumerate(jobs):
-        if Path(job.result_file).exists() and resume:
+        if not Path(job.result_file).exists():
+            continue
+        if resume:
             outcomes[i] = _kept(job, structure.to_toml())
-        elif Path(job.result_file).exists() and not overwrite:
+        elif not overwrite:
             raise UserError(f"{job.result_file}: exists already (give --force to replace it, or --resume to keep "
                             "finished results)")
     todo = [i for i, o in enumerate(outcomes) if o is None]

@@ -17,11 +17,11 @@ import numpy as np
 
 from ..errors import UserError
 from ..fileio import (
+    READ_ERRORS,
     check_format,
     check_output_path,
     check_values,
     hdf5_attr,
-    READ_ERRORS,
     open_hdf5,
     read_error_reason,
     store_array,

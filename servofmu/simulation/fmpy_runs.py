@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..fileio import write_failures
 from ..runtime import check_memory, temporary_folder
 
 __all__ = ["FmuInfo", "read_fmu", "read_input_csv", "simulate", "format_csv", "hold_table", "replay_record", "EXCITATION"]
@@ -163,11 +164,8 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     # extracted into servofmu's own temporary folder: removed however the run ends (FMPy's is not, on SIGTERM)
     with temporary_folder("simulate") as folder:
         try:
-            unzipped = extract(str(info.path), unzipdir=str(folder))
-        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
-            raise UserError(f"{info.path}: cannot write its extracted copy in {folder}: {exc.strerror or exc}") \
-                from exc
-        try:
+            with write_failures(f"the extracted copy of {info.path} in {folder}"):
+                unzipped = extract(str(info.path), unzipdir=str(folder))
             return simulate_fmu(unzipped, fmi_type="ModelExchange" if interface == "me" else "CoSimulation",
                                 stop_time=stop_time, output_interval=interval, relative_tolerance=relative_tolerance,
                                 start_values=starts, input=input_signal, output=outputs)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import UserError
+from ..fileio import write_failures
 from ..runtime import make_temporary_folder, remove_temporary_folders
 from .fmpy_runs import EXCITATION
 
@@ -40,12 +41,9 @@ class FmuRunner:
         self._dir = make_temporary_folder("fmu")
         self._cleanup = weakref.finalize(self, remove_temporary_folders, self._dir)
         archive = Path(self._dir) / "model.fmu"
-        try:
+        with write_failures(f"the extracted copy of {name} in {self._dir}", FmuError):
             archive.write_bytes(data)
             unzipdir = extract(str(archive), unzipdir=str(Path(self._dir) / "unzipped"))
-        except OSError as exc:  # a full disk or a file-size limit: zipfile's error names no file
-            raise FmuError(f"{name}: cannot write its extracted copy in {self._dir}: {exc.strerror or exc}") \
-                from exc
         md = read_model_description(unzipdir, validate=False)
         self.fmi3 = md.fmiVersion.startswith("3")
         self.variables = {v.name: v for v in md.modelVariables}
