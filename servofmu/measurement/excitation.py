@@ -12,9 +12,10 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["ExperimentSpec", "Plan", "default_frequencies", "corner_frequency", "DEFAULT_AMPLITUDES"]
+__all__ = ["ExperimentSpec", "Plan", "default_frequencies", "corner_frequency", "DEFAULT_AMPLITUDES", "MAX_STEPS"]
 
 DEFAULT_AMPLITUDES = (2.0, 0.6)  # the paper's two magnitudes, m1 > m2 (N)
+MAX_STEPS = 1e8  # FMU steps per experiment: about a quarter of an hour of a servofmu FMU, however absurd the plan
 
 
 @dataclass(frozen=True)

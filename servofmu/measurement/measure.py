@@ -32,7 +32,8 @@ from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
 from ..simulation.parallel import WorkerResource, Workers, report
 from .datafile import ExperimentResult, Series, add_experiments, create_measurement, mark_complete, read_data_file
-from .excitation import DEFAULT_AMPLITUDES, ExperimentSpec, Plan, corner_frequency, default_frequencies
+from .excitation import (DEFAULT_AMPLITUDES, MAX_STEPS, ExperimentSpec, Plan, corner_frequency,
+                         default_frequencies)
 from .frf import HARMONICS, SteadyStateDetector, harmonics
 
 __all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "estimate_bandwidth", "check_fmu", "check_work",
@@ -334,9 +335,6 @@ def _check_resume(path: Path, existing, prov: dict, plan: Plan) -> None:
 
 def _fmt(values) -> str:
     return ",".join(f"{v:g}" for v in values)
-
-
-MAX_STEPS = 1e8  # FMU steps per experiment: about a quarter of an hour of a servofmu FMU, however absurd the plan
 
 
 def check_work(plan: Plan, options: MeasureOptions, builtin: bool, max_steps: float = MAX_STEPS) -> None:

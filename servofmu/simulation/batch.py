@@ -319,36 +319,46 @@ class WarmStarts:
 
     def __init__(self, capacity: int = 1024):
         self.capacity = capacity
-        self.params = None  # (M, n_params)
-        self.orbits = None  # (M, n_exp, orbit), NaN where the run did not converge
+        # A ring of the latest `capacity` sets, filled in place (a search adds ten sets per call, and copying the
+        # whole memory on every call cost a tenth of a fit): params (capacity, n_params), orbits (capacity, n_exp,
+        # orbit) with NaN where the run did not converge; `size` rows hold sets, `next` is where the next goes.
+        self.params = self.orbits = None
+        self.size = self.next = 0
 
     def add(self, params, features: SteadyStateFeatures) -> None:
         """Remember the runs of ``features`` (of the parameter sets ``params``) that converged."""
         params = np.atleast_2d(np.asarray(params, dtype=float))
-        orbits = np.where(features.converged[..., None], features.orbit, np.nan)
         some = np.any(features.converged, axis=1)
-        if self.params is not None:
-            params = np.concatenate([self.params, params[some]])[-self.capacity:]
-            orbits = np.concatenate([self.orbits, orbits[some]])[-self.capacity:]
-        else:
-            params, orbits = params[some], orbits[some]
-        if len(params):
-            self.params, self.orbits = params, orbits
+        params = params[some][-self.capacity:]
+        orbits = np.where(features.converged[some, :, None], features.orbit[some], np.nan)[-self.capacity:]
+        if self.params is None:
+            self.params = np.empty((self.capacity,) + params.shape[1:])
+            self.orbits = np.empty((self.capacity,) + orbits.shape[1:])
+        rows = (self.next + np.arange(len(params))) % self.capacity
+        self.params[rows], self.orbits[rows] = params, orbits
+        self.next = (self.next + len(params)) % self.capacity
+        self.size = min(self.size + len(params), self.capacity)
 
     def start(self, params) -> np.ndarray | None:
         """``start`` for the parameter sets ``params`` (N, n_params): shape (N, n_exp, orbit), NaN where no
         run converged in an experiment; None before anything converged."""
-        if self.params is None:
+        if self.size == 0:
             return None
+        known, orbits = self.params[:self.size], self.orbits[:self.size]
         p = np.atleast_2d(np.asarray(params, dtype=float))[:, None, :]
-        scale = np.abs(p) + np.abs(self.params)
+        scale = np.abs(p) + np.abs(known)
         with np.errstate(invalid="ignore"):
-            rel = np.divide(p - self.params, scale, out=np.zeros(scale.shape), where=scale != 0)  # 0 where both are 0
+            rel = np.divide(p - known, scale, out=np.zeros(scale.shape), where=scale != 0)  # 0 where both are 0
         distance = np.nan_to_num(np.sum(rel ** 2, axis=2), nan=np.inf)  # (N, M); a NaN set is near nothing
-        usable = np.isfinite(self.orbits[..., 0]).T  # (n_exp, M)
-        distance = np.where(usable[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
+        usable = np.isfinite(orbits[..., 0])  # (M, n_exp)
+        if usable.all():  # the usual case: one nearest set for all experiments
+            nearest = np.argmin(distance, axis=1)
+            start = orbits[nearest]
+            start[~np.isfinite(distance[np.arange(len(nearest)), nearest])] = np.nan
+            return start
+        distance = np.where(usable.T[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
         nearest = np.argmin(distance, axis=2)
-        start = self.orbits[nearest, np.arange(usable.shape[0])]
+        start = orbits[nearest, np.arange(usable.shape[1])]
         start[~np.isfinite(np.min(distance, axis=2))] = np.nan
         return start
 
