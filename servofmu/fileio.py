@@ -181,6 +181,8 @@ def hdf5_attr(obj, key: str, default=...):
     try:  # one lookup: h5py's `in` costs about as much as the read
         value = obj.attrs[key]
     except KeyError:
+        if key in obj.attrs:  # there but unreadable (a failed checksum): h5py's own message says so
+            raise
         if default is ...:
             raise KeyError(f"attribute {key!r} of {obj.name}") from None
         return default
