@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The Debian packages the README's two commands need beyond Python's own packages, installed with apt-get only
 # when what they provide is missing (a second run only checks).
-#   scripts/system_packages.sh build     make, a C compiler, Python 3 with venv
+#   scripts/system_packages.sh build     make, a C and a C++ compiler (CMake's default project languages, which
+#                                        `fmpy compile` uses), Python 3 with venv
 #   scripts/system_packages.sh browser   Chromium and its driver (the HTML report test)
 set -euo pipefail
 PYTHON=${PYTHON:-python3}
@@ -13,6 +14,7 @@ case "${1:-build}" in
     build)
         need make make
         need cc gcc
+        need c++ g++
         if ! command -v "$PYTHON" >/dev/null 2>&1; then
             missing+=(python3 python3-venv)
         elif ! "$PYTHON" -c "import ensurepip, venv" 2>/dev/null; then
