@@ -19,10 +19,12 @@ from servofmu.errors import UserError
 from servofmu.identification.prior import full_vectors
 from servofmu.model.plant import PlantError, load_plant, plant_from_dict
 from servofmu.simulation.batch import (
+    DRIVER,
     BatchSimulator,
     SteadyStateFeatures,
     SteadyStateOptions,
     WarmStarts,
+    library_key,
     valid_parameter_sets,
 )
 
@@ -475,14 +477,17 @@ def test_the_library_is_built_once_by_concurrent_processes_then_loaded_without_g
     assert loaded.stdout.strip() == "False"  # CasADi, which generates the code, is not even imported
 
 
-def test_the_cache_key_follows_what_determines_the_library():
-    from servofmu.simulation.batch import DRIVER, library_key
+def cache_key(plant, extra=None) -> str:
+    """The cache key of the batch simulator's library for ``plant`` (with ``extra`` generated files)."""
+    return library_key(plant, DRIVER, extra or {})
 
+
+def test_the_cache_key_follows_what_determines_the_library():
     g1 = load_plant("g1")
     other_values = g1.with_parameters(g1.parameter_vector() * 1.1)  # the nominal values scale the states
-    assert library_key(g1, DRIVER, {}) == library_key(load_plant("g1"), DRIVER, {})
-    keys = {library_key(g1, DRIVER, {}), library_key(other_values, DRIVER, {}),
-            library_key(load_plant("g2"), DRIVER, {}), library_key(g1, DRIVER, {"extra.h": "#define X 1\n"})}
+    assert cache_key(g1) == cache_key(load_plant("g1"))
+    keys = {cache_key(g1), cache_key(other_values), cache_key(load_plant("g2")),
+            cache_key(g1, {"extra.h": "#define X 1\n"})}
     assert len(keys) == 4
 
 
@@ -496,16 +501,12 @@ def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_b
     sets = plant.parameter_vector() * rng.uniform(0.8, 1.2, size=(4, len(plant.parameter_names())))
     amps, freqs = [2.0, 0.6, 2.0], [1.0, 4.0, 5.0]
     native = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
-
-    def cache_key():
-        return batch.library_key(plant, batch.DRIVER, extra={})
-
-    key_here = cache_key()
+    key_here = cache_key(plant)
     monkeypatch.setattr(batch, "_processor", lambda: "another processor")
-    assert cache_key() != key_here  # a shared cache never mixes processors
+    assert cache_key(plant) != key_here  # a shared cache never mixes processors
     monkeypatch.setattr(batch, "driver_cflags", lambda: batch.EXTRA_CFLAGS)
-    monkeypatch.setattr(BatchSimulator, "_load", staticmethod(lambda p: batch.compiled_driver(p, batch.DRIVER)))
-    assert cache_key() != key_here
+    monkeypatch.setattr(BatchSimulator, "_load", staticmethod(lambda p: batch.compiled_driver(p, DRIVER)))
+    assert cache_key(plant) != key_here
     portable = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
     for name in ("H", "dc", "distortion", "converged", "settle_time", "steps", "orbit"):
         assert np.array_equal(getattr(native, name), getattr(portable, name), equal_nan=True), name
