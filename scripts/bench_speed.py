@@ -2,7 +2,7 @@
 made, and how many data files a fleet run identifies per second — the current servofmu against an earlier
 revision (``--before``), measured in one run on the same files.
 
-    python scripts/bench_speed.py [--demo DIR] [--before REV] [--previous REV] [--out docs/bench-speed.md]
+    python scripts/bench_speed.py [--demo DIR] [--before REV] [--previous REV] [--short-swarm N] [--out docs/bench-speed.md]
 
 ``--demo DIR``: the output folder of `servofmu demo` (its g1/g2 data, networks and FMUs); made in a temporary
 folder when not given.  The earlier revision is taken from git (``git archive``) and run from its sources with
@@ -42,7 +42,11 @@ t1 = time.perf_counter()
 data_file, structure, ann_file, out = sys.argv[1:5]
 plant, data, ann, provenance = load_identification_inputs(data_file, structure, ann_file, "pso-ann")
 t2 = time.perf_counter()
-est = PSOANNIdentifier(plant, ann=ann).fit(data)
+if len(sys.argv) > 5:  # a shorter swarm (identify --iterations)
+    from servofmu.identification.pso import PsoOptions
+    est = PSOANNIdentifier(plant, ann=ann, pso=PsoOptions(iterations=int(sys.argv[5]))).fit(data)
+else:
+    est = PSOANNIdentifier(plant, ann=ann).fit(data)
 t3 = time.perf_counter()
 write_result(out, est.result(provenance))
 t4 = time.perf_counter()
@@ -92,10 +96,10 @@ def worst_error(structure: str, theta: dict) -> float:
     return max(abs(theta[k] / v - 1) for k, v in TRUTH[structure].items())
 
 
-def process_times(version: Version, demo: Path, structure: str, repeats: int, out: Path) -> list[float]:
+def process_times(version: Version, demo: Path, structure: str, repeats: int, out: Path, *extra) -> list[float]:
     """Wall times of `servofmu identify` from process start to exit (the first run warms caches, not counted)."""
     args = ["identify", demo / f"{structure}.h5", "--structure", structure, "--ann", demo / f"{structure}-ann.h5",
-            "--json", "-o", out]
+            "--json", "-o", out, *extra]
     times = []
     for _ in range(repeats + 1):
         out.unlink(missing_ok=True)  # an existing output is refused (no --force before revision 0acfc33)
@@ -105,10 +109,11 @@ def process_times(version: Version, demo: Path, structure: str, repeats: int, ou
     return times[1:]
 
 
-def phase_times(version: Version, demo: Path, structure: str, repeats: int, out: Path) -> dict:
-    """Median time of each phase over ``repeats`` runs, and the last run's parameters."""
+def phase_times(version: Version, demo: Path, structure: str, repeats: int, out: Path, *iterations) -> dict:
+    """Median time of each phase over ``repeats`` runs, and the last run's parameters (``iterations``: the
+    swarm's, when not the paper's)."""
     runs = [json.loads(version.run("-c", PHASES, demo / f"{structure}.h5", structure, demo / f"{structure}-ann.h5",
-                                   out).stdout) for _ in range(repeats)]
+                                   out, *iterations).stdout) for _ in range(repeats)]
     phases = {k: statistics.median(r[k] for r in runs) for k in runs[0] if k != "theta"}
     return {**phases, "theta": runs[-1]["theta"]}
 
@@ -172,6 +177,8 @@ def main() -> None:
     ap.add_argument("--before", default="54db52b", help="earlier revision to compare with (git)")
     ap.add_argument("--previous", help="a later revision whose identify is timed too (git)")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--short-swarm", type=int, default=10, metavar="N",
+                    help="also time the current identify with --iterations N (the paper's swarm runs 50)")
     ap.add_argument("--samples", type=int, default=10_000, help="plants in the training sets")
     ap.add_argument("--files", type=int, default=40, help="data files of the fleet run")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "bench-speed.md")
@@ -197,9 +204,12 @@ def main() -> None:
                  "compiled libraries cached (one warm-up run first). Data: `servofmu demo`'s noise-free g1 and "
                  "g2 measurements and networks.\n"]
 
+        short = f"now, `--iterations {args.short_swarm}`"
         lines += ["## `servofmu identify` from process start to exit\n",
                   f"Best and median of {args.repeats} runs of `servofmu identify DATA --structure S --ann ANN "
-                  "--json -o RESULT.h5`; worst relative error of the identified parameters against the truth.\n",
+                  "--json -o RESULT.h5`; worst relative error of the identified parameters against the truth. "
+                  f"The last row per structure: the swarm cut from the paper's 50 iterations to {args.short_swarm} "
+                  "(what that costs in accuracy over random plants and noise: bench-swarm-budget.md).\n",
                   "| structure | version | best [s] | median [s] | worst relative error |", "|---|---|---|---|---|"]
         phases = {}
         for structure in ("g1", "g2"):
@@ -209,6 +219,12 @@ def main() -> None:
                                                                    tmp / f"{structure}-p.h5")
                 lines.append(f"| {structure} | {version.label} | {min(times):.3f} | {statistics.median(times):.3f} "
                              f"| {worst_error(structure, p['theta']):.2e} |")
+            times = process_times(now, demo, structure, args.repeats, tmp / f"{structure}-r.h5", "--iterations",
+                                  args.short_swarm)
+            phases[structure, short] = p = phase_times(now, demo, structure, args.repeats, tmp / f"{structure}-p.h5",
+                                                       args.short_swarm)
+            lines.append(f"| {structure} | {short} | {min(times):.3f} | {statistics.median(times):.3f} "
+                         f"| {worst_error(structure, p['theta']):.2e} |")
         lines += ["", "### Where the time goes\n",
                   f"Median over {args.repeats} runs of a script doing what `identify` does, phase by phase (s): "
                   "imports of what identify uses; reading the data and network; setup (criterion, compiled library "

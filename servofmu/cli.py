@@ -216,7 +216,7 @@ def cmd_identify(args) -> None:
         raise UserError("give -o RESULT.h5 for one data file (--scheduler, --workers and --resume go with "
                         "--output-dir DIR)")
     args.data = args.data[0]
-    from .identification.identifier import PSOANNIdentifier, load_identification_inputs
+    from .identification.identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
     from .identification.results import result_from_estimator, table_text, to_json_text, write_result
     from .runtime import utc_now
 
@@ -235,13 +235,13 @@ def cmd_identify(args) -> None:
                                                                       command=command, skip=args.skip)
     bar = None if args.json else _ProgressBar("iteration")
     est = PSOANNIdentifier(structure, ann=ann, method=method, seed=args.seed, polish=not args.no_polish,
-                           progress=bar.update if bar else None)
+                           pso=swarm_options(args.iterations), progress=bar.update if bar else None)
     try:
         est.fit(data)
     finally:
         if bar:
             bar.close()
-    provenance["date"] = utc_now()
+    provenance.update(seed=args.seed, polish=not args.no_polish, iterations=est.pso.iterations, date=utc_now())
     result = result_from_estimator(est, method, provenance)
     write_result(args.output, result)
     if args.json:
@@ -264,7 +264,7 @@ def cmd_identify_files(args) -> None:
     try:
         outcomes = identify_files(args.data, args.structure, args.output_dir, ann_file=args.ann,
                                   method=args.method or ("pso-ann" if args.ann else "pso"), seed=args.seed,
-                                  polish=not args.no_polish, skip=args.skip, resume=args.resume,
+                                  polish=not args.no_polish, iterations=args.iterations, skip=args.skip, resume=args.resume,
                                   overwrite=args.force, scheduler=args.scheduler, workers=args.workers,
                                   command=getattr(args, "command_line", ""), progress=bar.update if bar else None)
     finally:
@@ -549,6 +549,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="records: leave the first SECONDS of every record out of the fit (the model starts at rest "
                         "at the first sample; a record that does not start at rest is fitted after its initial "
                         "state has died away)")
+    p.add_argument("--iterations", type=int, metavar="N",
+                   help="swarm iterations (default 50, the paper's; the GA comparators get as many model evaluations); "
+                        "fewer are faster, 0 polishes from the network's estimate: docs/bench-swarm-budget.md")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print the result as one JSON object (many files: an array "
                                                        "of one summary object per file)")

@@ -94,6 +94,25 @@ def test_identify_cli_json(g1_files):
         assert f.attrs["format"] == "servofmu-result"
 
 
+def test_identify_cli_with_a_shorter_swarm(g1_files, tmp_path):
+    """--iterations: the swarm runs that many iterations (0: the first particles, then the polish), the result
+    says so, and the answer is still the truth; a negative count is one line naming the option."""
+    from servofmu.identification.results import read_result
+
+    out = tmp_path / "short.h5"
+    proc = run("identify", g1_files["data"], "--structure", "g1", "--ann", g1_files["ann"], "--iterations", "0",
+               "--seed", "2", "--json", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    stages = {s["stage"]: s for s in json.loads(proc.stdout)["stages"]}
+    assert stages["pso"]["evaluations"] == 10  # the ten first particles only
+    result = read_result(out)
+    assert (result.provenance["iterations"], result.provenance["seed"], result.provenance["polish"]) == (0, 2, True)
+    assert np.max(np.abs(result.theta / truth("g1") - 1)) < 1e-6
+    assert_one_line_error(run("identify", g1_files["data"], "--structure", "g1", "--ann", g1_files["ann"],
+                              "--iterations", "-1", "-o", tmp_path / "bad.h5"), "--iterations")
+    assert not (tmp_path / "bad.h5").exists()
+
+
 def test_refuses_plan_that_does_not_match_the_ann(g1_files, built_fmu, tmp_path):
     other = tmp_path / "other.h5"
     measure(built_fmu("g1", 3), other, amplitudes=[2.0, 0.6], frequencies=[1.0, 3.0], workers=0)
@@ -305,3 +324,6 @@ def test_many_files_refusals_and_a_failing_file(g1_files, fleet, tmp_path):
     other = run("identify", fleet[0], "--structure", "g1", "--ann", ann, "--seed", "7", "--output-dir", tmp_path,
                 "--resume")
     assert_one_line_error(other, "axis0-result.h5", "other settings")
+    shorter = run("identify", fleet[0], "--structure", "g1", "--ann", ann, "--iterations", "5", "--output-dir",
+                  tmp_path, "--resume")
+    assert_one_line_error(shorter, "axis0-result.h5", "other settings")

@@ -4,8 +4,8 @@ Every data file is identified on its own, exactly as `servofmu identify DATA -o 
 is shared between files, and a fit's result does not depend on the threads it runs on, so the results are those of
 one-file runs), in local worker processes or on a Dask cluster (servofmu.simulation.parallel).  Its result goes to
 DIR/<data file's name>-result.h5 as soon as it is done, written atomically.  With ``resume``, a result already in
-DIR that was identified from the same data (SHA-256) with the same structure, network, method, seed and polish is
-kept, so that a run interrupted and started again only identifies the files it had not finished.
+DIR that was identified from the same data (SHA-256) with the same structure, network, method, seed, polish and swarm
+iterations is kept, so that a run interrupted and started again only identifies the files it had not finished.
 """
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ from ..fileio import check_output_path
 from ..model.plant import load_plant
 from ..runtime import Progress
 from ..simulation.parallel import Workers
-from .identifier import PSOANNIdentifier, load_identification_inputs
+from .identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
+from .pso import PsoOptions
 from .results import read_result, result_from_estimator, write_result
 
 __all__ = ["FileJob", "FileOutcome", "identify_files", "result_path", "outcomes_table", "outcomes_json"]
@@ -36,6 +37,7 @@ class FileJob:
     method: str
     seed: int
     polish: bool
+    iterations: int
     skip: float
     threads: int | None
     command: str
@@ -64,8 +66,8 @@ def result_path(output_dir: Path, data_file: str | Path) -> Path:
 
 
 def identify_files(data_files, structure_file, output_dir, ann_file=None, method: str = "pso-ann", seed: int = 0,
-                   polish: bool = True, skip: float = 0.0, resume: bool = False, scheduler: str | None = None,
-                   workers: int | None = None, command: str = "", progress: Progress | None = None,
+                   polish: bool = True, iterations: int | None = None, skip: float = 0.0, resume: bool = False,
+                   scheduler: str | None = None, workers: int | None = None, command: str = "", progress: Progress | None = None,
                    overwrite: bool = False) -> list[FileOutcome]:
     """Identify every data file and write one result per file into ``output_dir``.
 
@@ -79,6 +81,8 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
         An existing folder; the result of A.h5 is written to output_dir/A-result.h5.
     method, seed, polish
         As for :class:`servofmu.PSOANNIdentifier`.
+    iterations : int, optional
+        Swarm iterations (`identify --iterations`); default the paper's 50.
     skip : float
         Records: seconds left out at the start of every record (as `servofmu identify --skip`).
     resume : bool
@@ -125,10 +129,11 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
         from .ann import load_ann
 
         load_ann(ann_file)
+    iterations = swarm_options(iterations).iterations  # a bad value is refused before any work
     in_process = scheduler is None and workers == 0
     jobs = [FileJob(data_file=d, result_file=r, structure_file=str(structure_file),
                     ann_file=None if ann_file is None else str(ann_file), method=method, seed=seed, polish=polish,
-                    skip=skip, threads=None if in_process else 1, command=command)
+                    iterations=iterations, skip=skip, threads=None if in_process else 1, command=command)
             for d, r in zip(data_files, results)]
     outcomes: list[FileOutcome | None] = [None] * len(jobs)
     for i, job in enumerate(jobs):
@@ -158,10 +163,10 @@ def identify_file(_, job: FileJob) -> FileOutcome:
         structure, data, ann, provenance = load_identification_inputs(
             job.data_file, job.structure_file, job.ann_file, job.method, command=job.command, skip=job.skip)
         est = PSOANNIdentifier(structure, ann=ann, method=job.method, seed=job.seed, polish=job.polish,
-                               threads=job.threads).fit(data)
+                               pso=swarm_options(job.iterations), threads=job.threads).fit(data)
         from ..runtime import utc_now
 
-        provenance.update(seed=job.seed, polish=job.polish, date=utc_now())
+        provenance.update(seed=job.seed, polish=job.polish, iterations=job.iterations, date=utc_now())
         result = result_from_estimator(est, job.method, provenance)
         write_result(job.result_file, result)
     except (UserError, OSError) as exc:
@@ -180,6 +185,7 @@ def _kept(job: FileJob, structure_toml: str) -> FileOutcome:
     ann = job.ann_file or ""
     same = (prov.get("data_sha256") == sha and result.method == job.method and prov.get("seed") == job.seed
             and prov.get("polish") == job.polish and prov.get("ann_file", "") == ann
+            and prov.get("iterations", PsoOptions().iterations) == job.iterations  # results from before the option
             and prov.get("skip", 0.0) == job.skip
             and result.structure.to_toml() == structure_toml)
     if not same:

@@ -49,7 +49,7 @@ from .prior import canonical_order, full_vectors, identified_names
 from .pso import PsoOptions, minimize_pso
 from .results import Result, Stage, result_from_estimator
 
-__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance"]
+__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance", "swarm_options"]
 
 MAX_POLISH_ITERATIONS = 20
 
@@ -273,6 +273,14 @@ class PSOANNIdentifier:
             The identified plant, its intervals, fitness and stages.
         """
         return result_from_estimator(self, self.method, dict(provenance or {}))
+
+
+def swarm_options(iterations: int | None = None) -> PsoOptions:
+    """The paper's swarm (Table I), with ``iterations`` instead of its 50 when given (`identify --iterations`)."""
+    if iterations is None:
+        return PsoOptions()
+    check_int("--iterations (swarm iterations)", iterations, 0)
+    return PsoOptions(iterations=iterations)
 
 
 # ---------------------------------------------------------------------------
