@@ -72,6 +72,19 @@ def test_ga_comparators_share_the_budget(g1_files, method, search):
     assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
 
 
+def test_search_tolerance_sets_the_floor_of_the_swarm_not_of_the_result(g1_files):
+    """On noise-free data the swarm's best cost can only fall to about its simulations' error: at search_rtol 1e-4
+    it stops an order of magnitude above where it stops at the default 1e-5; the polish (1e-10) still finds the
+    truth."""
+    net, layout = load_network(g1_files["ann"])
+    data = sine_data(read_data_file(g1_files["data"]))
+    fits = {rtol: PSOANNIdentifier(load_plant("g1"), ann=AnnModel(net, layout, "ann.h5"), search_rtol=rtol).fit(data)
+            for rtol in (1e-5, 1e-4)}
+    assert fits[1e-4].stages_[1].fitness > 3 * fits[1e-5].stages_[1].fitness
+    for est in fits.values():
+        assert np.max(np.abs(est.theta_ / truth("g1") - 1)) < 1e-6
+
+
 def test_pso_alone_from_the_prior_box(g1_files):
     data = sine_data(read_data_file(g1_files["data"]))
     est = PSOANNIdentifier(load_plant("g1"), method="pso", seed=1).fit(data)

@@ -75,6 +75,8 @@ class PSOANNIdentifier:
         The paper's hybrid, the swarm alone (prior box), or the GA comparators.
     pso : PsoOptions
         Swarm settings (the paper's Table I by default).
+    search_rtol : float
+        Integrator tolerance of the search's simulations (SEARCH_RTOL; docs/bench-swarm-budget.md measures others).
     polish : bool
         Finish with the least-squares polish (and its intervals).
     box : float
@@ -121,8 +123,10 @@ class PSOANNIdentifier:
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
-                 seed: int = 0, threads: int | None = None, progress: Progress | None = None):
+                 seed: int = 0, threads: int | None = None, progress: Progress | None = None,
+                 search_rtol: float = SEARCH_RTOL):
         self.structure, self.ann, self.method, self.pso = structure, ann, method, pso
+        self.search_rtol = search_rtol
         self.polish, self.box, self.spread, self.seed = polish, box, spread, seed
         self.threads, self.progress = threads, progress
 
@@ -212,7 +216,7 @@ class PSOANNIdentifier:
         self.names_ = identified_names(self.structure)
 
         def cost(y):
-            return rms(crit.residuals(self._to_theta(y), SEARCH_RTOL))
+            return rms(crit.residuals(self._to_theta(y), self.search_rtol))
 
         stages = []
         if self.method in NEEDS_ANN:
