@@ -2,7 +2,7 @@
 made, and how many data files a fleet run identifies per second — the current servofmu against an earlier
 revision (``--before``), measured in one run on the same files.
 
-    python scripts/bench_speed.py [--demo DIR] [--before REV] [--previous REV] [--short-swarm N] [--out docs/bench-speed.md]
+    python scripts/bench_speed.py [--demo DIR] [--before REV] [--previous REV] [--short-swarm N] [--out FILE.md]
 
 ``--demo DIR``: the output folder of `servofmu demo` (its g1/g2 data, networks and FMUs); made in a temporary
 folder when not given.  The earlier revision is taken from git (``git archive``) and run from its sources with

@@ -264,9 +264,10 @@ def cmd_identify_files(args) -> None:
     try:
         outcomes = identify_files(args.data, args.structure, args.output_dir, ann_file=args.ann,
                                   method=args.method or ("pso-ann" if args.ann else "pso"), seed=args.seed,
-                                  polish=not args.no_polish, iterations=args.iterations, skip=args.skip, resume=args.resume,
-                                  overwrite=args.force, scheduler=args.scheduler, workers=args.workers,
-                                  command=getattr(args, "command_line", ""), progress=bar.update if bar else None)
+                                  polish=not args.no_polish, iterations=args.iterations, skip=args.skip,
+                                  resume=args.resume, overwrite=args.force, scheduler=args.scheduler,
+                                  workers=args.workers, command=getattr(args, "command_line", ""),
+                                  progress=bar.update if bar else None)
     finally:
         if bar:
             bar.close()

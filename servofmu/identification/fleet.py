@@ -4,8 +4,8 @@ Every data file is identified on its own, exactly as `servofmu identify DATA -o 
 is shared between files, and a fit's result does not depend on the threads it runs on, so the results are those of
 one-file runs), in local worker processes or on a Dask cluster (servofmu.simulation.parallel).  Its result goes to
 DIR/<data file's name>-result.h5 as soon as it is done, written atomically.  With ``resume``, a result already in
-DIR that was identified from the same data (SHA-256) with the same structure, network, method, seed, polish and swarm
-iterations is kept, so that a run interrupted and started again only identifies the files it had not finished.
+DIR that was identified from the same data (SHA-256) with the same structure, network, method, seed, polish and
+swarm iterations is kept, so that a run interrupted and started again only identifies the files it had not finished.
 """
 from __future__ import annotations
 
@@ -67,8 +67,8 @@ def result_path(output_dir: Path, data_file: str | Path) -> Path:
 
 def identify_files(data_files, structure_file, output_dir, ann_file=None, method: str = "pso-ann", seed: int = 0,
                    polish: bool = True, iterations: int | None = None, skip: float = 0.0, resume: bool = False,
-                   scheduler: str | None = None, workers: int | None = None, command: str = "", progress: Progress | None = None,
-                   overwrite: bool = False) -> list[FileOutcome]:
+                   scheduler: str | None = None, workers: int | None = None, command: str = "",
+                   progress: Progress | None = None, overwrite: bool = False) -> list[FileOutcome]:
     """Identify every data file and write one result per file into ``output_dir``.
 
     Parameters
