@@ -5,10 +5,12 @@ simulations at a looser tolerance, on the same data.
     python scripts/bench_swarm_budget.py [--demo DIR] [--random 50] [--noise-seeds 10] [--out FILE.md]
 
 ``--demo DIR``: the output folder of `servofmu demo` (its g1/g2 FMUs and networks); made in a temporary folder when
-not given.  Data: noise-free features of plants drawn from the training prior (seed 20261121, as
-scripts/bench_identify.py) and from a wider one, all settling in every experiment, and measurements of the demo's
-FMUs at 40 dB output SNR.  Per budget: how many random plants are identified within 1e-3, the worst relative
-error, the 95 % intervals' coverage on the noisy data and the median time of a fit, all in one run.
+not given.  ``--plants``: g1 and g2 use the demo's files; another example plant (stribeck_servo, ...) is built,
+measured under g1's plan and given a network of its own in the run.  Data: noise-free features of plants drawn
+from the training prior (seed 20261121, as scripts/bench_identify.py) and from a wider one, all settling in every
+experiment, and measurements of each plant's FMU at 40 dB output SNR.  Per budget: how many random plants are
+identified within 1e-3, the worst relative error, the 95 % intervals' coverage on the noisy data and the median
+time of a fit, all in one run.
 """
 from __future__ import annotations
 
@@ -24,11 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from servofmu.fmu import build_fmu
 from servofmu.identification.ann import load_ann
 from servofmu.identification.criterion import SEARCH_RTOL, SineData, sine_data
 from servofmu.identification.identifier import PSOANNIdentifier
 from servofmu.identification.prior import full_vectors, identified_mask, sample_identified
 from servofmu.identification.pso import PsoOptions
+from servofmu.identification.train import train_from_file
+from servofmu.identification.training_set import make_training_set
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
@@ -53,17 +58,33 @@ def random_plants(plant, data, n: int, spread: float):
                       noisy=False, source="simulated", skipped=0), theta[i]) for i in rows]
 
 
+def inputs(name: str, demo: Path, work: Path) -> tuple[Path, Path, Path]:
+    """The FMU, noise-free measurement and network of ``name``: the demo's, or for another example plant built here
+    as the demo builds g1's (its plan, a 10 000-plant training set, a network)."""
+    if (demo / f"{name}-ann.h5").exists():
+        return demo / f"{name}.fmu", demo / f"{name}.h5", demo / f"{name}-ann.h5"
+    plant = load_plant(name)
+    fmu, data, ds, ann = (work / f"{name}{suffix}" for suffix in (".fmu", ".h5", "-ds.h5", "-ann.h5"))
+    build_fmu(plant, fmu)
+    plan = read_data_file(demo / "g1.h5").plan
+    measure(fmu, data, amplitudes=list(plan.amplitudes), frequencies=list(plan.frequencies), workers=0)
+    make_training_set(plant, sine_data(read_data_file(data)), 10_000, ds, seed=0)
+    train_from_file(ds, ann, seed=0)
+    return fmu, data, ann
+
+
 def run(name: str, demo: Path, work: Path, n_random: int, noise_seeds: int, lines: list) -> None:
     plant = load_plant(name)
     truth = plant.parameter_vector()[identified_mask(plant)]
-    ann = load_ann(demo / f"{name}-ann.h5")
-    measured = read_data_file(demo / f"{name}.h5")
+    fmu, data_file, ann_file = inputs(name, demo, work)
+    ann = load_ann(ann_file)
+    measured = read_data_file(data_file)
     data = sine_data(measured)
     amps, freqs = list(measured.plan.amplitudes), list(measured.plan.frequencies)
     noisy = []
     for seed in range(1, noise_seeds + 1):
         path = work / f"{name}-noise{seed}.h5"
-        measure(demo / f"{name}.fmu", path, amplitudes=amps, frequencies=freqs, workers=0,
+        measure(fmu, path, amplitudes=amps, frequencies=freqs, workers=0,
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
         noisy.append(sine_data(read_data_file(path)))
     sets = {"prior": random_plants(plant, data, n_random, 0.5), "wider": random_plants(plant, data, n_random, 0.8)}
@@ -72,7 +93,7 @@ def run(name: str, demo: Path, work: Path, n_random: int, noise_seeds: int, line
     lines += [f"## {name}", "",
               f"Noise-free data of {n_random} random plants from the training prior (spread 0.5) and {n_random} from a "
               f"wider one (spread 0.8: many outside the network's training range); {noise_seeds} measurements of the "
-              f"demo's {name} at 40 dB.", "",
+              f"{name} FMU at 40 dB ({', '.join(map(str, amps))} N × {', '.join(map(str, freqs))} Hz).", "",
               "| swarm iterations | search tolerance | model evaluations (median) | prior: within 1e-3 | "
               "prior: worst error | wider: within 1e-3 | wider: worst error | 40 dB: worst error | "
               "40 dB: 95 % coverage | median fit [s] | time vs default |",
@@ -110,7 +131,7 @@ def main() -> None:
     ap.add_argument("--demo", type=Path, help="output folder of `servofmu demo` (default: run the demo)")
     ap.add_argument("--random", type=int, default=50, help="random plants per structure")
     ap.add_argument("--noise-seeds", type=int, default=10)
-    ap.add_argument("--plants", default="g1,g2")
+    ap.add_argument("--plants", default="g1,g2,stribeck_servo")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "bench-swarm-budget.md")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
