@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
-PYTHON="$PYTHON" bash scripts/system_packages.sh build  # make, C/C++ compilers, venv (apt-get when missing)
+PYTHON="$PYTHON" bash scripts/system_packages.sh build  # C/C++ compilers, venv (apt-get when missing)
 if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi

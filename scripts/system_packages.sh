@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The Debian packages the README's two commands need beyond Python's own packages, installed with apt-get only
-# when what they provide is missing (a second run only checks).
-#   scripts/system_packages.sh build     make, a C and a C++ compiler (CMake's default project languages, which
+# The Debian packages the README's two commands (scripts/demo.sh, scripts/test.sh) need beyond bash and Python's
+# own packages, installed with apt-get only when what they provide is missing (a second run only checks).
+#   scripts/system_packages.sh build     a C and a C++ compiler (CMake's default project languages, which
 #                                        `fmpy compile` uses), Python 3 with venv
 #   scripts/system_packages.sh browser   Chromium and its driver (the HTML report test)
 set -euo pipefail
@@ -12,7 +12,6 @@ need() {  # need PROGRAM PACKAGE
 }
 case "${1:-build}" in
     build)
-        need make make
         need cc gcc
         need c++ g++
         if ! command -v "$PYTHON" >/dev/null 2>&1; then

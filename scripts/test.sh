@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Run the test suite in .venv (after scripts/setup.sh). Installs Chromium for the report test when missing.
+# The README's test command: sets everything up (scripts/setup.sh: Debian packages when missing, .venv, servofmu
+# with its test tools), then runs the test suite; arguments go to pytest.  Needs only bash on a Debian machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash scripts/setup.sh
 # tests/test_report.py opens a report in headless Chromium through Debian's chromium-driver (never a downloaded one)
 bash scripts/system_packages.sh browser
 export PATH="$PWD/.venv/bin:$PATH"  # the venv's cmake for `fmpy compile`
