@@ -42,6 +42,22 @@ PLANS = {"g1": ([2.0, 0.6], [0.5, 1.0, 2.0, 5.0, 10.0, 20.0]),
          "g2": ([4.0, 2.0], [0.5, 1.0, 2.0, 3.0, 4.0, 5.0])}
 
 
+# How a measurement settles (MeasureOptions' max_time and 1e-10 rule, plain simulation from rest)
+MEASURED = SteadyStateOptions(rtol=1e-11, tol=1e-10, max_time=MeasureOptions().max_time, accelerate=False,
+                              give_up_early=False)
+
+
+def settled_plants(plant, data: SineData, n: int, spread: float, seed: int = 20261121):
+    """Noise-free data of the first ``n`` plants drawn from the prior of width ``spread`` that settle in every
+    experiment of ``data``'s plan as a measurement would, with their parameters; and how many draws that took."""
+    theta = sample_identified(plant, 4 * n, spread, np.random.default_rng(seed))
+    feats = BatchSimulator(plant).steady_state(full_vectors(plant, theta), data.amplitudes, data.frequencies, MEASURED)
+    rows = np.flatnonzero(np.all(feats.converged, axis=1))[:n]
+    drawn = int(rows[-1]) + 1 if rows.size else len(theta)
+    return [(SineData(amplitudes=data.amplitudes, frequencies=data.frequencies, H=feats.H[i], dc=feats.dc[i],
+                      noisy=False, source="simulated", skipped=0), theta[i]) for i in rows], drawn
+
+
 def rel_err(theta, truth):
     return np.abs(theta / truth - 1)
 
@@ -121,29 +137,21 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
               f"cases ({100 * covered / total:.1f} %).", ""]
 
     # random plants from the prior, another seed
-    theta = sample_identified(plant, 4 * n_random, 0.5, np.random.default_rng(20261121))
-    sim = BatchSimulator(plant)
-    as_measured = SteadyStateOptions(rtol=1e-11, tol=1e-10, max_time=MeasureOptions().max_time, accelerate=False,
-                                     give_up_early=False)
-    feats = sim.steady_state(full_vectors(plant, theta), data.amplitudes, data.frequencies, as_measured)
-    settled = np.all(feats.converged, axis=1)
-    drawn = int(np.searchsorted(np.cumsum(settled), n_random) + 1)  # draws until n_random settled plants
+    plants, drawn = settled_plants(plant, data, n_random, 0.5)
     ok, times, nls_ok, nls_times, worst = 0, [], 0, [], []
-    for i in np.flatnonzero(settled[:drawn]):
-        d = SineData(amplitudes=data.amplitudes, frequencies=data.frequencies, H=feats.H[i], dc=feats.dc[i],
-                     noisy=False, source="simulated", skipped=0)
+    for d, theta in plants:
         e = identify(d)
         times.append(e.seconds_)
-        worst.append(rel_err(e.theta_, theta[i]).max())
+        worst.append(rel_err(e.theta_, theta).max())
         ok += int(worst[-1] < 1e-3)
         nls = fit_casadi_nls(plant, d)  # from the documented default guess: the structure file's values
         nls_times.append(nls.seconds)
-        nls_ok += int(np.all(np.isfinite(nls.theta)) and rel_err(nls.theta, theta[i]).max() < 1e-3)
+        nls_ok += int(np.all(np.isfinite(nls.theta)) and rel_err(nls.theta, theta).max() < 1e-3)
     n_settled = len(times)
     lines += ["### Random plants from the prior", "",
               f"Plants drawn from the prior (spread 0.5, seed 20261121; training used seed 0) until {n_settled} "
               f"settle in every experiment of the plan as a measurement would (plain simulation from rest, the "
-              f"measurement's {as_measured.max_time:g} s and 1e-10 rule): {drawn} draws. "
+              f"measurement's {MEASURED.max_time:g} s and 1e-10 rule): {drawn} draws. "
               + ("The others have no periodic response to some excitation of the plan (the relay oscillation does "
                  "not lock), so no measurement with this plan comes from them." if drawn > n_settled else
                  "All of them settle."), "",

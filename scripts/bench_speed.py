@@ -42,11 +42,11 @@ t1 = time.perf_counter()
 data_file, structure, ann_file, out = sys.argv[1:5]
 plant, data, ann, provenance = load_identification_inputs(data_file, structure, ann_file, "pso-ann")
 t2 = time.perf_counter()
+swarm = {}
 if len(sys.argv) > 5:  # a shorter swarm (identify --iterations)
     from servofmu.identification.pso import PsoOptions
-    est = PSOANNIdentifier(plant, ann=ann, pso=PsoOptions(iterations=int(sys.argv[5]))).fit(data)
-else:
-    est = PSOANNIdentifier(plant, ann=ann).fit(data)
+    swarm["pso"] = PsoOptions(iterations=int(sys.argv[5]))
+est = PSOANNIdentifier(plant, ann=ann, **swarm).fit(data)
 t3 = time.perf_counter()
 write_result(out, est.result(provenance))
 t4 = time.perf_counter()

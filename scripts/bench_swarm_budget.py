@@ -26,36 +26,24 @@ from pathlib import Path
 
 import numpy as np
 
+from bench_identify import settled_plants  # scripts/: the same random plants as the identifier's benchmark
+
 from servofmu.fmu import build_fmu
 from servofmu.identification.ann import load_ann
-from servofmu.identification.criterion import SEARCH_RTOL, SineData, sine_data
+from servofmu.identification.criterion import SEARCH_RTOL, sine_data
 from servofmu.identification.identifier import PSOANNIdentifier
-from servofmu.identification.prior import full_vectors, identified_mask, sample_identified
+from servofmu.identification.prior import identified_mask
 from servofmu.identification.pso import PsoOptions
 from servofmu.identification.train import train_from_file
 from servofmu.identification.training_set import make_training_set
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
-from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 # (swarm iterations, search tolerance); the first is identify's default: the paper's 50 (Table I) at SEARCH_RTOL
 VARIANTS = ((50, SEARCH_RTOL), (30, SEARCH_RTOL), (20, SEARCH_RTOL), (10, SEARCH_RTOL), (0, SEARCH_RTOL),
             (50, 1e-4), (10, 1e-4))
-
-
-def random_plants(plant, data, n: int, spread: float):
-    """Noise-free SineData of the first ``n`` draws (prior of width ``spread``) that settle in every experiment, with
-    their parameters."""
-    theta = sample_identified(plant, 4 * n, spread, np.random.default_rng(20261121))
-    as_measured = SteadyStateOptions(rtol=1e-11, tol=1e-10, max_time=MeasureOptions().max_time, accelerate=False,
-                                     give_up_early=False)
-    feats = BatchSimulator(plant).steady_state(full_vectors(plant, theta), data.amplitudes, data.frequencies,
-                                                as_measured)
-    rows = np.flatnonzero(np.all(feats.converged, axis=1))[:n]
-    return [(SineData(amplitudes=data.amplitudes, frequencies=data.frequencies, H=feats.H[i], dc=feats.dc[i],
-                      noisy=False, source="simulated", skipped=0), theta[i]) for i in rows]
 
 
 def inputs(name: str, demo: Path, work: Path) -> tuple[Path, Path, Path]:
@@ -87,7 +75,8 @@ def run(name: str, demo: Path, work: Path, n_random: int, noise_seeds: int, line
         measure(fmu, path, amplitudes=amps, frequencies=freqs, workers=0,
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
         noisy.append(sine_data(read_data_file(path)))
-    sets = {"prior": random_plants(plant, data, n_random, 0.5), "wider": random_plants(plant, data, n_random, 0.8)}
+    sets = {label: settled_plants(plant, data, n_random, spread)[0]
+            for label, spread in (("prior", 0.5), ("wider", 0.8))}
     PSOANNIdentifier(plant, ann=ann).fit(data)  # warm-up: the batch library loaded once
 
     lines += [f"## {name}", "",

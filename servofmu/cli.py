@@ -241,7 +241,7 @@ def cmd_identify(args) -> None:
     finally:
         if bar:
             bar.close()
-    provenance.update(seed=args.seed, polish=not args.no_polish, iterations=est.pso.iterations, date=utc_now())
+    provenance["date"] = utc_now()
     result = result_from_estimator(est, method, provenance)
     write_result(args.output, result)
     if args.json:

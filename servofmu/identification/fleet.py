@@ -166,7 +166,7 @@ def identify_file(_, job: FileJob) -> FileOutcome:
                                pso=swarm_options(job.iterations), threads=job.threads).fit(data)
         from ..runtime import utc_now
 
-        provenance.update(seed=job.seed, polish=job.polish, iterations=job.iterations, date=utc_now())
+        provenance["date"] = utc_now()
         result = result_from_estimator(est, job.method, provenance)
         write_result(job.result_file, result)
     except (UserError, OSError) as exc:

@@ -59,13 +59,15 @@ class Result:
 
 
 def result_from_estimator(est, method: str, provenance: dict) -> Result:
-    """The Result of a fitted :class:`servofmu.PSOANNIdentifier` (``method`` and ``provenance`` as stored)."""
+    """The Result of a fitted :class:`servofmu.PSOANNIdentifier` (``method`` and ``provenance`` as stored); the
+    provenance also records the fit's settings — seed, polish, swarm iterations — which a fleet's resume compares."""
+    provenance = {"seed": est.seed, "polish": est.polish, "iterations": est.pso.iterations, **provenance}
     return Result(method=method, structure=est.structure, plant=est.plant_, names=tuple(est.names_),
                   theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
                   seconds=float(est.seconds_), evaluations=int(est.evaluations_),
                   stages=tuple(est.stages_),
                   fit_percent=getattr(est, "fit_percent_", None),
-                  history=np.asarray(est.history_), provenance=dict(provenance))
+                  history=np.asarray(est.history_), provenance=provenance)
 
 
 # ---------------------------------------------------------------------------
