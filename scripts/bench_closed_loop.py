@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 import servofmu as sf
-from servofmu.control.closed_loop import LoopSimulator, closed_loop_data
+from servofmu.identification.closed_loop import LoopSimulator, closed_loop_data
 from servofmu.control.compensation import compare_compensation
-from servofmu.control.controller import load_controller
+from servofmu.model.controller import load_controller
 from servofmu.control.cosim import cosimulate, write_cosim_records
 from servofmu.control.fmus import build_controller_fmu
 from servofmu.control.system import write_system

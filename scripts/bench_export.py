@@ -27,7 +27,8 @@ from servofmu.identification.prior import identified_mask, identified_names
 from servofmu.identification.results import Result
 from servofmu.measurement.measure import measure
 from servofmu.model.plant import load_plant
-from servofmu.output.export import ROUND_TRIP_TOLERANCE, file_sha256, remeasure
+from servofmu.fileio import file_sha256
+from servofmu.output.export import ROUND_TRIP_TOLERANCE, remeasure
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
 PLANS = {"g1": ((2.0, 0.6), (0.5, 2.0, 10.0)), "g2": ((4.0, 2.0), (1.0, 2.0, 5.0))}

@@ -28,7 +28,7 @@ from servofmu.identification.training_set import make_training_set
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
-from servofmu.output.compare import METHODS, max_relative_errors, run_methods
+from servofmu.baselines.compare import METHODS, max_relative_errors, run_methods
 from servofmu.output.demo import DEMO_PLANS
 from servofmu.output.paper import COLUMNS, TABLES
 from servofmu.output.report import bode_figures, compute_entries, convergence_figure, friction_figure, velocity_range

@@ -223,7 +223,7 @@ def cmd_identify(args) -> None:
     method = args.method or ("pso-ann" if args.ann else "pso")
     command = getattr(args, "command_line", "")
     if args.closed_loop:
-        from .control.closed_loop import load_closed_loop_inputs
+        from .identification.closed_loop import load_closed_loop_inputs
 
         if method != "pso" or args.ann:
             raise UserError("a closed-loop identification searches with the swarm alone (--method pso, no --ann)")
@@ -301,7 +301,7 @@ def cmd_compare(args) -> None:
     from .identification.identifier import load_identification_inputs
     from .identification.results import write_comparison
     from .model.plant import load_plant
-    from .output.compare import (
+    from .baselines.compare import (
         METHODS,
         NEEDS_ANN,
         check_methods,
@@ -367,7 +367,7 @@ def cmd_report(args) -> None:
 # controller / system / cosim
 # ---------------------------------------------------------------------------
 def cmd_controller(args) -> None:
-    from .control.controller import friction_feedforward, load_controller
+    from .model.controller import friction_feedforward, load_controller
     from .control.fmus import build_controller_fmu
     from .model.plant import load_plant
 
@@ -418,7 +418,7 @@ def cmd_cosim(args) -> None:
 def cmd_compensate(args) -> None:
     import json
 
-    from .output.compensation import compensate_files, compensation_json, compensation_text
+    from .output.compensation_report import compensate_files, compensation_json, compensation_text
 
     runs = compensate_files(args.result, args.axis, truth=args.truth, output=args.output, engine=args.engine)
     if args.json:
@@ -658,7 +658,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from . import __version__
+    from .version import __version__
     return __version__
 
 

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 from pathlib import Path
 from typing import Callable, Iterator
 
 from .errors import MAX_MAGNITUDE, UserError
 
-__all__ = ["check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
+__all__ = ["file_sha256", "check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
            "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER",
            "NO_ROOM", "write_failures"]
 
@@ -31,6 +32,11 @@ READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexErro
 
 # What the system says when a write cannot be done for lack of room: a full disk, a quota, a file-size limit.
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes, in hex: what provenance records of every input file."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 @contextlib.contextmanager

@@ -12,8 +12,8 @@ from scipy import signal
 from scipy.integrate import solve_ivp
 
 import servofmu as sf
-from servofmu.control.closed_loop import LoopSimulator
-from servofmu.control.controller import PARAMETERS, controller_from_dict, load_controller
+from servofmu.identification.closed_loop import LoopSimulator
+from servofmu.model.controller import PARAMETERS, controller_from_dict, load_controller
 from servofmu.control.cosim import cosimulate
 from servofmu.identification.prior import identified_mask
 from servofmu.model.plant import example_files

@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "servofmu"
 STAGES = [
-    {"servofmu.errors", "servofmu.runtime", "servofmu.fileio"},
+    {"servofmu.version", "servofmu.errors", "servofmu.runtime", "servofmu.fileio"},
     {"servofmu.model", "servofmu.fmu_models"},
     {"servofmu.fmu"},
     {"servofmu.simulation"},
@@ -79,12 +79,11 @@ def test_no_module_imports_a_later_stage(path):
     for line, module, names in imports(path):
         if not module.startswith("servofmu"):
             continue
-        # from the package root: its dunders (the version) belong to no stage
-        targets = [f"{module}.{n}" for n in names if not n.startswith("__")] if module == "servofmu" else [module]
+        targets = [f"{module}.{n}" for n in names] if module == "servofmu" else [module]
         for target in targets:
             theirs = stage_of(target)
-            if theirs is None:
-                continue
+            assert theirs is not None, f"{path.relative_to(ROOT)}:{line}: {here} imports the package root " \
+                                       f"({target}), which stands above every stage"
             assert theirs <= mine, f"{path.relative_to(ROOT)}:{line}: {here} (stage {mine}) imports {target} " \
                                    f"(stage {theirs}), a later stage"
 

@@ -16,9 +16,9 @@ from servofmu.identification.results import write_comparison, write_result
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import measure
 from servofmu.model.plant import load_plant
-from servofmu.output.compare import run_methods
-from servofmu.output.export import file_sha256
-from servofmu.output.report import steady_friction
+from servofmu.baselines.compare import run_methods
+from servofmu.fileio import file_sha256
+from servofmu.model.friction import steady_friction
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -1,4 +1,5 @@
-"""Identifiers to compare PSO-ANN against (docs/identification.md):
+"""Stage 6, baselines: identifiers to compare PSO-ANN against (docs/identification.md), and the comparison
+of every method on the same data (compare):
 
 - :mod:`servofmu.baselines.casadi_nls`: nonlinear least squares on the same output-error residuals, with exact
   derivatives from the CasADi model (the periodic steady state of each experiment by Newton on the period map);

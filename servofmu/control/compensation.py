@@ -18,7 +18,7 @@ from ..fileio import write_failures
 from ..measurement.frf import estimate_frequency, harmonics
 from ..model.plant import Plant
 from ..runtime import temporary_folder
-from .controller import PARAMETERS, ControllerSpec, friction_feedforward
+from ..model.controller import PARAMETERS, ControllerSpec, friction_feedforward
 from .cosim import CosimResult, cosimulate
 from .system import parameter_set_xml, read_system
 

@@ -13,18 +13,17 @@ controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference 
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
-from ..fileio import check_output_path
+from ..fileio import check_output_path, file_sha256
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
 from ..runtime import temporary_folder, utc_now
+from ..version import __version__
 from .system import COMPONENTS, read_system
 
 __all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
@@ -150,7 +149,7 @@ def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path
                     position=result["position_measured"][1:], reference=result["reference"][:-1])
     existing = len(read_data_file(output).records) if append and output.exists() else 0
     record = Record(index=existing, name=f"{Path(ssp).stem}-{result.engine}-{existing}", source=Path(ssp).name,
-                    source_sha256=hashlib.sha256(Path(ssp).read_bytes()).hexdigest(), kind="position",
+                    source_sha256=file_sha256(ssp), kind="position",
                     columns={"time": "communication points", "u": "controller.force_command",
                              "position": "controller.position_measured", "v": "plant.v",
                              "reference": "reference.position_reference"},

@@ -1,7 +1,7 @@
 """The drive's controller and a reference trajectory as Co-Simulation FMUs (FMI 2.0 and 3.0).
 
 Both are sampled components (fmu/c/sampled_core.c behind the plant's FMI wrappers): the controller runs its law
-(control/c/controller_law.h) at every sample time and holds its force command in between; the reference source
+(simulation/batch_c/controller_law.h, shared with the loop simulator) at every sample time and holds its force command in between; the reference source
 interpolates a table.  Value references: 0 time, 1… inputs, 100… outputs, 1000… parameters.
 """
 from __future__ import annotations
@@ -13,11 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
 from ..fmu.build import CORE_FILES, assemble_fmu
 from ..fmu.variables import Variable
-from .controller import PARAMETERS, ControllerSpec, params_header
+from ..model.controller import PARAMETERS, ControllerSpec, params_header
+from ..simulation.closed_loop import CONTROLLER_LAW
+from ..version import __version__
 
 __all__ = ["CONTROLLER_INPUTS", "CONTROLLER_OUTPUTS", "REFERENCE_OUTPUT", "build_controller_fmu",
            "build_reference_fmu", "controller_variables", "read_reference_csv"]
@@ -91,7 +92,7 @@ def build_controller_fmu(spec: ControllerSpec, output: str | Path, fmi_version: 
     """Write the controller FMU (Co-Simulation, FMI ``fmi_version``) of ``spec``; its parameters start at the
     spec's values and can be changed before initialisation.  Returns the path."""
     headers = {"controller_params.h": params_header(),
-                    "controller_law.h": (C_DIR / "controller_law.h").read_text()}
+                    "controller_law.h": CONTROLLER_LAW.read_text()}
     config = _config(spec.name, len(CONTROLLER_INPUTS), len(CONTROLLER_OUTPUTS), spec.values,
                      "".join(headers.values()) + (C_DIR / "controller_component.c").read_text())
     summary = (f"Drive controller '{spec.name}': position P, velocity PI cascade sampled every "

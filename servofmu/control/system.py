@@ -25,7 +25,7 @@ from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, write_failures
 from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import read_fmu
-from .controller import PARAMETERS, ControllerSpec
+from ..model.controller import PARAMETERS, ControllerSpec
 from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
 
 __all__ = ["System", "write_system", "read_system", "controller_from_fmu", "parameter_set_xml", "COMPONENTS"]

@@ -15,12 +15,12 @@ import shutil
 import zipfile
 from pathlib import Path
 
-from .. import __version__
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, write_failures
 from ..model.plant import Plant
 from ..model.symbolic import build_model
 from ..runtime import compile_shared, find_compiler, temporary_folder, utc_now
+from ..version import __version__
 from . import description
 from .sources import C_DIR, generate_sources
 from .variables import Variable, fmu_variables

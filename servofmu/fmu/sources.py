@@ -9,9 +9,9 @@ from pathlib import Path
 
 import casadi as ca
 
-from .. import __version__
 from ..model.plant import parameter_rules
 from ..model.symbolic import EXCITATION_PARAMETERS, SymbolicModel
+from ..version import __version__
 from .variables import VALUE_REFERENCES, position_index, state_nominals
 
 __all__ = ["C_DIR", "DEFAULT_RTOL", "generate_sources"]

@@ -9,13 +9,12 @@ swarm iterations is kept, so that a run interrupted and started again only ident
 """
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import check_output_path
+from ..fileio import check_output_path, file_sha256
 from ..model.plant import load_plant
 from ..runtime import Progress
 from ..simulation.parallel import Workers
@@ -179,7 +178,7 @@ def _kept(job: FileJob, structure_toml: str) -> FileOutcome:
     result = read_result(job.result_file)
     prov = result.provenance
     try:
-        sha = hashlib.sha256(Path(job.data_file).read_bytes()).hexdigest()
+        sha = file_sha256(job.data_file)
     except OSError as exc:
         raise UserError(f"{job.data_file}: cannot read ({exc.strerror or exc})") from exc
     ann = job.ann_file or ""

@@ -14,13 +14,13 @@ The GA comparators (``ga-ann``, ``aga-ann``) replace stage 2 with the same budge
 """
 from __future__ import annotations
 
-import hashlib
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError, check_int
+from ..fileio import file_sha256
 from ..measurement.datafile import read_data_file
 from ..model.plant import Plant, load_plant
 from ..runtime import Progress
@@ -196,7 +196,7 @@ class PSOANNIdentifier:
         ----------
         data : SineData, RecordData or ClosedLoopData
             Stepped-sine data (:func:`servofmu.sine_data`), time-domain records, or closed-loop records with their
-            controller (servofmu.control.closed_loop), which bring their own criterion.
+            controller (servofmu.identification.closed_loop), which bring their own criterion.
 
         Returns
         -------
@@ -388,7 +388,7 @@ def identification_provenance(data_path, structure_path, command: str, ann_path=
                               **extra) -> dict:
     """What a result records of its inputs: the data file and its SHA-256, the structure, the network, the
     command, the skipped seconds and ``extra`` entries."""
-    sha = hashlib.sha256(Path(data_path).read_bytes()).hexdigest()
+    sha = file_sha256(data_path)
     provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
                   "ann_file": str(ann_path) if ann_path else "", "command": command, **extra}
     if skip:

@@ -5,18 +5,19 @@ import json
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
-from ..fileio import check_output_path, check_values, hdf5_attr, read_hdf5, store_array, write_hdf5
+from ..fileio import check_output_path, check_values, file_sha256, hdf5_attr, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
+from ..version import __version__
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
-           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json"]
+           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json", "find_data_file"]
 
 FORMAT = "servofmu-result"
 COMPARE_FORMAT = "servofmu-comparison"
@@ -272,3 +273,28 @@ def read_result(path: str | Path) -> Result:
     if len(results) != 1:
         raise UserError(f"{path}: holds a comparison of {len(results)} methods, not one result")
     return next(iter(results.values()))
+
+
+def find_data_file(results: Sequence[Result], source: Path, data: str | Path | None) -> Path:
+    """The data file the results were identified from: ``data`` if given, else the path their provenance
+    records (as given, then beside the result file).  Its SHA-256 must be the one the provenance records."""
+    recorded = {r.provenance.get("data_file", "") for r in results}
+    hashes = {r.provenance.get("data_sha256", "") for r in results}
+    if len(hashes) > 1:
+        raise UserError(f"{source}: its results were identified from different data files")
+    if data is None:
+        name = next(iter(recorded))
+        candidates = [Path(name), source.parent / name, source.parent / Path(name).name] if name else []
+        found = [c for c in candidates if c.is_file()]
+        if not found:
+            raise UserError(f"{source}: the data file it was identified from ({name or 'not recorded'}) is not "
+                            "found; give the data file")
+        data = found[0]
+    data = Path(data)
+    if not data.is_file():
+        raise UserError(f"{data}: no such file")
+    expected = next(iter(hashes))
+    if expected and file_sha256(data) != expected:
+        raise UserError(f"{data}: is not the data file {source} was identified from (its SHA-256 differs from the "
+                        "one recorded in the result)")
+    return data

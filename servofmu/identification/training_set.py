@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError, check_int
 from ..fileio import check_output_path, check_values, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
 from ..runtime import Progress, check_memory
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from ..simulation.parallel import WorkerResource, Workers
+from ..version import __version__
 from .criterion import SineData
 from .prior import full_vectors, identified_names, sample_identified
 

@@ -24,13 +24,13 @@ from typing import Callable
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
 from ..fileio import check_output_path
 from ..runtime import Progress, check_memory, utc_now
 from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
 from ..simulation.parallel import WorkerResource, Workers, report
+from ..version import __version__
 from .datafile import ExperimentResult, Series, add_experiments, create_measurement, mark_complete, read_data_file
 from .excitation import (DEFAULT_AMPLITUDES, MAX_STEPS, ExperimentSpec, Plan, corner_frequency,
                          default_frequencies)

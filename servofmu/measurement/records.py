@@ -10,16 +10,16 @@ measured experiments (servofmu.measurement.frf).
 from __future__ import annotations
 
 import csv
-import hashlib
 import math
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
+from ..fileio import file_sha256
 from ..model.signals import INTERSAMPLE
 from ..runtime import utc_now
+from ..version import __version__
 from .datafile import Record, RecordAnalysis, Series, read_data_file, write_records
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
@@ -233,7 +233,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     analysis, note = analyse_record(t, u, v, frequency)
     columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
     return Record(index=index, name=path.stem, source=path.name,
-                  source_sha256=hashlib.sha256(path.read_bytes()).hexdigest(), kind=kind, columns=columns,
+                  source_sha256=file_sha256(path), kind=kind, columns=columns,
                   series=Series(time=t, u=u, v=v, position=position), sample_rate=fs, velocity_estimate=how,
                   velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note,
                   intersample=intersample)

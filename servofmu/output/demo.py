@@ -8,8 +8,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..control.closed_loop import closed_loop_data
-from ..control.controller import load_controller
+from ..identification.closed_loop import closed_loop_data
+from ..model.controller import load_controller
 from ..control.cosim import cosimulate, write_cosim_records
 from ..control.fmus import build_controller_fmu
 from ..control.system import write_system
@@ -23,8 +23,9 @@ from ..identification.train import train_from_file
 from ..identification.training_set import make_training_set
 from ..measurement.measure import measure
 from ..model.plant import load_plant
-from .compensation import compensate_files, compensation_text
-from .export import file_sha256, remeasure
+from .compensation_report import compensate_files, compensation_text
+from ..fileio import file_sha256
+from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
 from .report import make_report

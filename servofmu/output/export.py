@@ -11,7 +11,6 @@ of the data the model was identified from, and reports how well it reproduces th
 """
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import math
@@ -22,16 +21,16 @@ from typing import Callable
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, check_output_path, file_sha256
 from ..identification.results import Result, read_result, to_json
 from ..model.plant import Friction, Plant, plant_from_dict
 from ..runtime import utc_now
+from ..version import __version__
 from .formats import FORMATS, SUFFIX_FORMATS
 
 __all__ = ["export_result", "export_fmu", "export_control", "export_mat", "export_json", "export_toml",
-           "load_control", "identified_plant", "remeasure", "RoundTrip", "file_sha256", "format_of",
+           "load_control", "identified_plant", "remeasure", "RoundTrip", "format_of",
            "toml_text", "linear_state_space", "ROUND_TRIP_TOLERANCE"]
 
 CONTROL_FORMAT = "servofmu-control"   # the `control` file: JSON read by load_control
@@ -60,10 +59,6 @@ def identified_plant(result: Result, name: str | None = None) -> Plant:
     data = tomllib.loads(plant.to_toml())
     data["name"] = name
     return plant_from_dict(data, source="the model name")
-
-
-def file_sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def intervals_text(result: Result) -> str:

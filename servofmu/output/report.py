@@ -19,17 +19,17 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import __version__
-from ..control.controller import load_controller
+from ..model.controller import load_controller
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path
 from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_residuals, steady_state_options
-from ..identification.results import Result, paper_rows, read_results
+from ..identification.results import Result, find_data_file, paper_rows, read_results
 from ..measurement.datafile import DataFile, read_data_file
+from ..model.friction import steady_friction
 from ..model.plant import Plant, load_plant, parameter_info
 from ..runtime import temporary_folder, utc_now
 from ..simulation.batch import BatchSimulator
-from .export import file_sha256
+from ..version import __version__
 from .html import escape, figure, number, page, png_bytes, table
 from .paper import COLUMNS as PAPER_COLUMNS
 from .paper import TABLES as PAPER_TABLES
@@ -37,7 +37,7 @@ from .plots import MAX_PANELS, bode_figure, pyplot
 from .validate import Validation, validation_figure, validation_html
 from .validate import validate as validate_model
 
-__all__ = ["make_report", "read_entries", "find_data", "compute_entries", "report_html", "steady_friction",
+__all__ = ["make_report", "read_entries", "compute_entries", "report_html",
            "model_sine", "velocity_range", "bode_figures", "records_figure", "friction_figure",
            "convergence_figure", "Entry"]
 
@@ -69,53 +69,9 @@ def read_entries(path: str | Path) -> list[tuple[str, Result]]:
     return list(read_results(path).items())
 
 
-def find_data(results: Sequence[Result], source: Path, data: str | Path | None) -> Path:
-    """The data file the results were identified from: ``data`` if given, else the path their provenance
-    records (as given, then beside the result file).  Its SHA-256 must be the one the provenance records."""
-    recorded = {r.provenance.get("data_file", "") for r in results}
-    hashes = {r.provenance.get("data_sha256", "") for r in results}
-    if len(hashes) > 1:
-        raise UserError(f"{source}: its results were identified from different data files")
-    if data is None:
-        name = next(iter(recorded))
-        candidates = [Path(name), source.parent / name, source.parent / Path(name).name] if name else []
-        found = [c for c in candidates if c.is_file()]
-        if not found:
-            raise UserError(f"{source}: the data file it was identified from ({name or 'not recorded'}) is not "
-                            "found; give the data file")
-        data = found[0]
-    data = Path(data)
-    if not data.is_file():
-        raise UserError(f"{data}: no such file")
-    expected = next(iter(hashes))
-    if expected and file_sha256(data) != expected:
-        raise UserError(f"{data}: is not the data file {source} was identified from (its SHA-256 differs from the "
-                        "one recorded in the result)")
-    return data
-
-
 # ---------------------------------------------------------------------------
 # Numbers
 # ---------------------------------------------------------------------------
-def steady_friction(plant: Plant, v: np.ndarray) -> np.ndarray:
-    """Friction force F(v) (N) at constant velocities ``v`` (m/s, none zero), from the model's own friction
-    expression (servofmu.model.symbolic.friction_force); for LuGre with the bristles at rest (dz/dt = 0)."""
-    import casadi as ca
-
-    from ..model.symbolic import friction_force
-
-    v = np.asarray(v, dtype=float).ravel()
-    vel = ca.SX.sym("v")
-    z = ca.SX.sym("z") if plant.friction.model == "lugre" else None
-    force, dz = friction_force(plant, plant.parameters(), vel, z)
-    if dz is not None:
-        # dz/dt is linear in z: one Newton step from z = 0 lands on its root exactly (v ≠ 0)
-        z_rest = -ca.substitute(dz, z, 0) / ca.jacobian(dz, z)
-        force = ca.substitute(force, z, z_rest)
-    curve = ca.Function("friction", [vel], [force]).map(v.size)
-    return np.asarray(curve(v[None, :])).ravel()
-
-
 def model_sine(plant: Plant, amplitudes, frequencies, rtol: float = CURVE_RTOL):
     """(H, dc, converged) of ``plant`` in steady state at each (amplitude, frequency) pair; the convergence test
     as the identifier's (servofmu.identification.criterion.SineCriterion)."""
@@ -477,7 +433,7 @@ def make_report(source: str | Path, output: str | Path, data: str | Path | None 
     source = Path(source)
     labelled = read_entries(source)
     true_plant = load_plant(truth) if truth is not None else None
-    data_file = read_data_file(find_data([r for _, r in labelled], source, data))
+    data_file = read_data_file(find_data_file([r for _, r in labelled], source, data))
     entries = compute_entries(labelled, data_file)
     validation = None
     if validate is not None:

@@ -192,7 +192,8 @@ def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFi
 def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, controller, skip: float):
     """Closed-loop records replayed in the loop from their reference: the position and the force command, each
     with its residuals tested against the reference (the loop's input)."""
-    from ..control.closed_loop import LoopSimulator, closed_loop_data
+    from ..identification.closed_loop import closed_loop_data
+    from ..simulation.closed_loop import LoopSimulator
 
     data = closed_loop_data(data_file, controller, skip)
     sim = LoopSimulator(structure)
@@ -385,7 +386,7 @@ def validate_files(result_path: str | Path, data_path: str | Path, output: str |
             raise UserError(f"{output}: write an .html page or a .png figure")
     law = None
     if controller is not None:
-        from ..control.controller import load_controller
+        from ..model.controller import load_controller
         law = load_controller(controller)
     v = validate(read_result(result_path), read_data_file(data_path), skip, law)
     if output is None:

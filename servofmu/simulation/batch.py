@@ -72,11 +72,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import __version__
 from ..errors import UserError
 from ..model.plant import Plant, parameter_rules
 from ..model.signals import INTERSAMPLE
 from ..runtime import available_cores, cache_dir, compile_shared, compiler_signature, temporary_folder
+from ..version import __version__
 
 if TYPE_CHECKING:  # CasADi is loaded only to generate code, which a cached library spares
     import casadi as ca
@@ -88,7 +88,8 @@ __all__ = ["BatchSimulator", "SteadyStateOptions", "SteadyStateFeatures", "WarmS
            "write_batch_sources", "H_START", "c_doubles", "c_mask"]
 
 PACKAGE = Path(__file__).resolve().parent.parent
-DRIVER = PACKAGE / "simulation" / "batch_c" / "batch_driver.c"
+DRIVER_DIR = PACKAGE / "simulation" / "batch_c"  # the C drivers of the batch and loop simulators
+DRIVER = DRIVER_DIR / "batch_driver.c"
 FMU_C_DIR = PACKAGE / "fmu" / "c"  # servo_core.c: the FMU's integrator, which the driver includes
 # The Python modules whose code writes the generated C sources (with the C files, part of a library's cache key).
 GENERATORS = ("model/plant.py", "model/symbolic.py", "model/signals.py", "fmu/sources.py", "fmu/variables.py",

@@ -12,14 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from ..control.compensation import TrackingRun, compare_compensation, reconstructed_friction
-from ..control.controller import viscous_damping
+from ..model.friction import steady_friction, viscous_damping
 from ..fileio import atomic_write, check_output_path
 from ..identification.results import read_result
 from ..model.plant import Plant, load_plant
 from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import pyplot
-from .report import steady_friction
 
 __all__ = ["compensate_files", "compensation_json", "compensation_text", "compensation_html"]
 

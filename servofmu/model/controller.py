@@ -1,6 +1,6 @@
 """Controller files (TOML): the cascade found in servo drives, as a parameter vector for its C law.
 
-The law itself is C (control/c/controller_law.h), compiled into the controller FMU and into the batch simulator's
+The law itself is C (simulation/batch_c/controller_law.h), compiled into the controller FMU and into the batch simulator's
 closed loop; :data:`PARAMETERS` is the single source of the parameter vector's layout, units, defaults and limits
 (generated into controller_params.h).  The file format is documented in docs/controller.md.
 """
@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, name_problem
-from ..model.plant import Plant
+from .friction import viscous_damping
+from .plant import Plant
 
 __all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
-           "controller_from_dict", "friction_feedforward", "viscous_damping", "params_header"]
+           "controller_from_dict", "friction_feedforward", "params_header"]
 
 
 @dataclass(frozen=True)
@@ -201,20 +202,11 @@ def load_controller(path: str | Path) -> ControllerSpec:
     return controller_from_dict(data, source=str(path))
 
 
-def viscous_damping(plant: Plant) -> float:
-    """The viscous friction a first-order G holds in its pole: G = K/(s − p) is a mass 1/K with damping −p/K
-    (viscous friction cannot be told apart from G, so a structure file fixes fv and the pole takes it up).
-    0 for other G."""
-    if plant.order == 1 and not plant.zeros:
-        return float(-plant.all_poles()[0].real / plant.numerator_gain())
-    return 0.0
-
-
 def friction_feedforward(controller: ControllerSpec, plant: Plant, share: float = 1.0) -> ControllerSpec:
     """The controller with the feed-forward of ``plant``'s friction switched on (``share`` of it).
 
     The feed-forward is the plant model's steady friction curve F(v) (Coulomb: fs = fc; LuGre: its steady state)
-    plus the viscous friction in a first-order G's pole (:func:`viscous_damping`), evaluated by the controller at
+    plus the viscous friction in a first-order G's pole (servofmu.model.friction.viscous_damping), evaluated by the controller at
     the reference velocity — known ahead and free of the encoder's noise, where the measured velocity would feed
     quantisation noise back and chatter around the reversals.  The tanh sign is smoothed by the plant's v_smooth
     (LuGre, which has none: the controller file's, default 1e-3 m/s)."""
@@ -233,7 +225,7 @@ def params_header() -> str:
     def c(x: float) -> str:
         return "INFINITY" if x == math.inf else repr(float(x))
 
-    lines = ["/* Controller parameter layout, generated from servofmu.control.controller.PARAMETERS. */",
+    lines = ["/* Controller parameter layout, generated from servofmu.model.controller.PARAMETERS. */",
              "#ifndef CONTROLLER_PARAMS_H", "#define CONTROLLER_PARAMS_H", f"#define CP_COUNT {len(PARAMETERS)}"]
     lines += [f"#define CP_{p.name.upper()} {i}" for i, p in enumerate(PARAMETERS)]
     lines += ["#define CP_LOW {" + ", ".join(c(p.low) for p in PARAMETERS) + "}",

@@ -1,91 +1,30 @@
-"""The axis in its loop, simulated for many plants at once: the batch simulator's plant with the drive's
-controller law at every sample (control/c/loop_driver.c), and the closed-loop output-error criterion.
+"""Closed-loop identification: records of the axis in its drive's loop (reference, encoder position, force
+command) and the output-error criterion that simulates candidate plants in the known loop
+(servofmu.simulation.closed_loop).
 
-The loop reproduces the co-simulation of servofmu.control.cosim exactly — sampling, delay, saturation, the
-Jacobi exchange — so a candidate plant simulated in the known loop from the recorded reference can be compared
-with the recorded position and force command.  The encoder's quantisation and the actuator noise are not
-reproduced in a fit: they are the measurement's and the machine's noise, unknown to the identifier (simulating a
-quantiser would make the criterion piecewise constant in the parameters).
+The encoder's quantisation and the actuator noise are not reproduced in a fit: they are the measurement's and the
+machine's noise, unknown to the identifier (simulating a quantiser would make the criterion piecewise constant in
+the parameters).
 """
 from __future__ import annotations
 
-import ctypes
-import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import TimeDomainCriterion, check_structure, fitted_samples
-from ..identification.identifier import identification_provenance
-from ..identification.prior import full_vectors
 from ..measurement.datafile import read_data_file
+from ..model.controller import ControllerSpec, load_controller
 from ..model.plant import Plant, load_plant
-from ..simulation.batch import H_START, BatchSimulator, c_doubles, c_mask, compiled_driver
-from .controller import ControllerSpec, load_controller, params_header
+from ..simulation.closed_loop import LoopSimulator
+from .criterion import TimeDomainCriterion, check_structure, fitted_samples
+from .identifier import identification_provenance
+from .prior import full_vectors
 
-__all__ = ["LoopSimulator", "LoopResponse", "ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion",
-           "closed_loop_data", "load_closed_loop_inputs"]
-
-C_DIR = Path(__file__).resolve().parent / "c"
-
-
-@dataclass(frozen=True)
-class LoopResponse:
-    """The loop of N plants at the samples: position (m) and velocity (m/s) at t_k, and the force command (N)
-    applied on [t_k, t_k+1); each of shape (N, samples)."""
-
-    position: np.ndarray
-    v: np.ndarray
-    command: np.ndarray
+__all__ = ["ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion", "closed_loop_data",
+           "load_closed_loop_inputs"]
 
 
-@functools.lru_cache(maxsize=None)
-def _loop_library(plant: Plant) -> ctypes.CDLL:
-    lib = compiled_driver(plant, C_DIR / "loop_driver.c",
-                          {"controller_params.h": params_header(),
-                           "controller_law.h": (C_DIR / "controller_law.h").read_text()})
-    d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
-    lib.sb_loop.argtypes = [lng, i, pd, ctypes.POINTER(ctypes.c_ubyte), lng, pd, pd, pd, d, d, lng, i, pd]
-    lib.sb_loop.restype = i
-    return lib
-
-
-class LoopSimulator(BatchSimulator):
-    """A batch simulator that can also close the drive's loop around the plant (:meth:`simulate_loop`)."""
-
-    @staticmethod
-    def _load(plant: Plant) -> ctypes.CDLL:
-        return _loop_library(plant)
-
-    def simulate_loop(self, params, time, reference, controller: ControllerSpec, rtol: float = 1e-8,
-                      max_steps: int = 50_000_000) -> LoopResponse:
-        """The loop at the sample times ``time`` (uniform, the controller's sample time) following ``reference``,
-        all plant states zero at time[0], for every row of ``params``."""
-        p, valid = self._parameter_sets(params)
-        t = np.ascontiguousarray(np.asarray(time, dtype=float).ravel())
-        r = np.ascontiguousarray(np.asarray(reference, dtype=float).ravel())
-        if t.size != r.size or t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
-            raise UserError("a closed-loop run needs at least two finite samples of time and reference")
-        steps = np.diff(t)
-        if np.max(np.abs(steps - controller.sample_time)) > 1e-6 * controller.sample_time:
-            raise UserError(f"the samples are {np.median(steps):g} s apart, the controller samples every "
-                            f"{controller.sample_time:g} s: the loop needs one record sample per controller sample")
-        if not 0 < rtol < 1e-2:
-            raise UserError(f"rtol must be in (0, 0.01), not {rtol}")
-        cp = np.ascontiguousarray(controller.vector())
-        out = np.empty((p.shape[0], 3, t.size))
-        rc = self._lib.sb_loop(p.shape[0], p.shape[1], c_doubles(p), c_mask(valid), t.size, c_doubles(t),
-                               c_doubles(r), c_doubles(cp), rtol, H_START, max_steps, self.threads, c_doubles(out))
-        if rc != 0:
-            raise RuntimeError(f"loop library rejected the call (code {rc})")
-        return LoopResponse(position=out[:, 0], v=out[:, 1], command=out[:, 2])
-
-
-# ---------------------------------------------------------------------------
-# Closed-loop identification
-# ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ClosedLoopSeries:
     """One closed-loop record as it is fitted: time (s, one sample per controller sample), the reference (m), the
