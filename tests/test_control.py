@@ -237,6 +237,28 @@ def test_bad_systems_and_runs_are_one_line_errors(axis, tmp_path, built_fmu):
     out = tmp_path / "rec.h5"
     assert_one_line_error(run("cosim", broken, "-o", out), "broken.ssp", "missing FMU")
     assert not out.exists()
+    # a connection to a connector the plant does not have: refused on both engines before any run (FMPy alone
+    # would run it, the plant never receiving the force)
+    for end, fragment in (('endConnector="uu"', "plant.uu"), ('startConnector="force" endElement="plant" '
+                                                             'endConnector="u"', "does not connect"),
+                          ('endConnector="v"', "an input")):
+        miswired = tmp_path / "miswired.ssp"
+        with zipfile.ZipFile(axis["ssp"]) as src, zipfile.ZipFile(miswired, "w") as dst:
+            for item in src.infolist():
+                data = src.read(item.filename)
+                if item.filename == "SystemStructure.ssd":
+                    text = data.decode()
+                    assert 'endConnector="u"' in text
+                    if "startConnector" in end:
+                        text = text.replace('startConnector="force" endElement="plant" endConnector="u"',
+                                            'startConnector="force" endElement="controller" endConnector="position"')
+                    else:
+                        text = text.replace('endConnector="u"', end)
+                    data = text.encode()
+                dst.writestr(item, data)
+        for engine in ("fmpy", "libcosim"):
+            assert_one_line_error(run("cosim", miswired, "--engine", engine, "-o", out), "miswired.ssp", fragment)
+            assert not out.exists()
     # an FMI 3.0 plant cannot join a system run by libcosim
     assert_one_line_error(run("system", built_fmu("linear_axis", 3), folder / "ctrl.fmu", "--reference",
                               folder / "ref.csv", "-o", tmp_path / "x.ssp"), "FMI 2.0")

@@ -172,6 +172,33 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
     return output
 
 
+def _check_connections(path: Path, root: ET.Element, fmus: dict[str, Path]) -> None:
+    """Every connection joins an output of one component's FMU to an input of another's, and the loop's three
+    connections are all there.  Checked against the FMUs' model descriptions before any engine runs: FMPy runs a
+    connection to a variable that does not exist without a word, and the plant then never receives the force."""
+    causality = {}
+    for name, fmu in fmus.items():
+        causality[name] = {v: var.causality for v, var in read_fmu(fmu).variables.items()}
+    found = set()
+    for c in root.iter(_tag(SSD, "Connection")):
+        ends = (c.get("startElement"), c.get("startConnector"), c.get("endElement"), c.get("endConnector"))
+        for element, connector, role in ((ends[0], ends[1], "output"), (ends[2], ends[3], "input")):
+            if element not in causality:
+                raise UserError(f"{path}: a connection names the component {element!r}, which the system does not "
+                                "have")
+            kind = causality[element].get(connector)
+            if kind is None:
+                raise UserError(f"{path}: a connection names {element}.{connector}, which the FMU of {element!r} "
+                                "does not have")
+            if kind != role:
+                raise UserError(f"{path}: the connection {ends[0]}.{ends[1]} → {ends[2]}.{ends[3]} needs "
+                                f"{element}.{connector} to be an {role}, not an {kind}")
+        found.add(ends)
+    for a, ac, b, bc in CONNECTIONS:
+        if (a, ac, b, bc) not in found:
+            raise UserError(f"{path}: the system does not connect {a}.{ac} to {b}.{bc}")
+
+
 def read_system(path: str | Path, folder: str | Path) -> System:
     """Extract an axis archive into ``folder`` and read what running it needs; a damaged archive, a missing FMU
     or an archive that is not an axis of servofmu's layout is a UserError naming it."""
@@ -194,6 +221,7 @@ def read_system(path: str | Path, folder: str | Path) -> System:
             raise UserError(f"{path}: the system has no component {name!r}")
         if not (folder / sources[name]).is_file():
             raise UserError(f"{path}: the component {name!r} names a missing FMU ({sources[name]})")
+    _check_connections(path, root, {name: folder / src for name, src in sources.items()})
     step = root.find(f".//{_tag(OSP, 'FixedStepAlgorithm')}")
     experiment = root.find(_tag(SSD, "DefaultExperiment"))
     if step is None or experiment is None or experiment.get("stopTime") is None:
