@@ -250,3 +250,16 @@ def test_failed_write_keeps_the_old_file_and_leaves_no_temporary(trained, tmp_pa
     assert [p.name for p in tmp_path.iterdir()] == ["ANN.h5"]
     with pytest.raises(UserError, match="does not exist"):
         save_network(trained, tmp_path / "missing" / "ANN.h5", layout())
+
+
+@pytest.mark.parametrize("optimizer", ["lbfgs", "adam"])
+def test_training_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch, optimizer):
+    """torch makes a compiler-cache folder at an optimizer's first step; it goes with servofmu's own folder."""
+    import tempfile
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    X = np.random.default_rng(0).normal(size=(60, 2))
+    train_network(X, X ** 2, hidden=3, options=TrainOptions(optimizer=optimizer, max_epochs=2))
+    assert list(tmp_path.iterdir()) == []

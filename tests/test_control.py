@@ -12,11 +12,11 @@ from scipy import signal
 from scipy.integrate import solve_ivp
 
 import servofmu as sf
-from servofmu.identification.closed_loop import LoopSimulator
-from servofmu.model.controller import PARAMETERS, controller_from_dict, load_controller
 from servofmu.control.cosim import cosimulate
 from servofmu.identification.prior import identified_mask
+from servofmu.model.controller import PARAMETERS, controller_from_dict, load_controller
 from servofmu.model.plant import example_files
+from servofmu.simulation.closed_loop import LoopSimulator
 
 TS = 1e-3
 
@@ -221,6 +221,27 @@ def test_friction_compensation_lowers_the_tracking_error(axis, tmp_path):
     obj = json.loads(proc.stdout)
     assert obj["rms_reduction"] > 5 and abs(obj["identified_over_true"] - 1) < 0.1
     assert "friction" in (tmp_path / "c.html").read_text()
+
+
+def test_fmpys_folders_go_with_the_run_when_it_fails(axis, tmp_path, monkeypatch):
+    """FMPy extracts the SSP into folders of its own and removes them only after a normal end; a run that fails
+    inside FMPy leaves none behind."""
+    import tempfile
+
+    import fmpy
+    import fmpy.ssp.simulation
+
+    def failing(path, **kwargs):
+        fmpy.extract(path)  # what FMPy does first, into tempfile's folder
+        raise RuntimeError("an FMU failed")
+
+    monkeypatch.setattr(fmpy.ssp.simulation, "simulate_ssp", failing)
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    (tmp_path / "tmp").mkdir()
+    with pytest.raises(sf.UserError, match="fmpy failed: an FMU failed"):
+        cosimulate(axis["ssp"], engine="fmpy")
+    assert list((tmp_path / "tmp").iterdir()) == []
 
 
 # ---------------------------------------------------------------------------

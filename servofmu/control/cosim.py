@@ -13,6 +13,7 @@ controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference 
 """
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -88,8 +89,14 @@ def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict) ->
     # FMPy applies one parameter set, named by component path, to the components it instantiates
     parameter_set = SimpleNamespace(parameters=[SimpleNamespace(name=f"controller.{k}", value=v)
                                                 for k, v in parameters.items()])
-    result = simulate_ssp(str(ssp), start_time=0.0, stop_time=n * step - step / 2, step_size=step,
-                          parameter_set=parameter_set)
+    # FMPy extracts the archive and each FMU into folders of tempfile's and removes them only when the run ends
+    # normally: made inside this run's own temporary folder instead, they go with it however the run ends
+    tempdir, tempfile.tempdir = tempfile.tempdir, str(folder)
+    try:
+        result = simulate_ssp(str(ssp), start_time=0.0, stop_time=n * step - step / 2, step_size=step,
+                              parameter_set=parameter_set)
+    finally:
+        tempfile.tempdir = tempdir
     out = {name: np.zeros(n + 1) for name in SIGNALS}
     for name, (component, variable) in SIGNALS.items():
         # FMPy labels a row with the start of the step whose outputs it holds

@@ -15,6 +15,8 @@ ANN.h5 layout (root attributes format = "servofmu-ann", schema_version = 1):
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +25,7 @@ import numpy as np
 
 from ..errors import UserError, check_int, is_real
 from ..fileio import check_output_path, check_values, hdf5_attr, read_hdf5, store_array, write_hdf5
-from ..runtime import Progress, check_memory
+from ..runtime import Progress, check_memory, temporary_folder
 
 __all__ = ["Network", "FeatureLayout", "AnnModel", "load_ann", "TrainOptions", "train_network", "save_network",
            "load_network"]
@@ -33,6 +35,7 @@ SCHEMA_VERSION = 1
 ACTIVATIONS = ("tanh", "sigmoid")
 NORMALISATIONS = ("zscore", "minmax")
 OPTIMIZERS = ("adam", "lbfgs", "sgd")
+TORCH_CACHE_VARIABLE = "TORCHINDUCTOR_CACHE_DIR"  # where torch puts its compiler caches
 # Used where a TrainOptions field is None.  sgd is the paper's plain backpropagation (rate 0.2–0.5).  An
 # L-BFGS epoch is 100 iterations, so it needs far fewer epochs and less patience than the
 # mini-batch methods, whose validation loss is noisy from epoch to epoch.
@@ -249,7 +252,8 @@ def train_network(X, Y, hidden: int = 20, seed: int = 0, options: TrainOptions =
     if options.threads is not None:
         torch.set_num_threads(options.threads)
     try:
-        result = _fit(x_train, y_train, x_val, y_val, hidden, seed, rng, options, progress)
+        with _torch_caches():
+            result = _fit(x_train, y_train, x_val, y_val, hidden, seed, rng, options, progress)
     finally:
         torch.set_num_threads(threads_before)
     (w1, b1, w2, b2), train_loss, val_loss, best_epoch = result
@@ -257,6 +261,21 @@ def train_network(X, Y, hidden: int = 20, seed: int = 0, options: TrainOptions =
                    y_scale=y_scale, activation=options.activation, normalisation=options.normalisation,
                    train_loss=train_loss, validation_loss=val_loss, best_epoch=best_epoch,
                    optimizer=options.optimizer, seed=int(seed))
+
+
+@contextlib.contextmanager
+def _torch_caches():
+    """torch's compiler cache folder (made by the optimizers' first step, empty for this training) inside a
+    temporary folder of servofmu's, removed with it, unless the user chose where it goes."""
+    if os.environ.get(TORCH_CACHE_VARIABLE):
+        yield
+        return
+    with temporary_folder("torch") as folder:
+        os.environ[TORCH_CACHE_VARIABLE] = str(folder)
+        try:
+            yield
+        finally:
+            os.environ.pop(TORCH_CACHE_VARIABLE, None)
 
 
 def _initial_weights(inputs: int, hidden: int, outputs: int, seed: int, activation: str) -> list:
