@@ -109,7 +109,18 @@ def test_initial_guess_is_a_particle():
 
 
 def test_initial_guess_outside_the_box_is_clipped():
-    res = minimize_pso(sphere, np.ones(2), 2 * np.ones(2), PsoOptions(iterations=0), x0=[0.5, 3.0], seed=0)
+    """The guess enters the swarm on the box's wall: the first particle the cost sees is the clipped guess.  (The
+    result alone cannot tell: sphere's best point in this box is inside it with or without the clipping.)"""
+    seen = []
+
+    def cost(X):
+        seen.append(X.copy())
+        return sphere(X)
+
+    res = minimize_pso(cost, np.ones(2), 2 * np.ones(2), PsoOptions(iterations=3), x0=[0.5, 3.0], seed=0)
+    np.testing.assert_array_equal(seen[0][0], [1.0, 2.0])
+    allX = np.concatenate(seen)
+    assert np.all(allX >= 1.0) and np.all(allX <= 2.0)
     assert np.all(res.position >= 1.0) and np.all(res.position <= 2.0)
 
 
