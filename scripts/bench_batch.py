@@ -178,7 +178,7 @@ def casadi_alternative(name: str, experiments) -> list[dict]:
     import casadi as ca
 
     from servofmu.model.symbolic import build_model
-    from servofmu.simulation.batch import batch_functions
+    from servofmu.simulation.compiled import batch_functions
 
     plant = load_plant(name)
     ode, _ = batch_functions(build_model(plant))

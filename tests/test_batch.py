@@ -19,14 +19,13 @@ from servofmu.errors import UserError
 from servofmu.identification.prior import full_vectors
 from servofmu.model.plant import PlantError, load_plant, plant_from_dict
 from servofmu.simulation.batch import (
-    DRIVER,
     BatchSimulator,
     SteadyStateFeatures,
     SteadyStateOptions,
     WarmStarts,
-    library_key,
     valid_parameter_sets,
 )
+from servofmu.simulation.compiled import DRIVER, library_key
 
 COULOMB = {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv": 0.0, "v_smooth": 1e-3}
 NOMINAL = {  # the plant files' contents, written out again: poles, zeros, DC gain, friction
@@ -492,9 +491,9 @@ def test_the_cache_key_follows_what_determines_the_library():
 
 
 def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_bit(monkeypatch):
-    from servofmu.simulation import batch
+    from servofmu.simulation import compiled
 
-    if batch.driver_cflags() == batch.EXTRA_CFLAGS:
+    if compiled.driver_cflags() == compiled.EXTRA_CFLAGS:
         pytest.skip("no build for the processor on this machine")
     plant = load_plant("g2")
     rng = np.random.default_rng(3)
@@ -502,10 +501,10 @@ def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_b
     amps, freqs = [2.0, 0.6, 2.0], [1.0, 4.0, 5.0]
     native = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
     key_here = cache_key(plant)
-    monkeypatch.setattr(batch, "_processor", lambda: "another processor")
+    monkeypatch.setattr(compiled, "_processor", lambda: "another processor")
     assert cache_key(plant) != key_here  # a shared cache never mixes processors
-    monkeypatch.setattr(batch, "driver_cflags", lambda: batch.EXTRA_CFLAGS)
-    monkeypatch.setattr(BatchSimulator, "_load", staticmethod(lambda p: batch.compiled_driver(p, DRIVER)))
+    monkeypatch.setattr(compiled, "driver_cflags", lambda: compiled.EXTRA_CFLAGS)
+    monkeypatch.setattr(BatchSimulator, "_load", staticmethod(lambda p: compiled.compiled_driver(p, DRIVER)))
     assert cache_key(plant) != key_here
     portable = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
     for name in ("H", "dc", "distortion", "converged", "settle_time", "steps", "orbit"):

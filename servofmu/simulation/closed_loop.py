@@ -16,7 +16,8 @@ import numpy as np
 from ..errors import UserError
 from ..model.controller import ControllerSpec, params_header
 from ..model.plant import Plant
-from .batch import DRIVER_DIR, H_START, BatchSimulator, c_doubles, c_mask, compiled_driver
+from .batch import BatchSimulator
+from .compiled import DRIVER_DIR, H_START, c_doubles, c_mask, compiled_driver
 
 __all__ = ["LoopSimulator", "LoopResponse", "CONTROLLER_LAW"]
 
