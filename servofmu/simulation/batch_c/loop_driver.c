@@ -9,14 +9,25 @@
 #include "batch_driver.c"
 #include "controller_law.h"
 
-static void loop_task(const double *params, int n_plant, long n, const double *t, const double *r, const double *cp,
-                      double rtol, double h_start, long max_steps, double *out) {
+/* The loop's reference and controller and the integration's settings (sb_loop). */
+typedef struct {
+    long n_samples;
+    const double *t, *r, *cp;  /* sample times, reference positions, the controller's CP_COUNT parameters */
+    double rtol, h_start;
+    long max_steps;
+} LoopInput;
+
+/* The loop of one plant (params) at the samples: out[0..n) = position, out[n..2n) = velocity, out[2n..3n) = the
+ * command applied from each sample on. */
+static void loop_task(const void *input, const double *params, int n_plant, double *out) {
+    const LoopInput *in = input;
+    const double *t = in->t, *r = in->r, *cp = in->cp;
+    long n = in->n_samples, k;
     Eval ev;
     Problem pb;
     CtrlState law;
-    double y[NY] = {0}, h = h_start * (t[1] - t[0]), *x = out, *v = out + n, *command = out + 2 * n;
-    long k;
-    problem_init(&pb, &ev, params, n_plant, rtol, max_steps);
+    double y[NY] = {0}, h = in->h_start * (t[1] - t[0]), *x = out, *v = out + n, *command = out + 2 * n;
+    problem_init(&pb, &ev, params, n_plant, in->rtol, in->max_steps);
     pb.nq = 1;                    /* the position is error-controlled like a state */
     pb.q_time = t[n - 1] - t[0];
     ctrl_reset(&law, cp);
@@ -34,58 +45,13 @@ static void loop_task(const double *params, int n_plant, long n, const double *t
     }
 }
 
-typedef struct {
-    long n_tasks, next, n_samples;
-    int n_plant;
-    const double *params, *t, *r, *cp;
-    const unsigned char *valid;
-    double rtol, h_start;
-    long max_steps;
-    double *out;
-} LoopJob;
-
-static void *loop_worker(void *arg) {
-    LoopJob *job = (LoopJob *)arg;
-    long set;
-    while ((set = __atomic_fetch_add(&job->next, 1, __ATOMIC_RELAXED)) < job->n_tasks) {
-        double *out = job->out + set * 3 * job->n_samples;
-        if (!job->valid[set]) {
-            long i;
-            for (i = 0; i < 3 * job->n_samples; ++i) out[i] = NAN;
-            continue;
-        }
-        loop_task(job->params + set * job->n_plant, job->n_plant, job->n_samples, job->t, job->r, job->cp,
-                  job->rtol, job->h_start, job->max_steps, out);
-    }
-    return NULL;
-}
-
 /* out has 3*n_samples doubles per set: position, velocity, command.  cp: the controller's CP_COUNT parameters. */
 int sb_loop(long n_sets, int n_plant, const double *params, const unsigned char *valid, long n_samples,
             const double *t, const double *r, const double *cp, double rtol, double h_start, long max_steps,
             int n_threads, double *out) {
-    LoopJob job;
-    pthread_t threads[64];
-    int i, started = 0;
+    LoopInput input = {.n_samples = n_samples, .t = t, .r = r, .cp = cp, .rtol = rtol, .h_start = h_start,
+                       .max_steps = max_steps};
     if (n_plant != SB_NP || n_samples < 2) return -1;
-    memset(&job, 0, sizeof job);
-    job.n_tasks = n_sets;
-    job.n_samples = n_samples;
-    job.n_plant = n_plant;
-    job.params = params;
-    job.valid = valid;
-    job.t = t;
-    job.r = r;
-    job.cp = cp;
-    job.rtol = rtol;
-    job.h_start = h_start;
-    job.max_steps = max_steps;
-    job.out = out;
-    if (n_threads > 64) n_threads = 64;
-    if (n_threads > n_sets) n_threads = (int)n_sets;
-    for (i = 1; i < n_threads; ++i)
-        if (pthread_create(&threads[started], NULL, loop_worker, &job) == 0) started++;
-    loop_worker(&job);
-    for (i = 0; i < started; ++i) pthread_join(threads[i], NULL);
+    run_sets(n_sets, n_plant, params, valid, loop_task, &input, 3 * n_samples, n_threads, out);
     return 0;
 }
