@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 from numbers import Integral, Real
 
-__all__ = ["UserError", "is_real", "check_int", "check_range", "check_positive", "check_optional_real",
-           "name_problem", "MAX_NAME_LENGTH", "MAX_MAGNITUDE"]
+__all__ = ["UserError", "ServofmuWarning", "is_real", "check_int", "check_range", "check_positive",
+           "check_optional_real", "name_problem", "MAX_NAME_LENGTH", "MAX_MAGNITUDE"]
 
 # No number servofmu reads (a plant's parameter, a stored value) comes near this; anything beyond is a mistake, damage
 # or a foreign file (and its square would overflow).
@@ -38,6 +38,12 @@ class UserError(ValueError):
     ...     print(str(exc).split(":")[0])
     no-such-plant
     """
+
+
+class ServofmuWarning(UserWarning):
+    """A result that is stored but deserves a look (an experiment that reached no steady state), or a fallback
+    taken (FMPy for a missing libcosim): issued with ``warnings.warn``, so that ``warnings.simplefilter("error",
+    ServofmuWarning)`` makes it an error and ``"ignore"`` silences it."""
 
 
 def is_real(x) -> bool:

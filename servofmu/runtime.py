@@ -9,17 +9,18 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Iterator, Protocol, Sequence
+from typing import Callable, Iterator, Protocol, Sequence
 
 from .errors import UserError
 
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
            "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
            "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX",
-           "signals_deferred", "unblock_signals"]
+           "signals_deferred", "unblock_signals", "optional_import", "show_warnings"]
 
 # Flags of every shared library servofmu compiles (FMU binaries and the batch simulator).
 CFLAGS = ("-shared", "-fPIC", "-O2", "-std=c99")
@@ -232,3 +233,41 @@ def _bytes(n: float) -> str:
             return f"{n:.3g} {unit}"
         n /= 1000
     return f"{n:.3g} PB"
+
+
+# ---------------------------------------------------------------------------
+# Optional dependencies and warnings
+# ---------------------------------------------------------------------------
+def optional_import(module: str, what: str, extra: str, package: str | None = None):
+    """``module`` imported, or a UserError naming what needs it and the extra of servofmu that installs it:
+    ``a Dask scheduler needs dask: pip install 'servofmu[dask]'``.  ``package``: the distribution's name where it
+    differs from the extra's (python-control)."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise UserError(f"{what} needs {package or extra}: pip install 'servofmu[{extra}]'") from exc
+
+
+@contextlib.contextmanager
+def show_warnings(warn: Callable[[str], None] | None = None) -> Iterator[None]:
+    """The command line's display of warnings (the library's, ``warnings.warn`` with ServofmuWarning, and those of
+    the libraries it calls): within the block each is one line, its message's first line, without the category,
+    file and source line of Python's default display.  ``warn(text)`` shows it (a progress bar's, which keeps the
+    bar below); default ``warning: TEXT`` on stderr.  Which warnings show is left to the filters (a warning
+    repeated at the same place shows once)."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = (str(message).strip().splitlines() or [category.__name__])[0]
+        if warn is not None:
+            warn(text)
+        else:
+            print(f"warning: {text}", file=file or sys.stderr)
+
+    previous, warnings.showwarning = warnings.showwarning, show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous

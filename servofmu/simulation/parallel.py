@@ -21,21 +21,25 @@ their temporary folders.
 """
 from __future__ import annotations
 
+import ast
+import linecache
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from ..errors import UserError
-from ..runtime import (available_cores, remove_temporary_folders, signals_deferred, sweep_temporary_folders,
-                       unblock_signals)
+from ..runtime import (available_cores, optional_import, remove_temporary_folders, signals_deferred,
+                       sweep_temporary_folders, unblock_signals)
 
-__all__ = ["Workers", "WorkerResource", "report"]
+__all__ = ["Workers", "WorkerResource", "report", "check_main_guard", "unguarded_main_line"]
 
 REPORT_INTERVAL = 0.25  # s: how often the main process delivers what workers report()
 STOP_TIMEOUT = 5.0  # s a worker gets to end on SIGTERM before it is killed
@@ -193,6 +197,7 @@ class Workers:
 
     def _imap_local(self, task, items, resource):
         if self._pool is None:
+            check_main_guard()
             context = multiprocessing.get_context("spawn")
             self._reports = context.SimpleQueue() if self.on_report else None
             self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=context,
@@ -232,11 +237,62 @@ class Workers:
             client.cancel(futures)
 
 
-def _connect(address: str):
+def _is_main_test(node: ast.expr) -> bool:
+    """``__name__ == "__main__"`` (either way round)."""
+    if not (isinstance(node, ast.Compare) and len(node.ops) == 1 and isinstance(node.ops[0], ast.Eq)):
+        return False
+    sides = [node.left, node.comparators[0]]
+    return any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides) and \
+        any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides)
+
+
+def unguarded_main_line() -> tuple[str, int] | None:
+    """(file, line) of the main script's statement that is running now, when it stands outside every
+    ``if __name__ == "__main__":`` block; None when it is guarded, or when there is no script file (``python -c``,
+    an interactive session, a notebook) or its source cannot be read."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if not path or getattr(main, "__name__", None) != "__main__":
+        return None
+    # what multiprocessing's spawn runs again in a worker: neither a package's __main__ (python -m package) nor
+    # IPython's launcher
+    name = getattr(getattr(main, "__spec__", None), "name", None)
+    if name is not None and (name == "__main__" or name.endswith(".__main__")) or Path(path).stem == "ipython":
+        return None
+    frame = sys._getframe(1)
+    while frame is not None and not (frame.f_code.co_name == "<module>" and frame.f_globals is vars(main)):
+        frame = frame.f_back
+    if frame is None:  # the script has finished its top level (a thread, an atexit handler)
+        return None
+    line = frame.f_lineno
     try:
-        from distributed import Client
-    except ImportError as exc:  # pragma: no cover - dask[distributed] is a dependency
-        raise UserError("a Dask scheduler needs dask[distributed] installed") from exc
+        tree = ast.parse("".join(linecache.getlines(path)) or Path(path).read_text(), path)
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and _is_main_test(node.test) and node.body and \
+                node.body[0].lineno <= line <= (node.body[-1].end_lineno or node.body[-1].lineno):
+            return None
+    return path, line
+
+
+def check_main_guard() -> None:
+    """Refuse to start worker processes from the top level of a script without ``if __name__ == "__main__":``.
+
+    A worker process is started afresh (multiprocessing's spawn, as on Windows and macOS) and imports the main
+    script to find the task's functions: unguarded, the script's work runs again in every worker, which tries to
+    start workers of its own and dies (multiprocessing's "bootstrapping phase" error), and the run would end with
+    every worker dead and no word of why."""
+    where = unguarded_main_line()
+    if where is not None:
+        path, line = where
+        raise UserError(f"{path}, line {line}: starts worker processes outside `if __name__ == \"__main__\":`; "
+                        f"each worker imports the script again and would run it too: put the script's work under "
+                        f"that guard (or pass workers=0 to run in this process)")
+
+
+def _connect(address: str):
+    Client = optional_import("distributed", "a Dask scheduler", "dask").Client
     if "://" not in address:
         raise UserError(f"Dask scheduler {address!r} is not a scheduler address like tcp://HOST:PORT")
     try:
