@@ -25,7 +25,7 @@ from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, file_sha256
 from ..identification.results import Result, read_result, to_json
 from ..model.plant import Friction, Plant, plant_from_dict
-from ..runtime import utc_now
+from ..runtime import optional_import, utc_now
 from ..version import __version__
 from .formats import FORMATS, SUFFIX_FORMATS
 
@@ -151,9 +151,10 @@ def load_control(path: str | Path, state_space: bool = False):
     """(control.TransferFunction, friction dict) from a file of ``servofmu export --format control``.
 
     ``state_space=True``: a control.StateSpace in the FMU's realisation (states xi1..xin) instead.
-    The friction dict holds ``model`` and the friction parameters of docs/plant-format.md.
+    The friction dict holds ``model`` and the friction parameters of docs/plant-format.md.  Needs python-control
+    (``pip install 'servofmu[control]'``).
     """
-    import control
+    control = optional_import("control", "load_control", "control", package="python-control")
 
     doc = _read_json(path)
     if doc.get("format") != CONTROL_FORMAT:
