@@ -13,14 +13,16 @@ controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference 
 """
 from __future__ import annotations
 
+import importlib.util
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import ServofmuWarning, UserError
 from ..fileio import check_output_path, file_sha256
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
 from ..runtime import temporary_folder, utc_now
@@ -114,7 +116,9 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
     stop_time : float, optional
         Seconds to simulate (default: the system's default experiment, the reference's duration).
     engine : {"libcosim", "fmpy"}
-        libcosim through libcosimpy, or FMPy's SSP runner.
+        libcosim through libcosimpy, or FMPy's SSP runner.  Where libcosimpy is not installed (it has wheels for
+        Linux x86_64 and Windows only), "libcosim" runs on FMPy with a ServofmuWarning; ``CosimResult.engine``
+        names the engine that ran.
 
     Returns
     -------
@@ -128,6 +132,10 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
     """
     if engine not in ENGINES:
         raise UserError(f"engine must be one of {', '.join(ENGINES)}, not {engine!r}")
+    if engine == "libcosim" and importlib.util.find_spec("libcosimpy") is None:
+        warnings.warn("libcosimpy is not installed (its wheels are for Linux x86_64 and Windows): co-simulating on "
+                      "FMPy instead", ServofmuWarning, stacklevel=2)
+        engine = "fmpy"
     ssp = Path(ssp)
     with temporary_folder("cosim") as tmp:
         system = read_system(ssp, tmp)

@@ -18,13 +18,14 @@ import hashlib
 import math
 import platform
 import time
+import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import ServofmuWarning, UserError
 from ..fileio import check_output_path
 from ..runtime import Progress, check_memory, utc_now
 from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
@@ -413,7 +414,8 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
         Called with (done, total) in thousandths of an experiment (PROGRESS_SCALE): as experiments run (each
         counts the periods it has run out of the most it may run) and when each is stored.
     warn : callable, optional
-        ``warn(text)`` for experiments that did not reach a steady state.
+        ``warn(text)`` receives what is otherwise issued with ``warnings.warn`` as a
+        :class:`~servofmu.errors.ServofmuWarning`: an experiment that reached no steady state.
 
     Returns
     -------
@@ -479,10 +481,14 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
                 add_experiments(out, [result])
                 done += 1
                 running.pop(result.index, None)
-                if warn and not result.converged:
-                    warn(f"experiment {result.index} (amplitude {result.amplitude:g}, frequency "
-                         f"{result.frequency:g} Hz) reached no steady state within {options.max_time:g} s (last "
-                         f"change per period {result.last_change:.2g}); it is stored with converged = false")
+                if not result.converged:
+                    text = (f"experiment {result.index} (amplitude {result.amplitude:g}, frequency "
+                            f"{result.frequency:g} Hz) reached no steady state within {options.max_time:g} s (last "
+                            f"change per period {result.last_change:.2g}); it is stored with converged = false")
+                    if warn is not None:
+                        warn(text)
+                    else:
+                        warnings.warn(text, ServofmuWarning, stacklevel=2)
                 show()
         except BaseException:
             if existing is None and done == 0:  # nothing measured: leave no empty file to trip over

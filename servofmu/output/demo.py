@@ -128,7 +128,7 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
         result = cosimulate(ssp, engine="libcosim")
         runs[role] = write_cosim_records(result, ssp, out / f"axis-{role}.h5", command=command)
         error = result["reference"] - result["position"]
-        report(f"co-simulated {ssp} on libcosim into {out / f'axis-{role}.h5'}: tracking error RMS "
+        report(f"co-simulated {ssp} on {result.engine} into {out / f'axis-{role}.h5'}: tracking error RMS "
                f"{np.sqrt(np.mean(error ** 2)):.3g} m")
     data = closed_loop_data(runs["identify"], controller)
     est = PSOANNIdentifier(plant, method="pso", seed=0).fit(data)
