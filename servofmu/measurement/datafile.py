@@ -4,11 +4,15 @@ Every write builds the new file beside the target (``.NAME.part``) and renames i
 step, so a killed run leaves either the previous file or a complete new one.  A measurement file is
 written when the run starts (plan + provenance, no experiments), again after every finished experiment,
 and a last time to mark it complete; ``--resume`` reads which experiments are stored and runs the others.
+
+What an experiment's or a record's group holds is declared once, on the fields of ExperimentResult,
+RecordAnalysis and Record (:class:`Stored`); the writer, the reader and the checks of the stored numbers all
+follow those declarations.
 """
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Iterable
 
@@ -18,12 +22,11 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import (
     READ_ERRORS,
-    check_format,
     check_output_path,
     check_values,
     hdf5_attr,
-    open_hdf5,
     read_error_reason,
+    read_hdf5,
     store_array,
     write_hdf5,
 )
@@ -49,6 +52,7 @@ SIGNAL_INFO = {
     "position": ("m", "measured position (raw, as recorded)"),
     "reference": ("m", "reference position of the drive's controller (closed-loop records)"),
 }
+# The units of the numbers an experiment or a record stores: also written, as is, as each group's "units" attribute.
 RESULT_UNITS = {
     "amplitude": "N", "frequency": "Hz", "U1": "N", "V1": "m/s", "H": "m/(N.s)", "dc": "m/s", "dc_u": "N",
     "distortion": "1", "settling_time": "s", "window_start": "s", "window_periods": "1", "hold_error": "1",
@@ -58,8 +62,49 @@ RESULT_UNITS = {
 
 
 # ---------------------------------------------------------------------------
-# What is stored
+# What is stored: every field declared once, with how it is stored
 # ---------------------------------------------------------------------------
+ATTRIBUTE, DATASET, SIGNALS, NESTED = "attribute", "dataset", "signals", "nested"
+FINITE, BOUNDED = "finite", "bounded"  # how a number is checked on reading (fileio.check_values)
+STORED = "servofmu.stored"  # the key of a field's Stored in its metadata
+
+
+@dataclass(frozen=True)
+class Stored:
+    """How a field of ExperimentResult, RecordAnalysis or Record is kept in its HDF5 group: the one declaration
+    that the writer, the reader and the checks of a data file follow.
+
+    ``kind``: ATTRIBUTE (an attribute of the group), DATASET (an array in the group, with ``description`` as its
+    attribute if given), SIGNALS (a Series: its signals in a subgroup named after the field, or with ``inline``
+    in the group itself) or NESTED (the dataclass ``nested``, stored in the same group; the bool attribute
+    ``flag`` says whether it is there).  ``dtype``: the value's type, also of a dataset's elements: int (stored
+    as int64), float, complex (complex128), bool, str, or dict (JSON text).  ``check``: FINITE (finite, within
+    ±MAX_MAGNITUDE), BOUNDED (within ±MAX_MAGNITUDE; NaN and inf allowed) or None (not checked); an attribute is
+    a scalar, a dataset one-dimensional.  ``optional``: a file may lack it, and then it reads as the field's
+    default; a None value is not written.  ``choices``: the values a file may hold.  ``since``: the schema version
+    that added it; older files read ``before``.
+    """
+
+    kind: str = ATTRIBUTE
+    dtype: type = float
+    check: str | None = None
+    optional: bool = False
+    description: str | None = None
+    inline: bool = False
+    nested: type | None = None
+    flag: str | None = None
+    choices: tuple | None = None
+    since: int = 1
+    before: object = None
+
+
+def stored(default=MISSING, optional: bool | None = None, **how):
+    """A dataclass field stored as ``how`` says (the arguments of :class:`Stored`); with a ``default``, optional
+    in a file unless ``optional`` says otherwise."""
+    optional = default is not MISSING if optional is None else optional
+    return field(default=default, metadata={STORED: Stored(optional=optional, **how)})
+
+
 @dataclass(frozen=True)
 class Series:
     """Sampled signals (SI units: s, N, m/s, m); optional ones are None."""
@@ -72,40 +117,42 @@ class Series:
     reference: np.ndarray | None = None
 
     def signals(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in ("time", "u", "v", "v_noisy", "position", "reference")
-                if getattr(self, k) is not None}
+        """The signals present, by name, in the order of the fields."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
 @dataclass(frozen=True)
 class ExperimentResult:
     """One stepped-sine experiment of a measurement (docs/measurement.md defines every field)."""
 
-    index: int
-    amplitude: float
-    frequency: float
-    excitation: str                 # "builtin" or "input"
-    U1: complex
-    V1: complex
-    H: complex
-    dc: float
-    harmonics: np.ndarray           # S_1..S_K of v
-    distortion: float
-    converged: bool
-    settling_time: float
-    last_change: float
-    remaining_error: float
-    window_start: float
-    window_periods: int
-    samples_per_period: int
-    hold_error: float
-    transient: Series
-    window: Series
-    noise_sigma: float | None = None
-    H_noisy: complex | None = None
-    dc_noisy: float | None = None
+    index: int = stored(dtype=int)
+    amplitude: float = stored(check=FINITE)
+    frequency: float = stored(check=FINITE)
+    excitation: str = stored(dtype=str)   # "builtin" or "input"
+    U1: complex = stored(dtype=complex, check=FINITE)
+    V1: complex = stored(dtype=complex, check=FINITE)
+    H: complex = stored(dtype=complex, check=FINITE)
+    dc: float = stored(check=FINITE)
+    harmonics: np.ndarray = stored(kind=DATASET, dtype=complex, check=FINITE,  # S_1..S_K of v
+                                   description="phasors S_1..S_K of v over the window (m/s)")
+    distortion: float = stored(check=BOUNDED)        # inf when it did not settle
+    converged: bool = stored(dtype=bool)
+    settling_time: float = stored(check=FINITE)
+    last_change: float = stored(check=BOUNDED)       # inf when it did not settle
+    remaining_error: float = stored(check=BOUNDED)   # inf when it did not settle
+    window_start: float = stored(check=FINITE)
+    window_periods: int = stored(dtype=int)
+    samples_per_period: int = stored(dtype=int)
+    hold_error: float = stored(check=FINITE)
+    transient: Series = stored(kind=SIGNALS)
+    window: Series = stored(kind=SIGNALS)
+    noise_sigma: float | None = stored(None, check=FINITE)
+    H_noisy: complex | None = stored(None, dtype=complex, check=FINITE)
+    dc_noisy: float | None = stored(None, check=FINITE)
 
     @property
     def spec(self) -> ExperimentSpec:
+        """The experiment of the plan that this is the result of."""
         return ExperimentSpec(self.index, self.amplitude, self.frequency)
 
 
@@ -113,39 +160,40 @@ class ExperimentResult:
 class RecordAnalysis:
     """First-harmonic analysis of a sinusoidal record (same meaning as for an experiment)."""
 
-    frequency: float
-    sine_fraction: float
-    amplitude: float
-    U1: complex
-    V1: complex
-    H: complex
-    dc_u: float
-    dc: float
-    harmonics: np.ndarray
-    distortion: float
-    converged: bool
-    settling_time: float
-    window_start: float
-    window_periods: int
+    frequency: float = stored(check=FINITE)
+    sine_fraction: float = stored()
+    amplitude: float = stored(check=FINITE)
+    U1: complex = stored(dtype=complex, check=FINITE)
+    V1: complex = stored(dtype=complex, check=FINITE)
+    H: complex = stored(dtype=complex, check=BOUNDED)  # NaN when U1 is 0
+    dc_u: float = stored(check=FINITE)
+    dc: float = stored(check=FINITE)
+    harmonics: np.ndarray = stored(kind=DATASET, dtype=complex, check=FINITE)
+    distortion: float = stored()
+    converged: bool = stored(dtype=bool)
+    settling_time: float = stored(check=FINITE)
+    window_start: float = stored(check=FINITE)
+    window_periods: int = stored(dtype=int)
 
 
 @dataclass(frozen=True)
 class Record:
     """A record imported from a machine: raw signals, the velocity used, and its analysis if sinusoidal."""
 
-    index: int
-    name: str
-    source: str
-    source_sha256: str
-    kind: str                      # "velocity" or "position"
-    columns: dict                  # role (time/u/v or position) -> column name in the source
-    series: Series
-    sample_rate: float
-    velocity_estimate: str         # how v was obtained
-    velocity_cutoff: float | None
-    analysis: RecordAnalysis | None
-    note: str = ""
-    intersample: str = "zoh"       # the input between samples: held ("zoh") or linear ("foh")
+    index: int = stored(dtype=int)
+    name: str = stored(dtype=str)
+    source: str = stored(dtype=str)
+    source_sha256: str = stored(dtype=str)
+    kind: str = stored(dtype=str)                   # "velocity" or "position"
+    columns: dict = stored(dtype=dict)              # role (time/u/v or position) -> column name in the source
+    series: Series = stored(kind=SIGNALS, inline=True)
+    sample_rate: float = stored(check=FINITE)
+    velocity_estimate: str = stored(dtype=str)      # how v was obtained
+    velocity_cutoff: float | None = stored(optional=True)
+    analysis: RecordAnalysis | None = stored(kind=NESTED, nested=RecordAnalysis, flag="sinusoidal")
+    note: str = stored("", dtype=str)
+    # the input between samples: held ("zoh") or linear ("foh"); schema version 1 files meant "foh"
+    intersample: str = stored("zoh", optional=False, dtype=str, choices=INTERSAMPLE, since=2, before="foh")
 
 
 @dataclass(frozen=True)
@@ -163,10 +211,12 @@ class DataFile:
     parameters: dict = field(default_factory=dict)
 
     def missing(self) -> tuple[ExperimentSpec, ...]:
+        """The experiments of the plan not stored yet (what ``--resume`` runs)."""
         done = {e.index for e in self.experiments}
         return tuple(s for s in self.plan.experiments if s.index not in done) if self.plan else ()
 
     def experiment(self, amplitude: float, frequency: float) -> ExperimentResult:
+        """The stored experiment at ``amplitude`` (N) and ``frequency`` (Hz); KeyError if there is none."""
         for e in self.experiments:
             if e.amplitude == amplitude and e.frequency == frequency:
                 return e
@@ -189,6 +239,41 @@ def _write_series(group: h5py.Group, series: Series) -> None:
     for name, data in series.signals().items():
         unit, description = SIGNAL_INFO[name]
         store_array(group, name, np.asarray(data, dtype=float), unit=unit, description=description)
+
+
+# What a value of each dtype is written as (None: not written); dicts become JSON text in _set_attrs.
+_ENCODE = {int: np.int64, complex: np.complex128, bool: bool, float: None, str: None, dict: None}
+
+
+def _how(f) -> Stored:
+    return f.metadata[STORED]
+
+
+def _write_fields(g: h5py.Group, item, units: dict | None = None, **values) -> None:
+    """Store the dataclass ``item`` in the group ``g`` as its fields declare (``values`` replace some of them):
+    its attributes in the order of the fields (a NESTED field as its flag), then ``units`` as an attribute,
+    then the NESTED dataclasses, then the datasets and signals in the order of the fields."""
+    attrs, nested, arrays = {}, [], []
+    for f in fields(item):
+        how, value = _how(f), values.get(f.name, getattr(item, f.name))
+        if how.kind == ATTRIBUTE:
+            encode = _ENCODE[how.dtype]
+            attrs[f.name] = value if value is None or encode is None else encode(value)
+        elif how.kind == NESTED:
+            attrs[how.flag] = value is not None
+            if value is not None:
+                nested.append(value)
+        else:
+            arrays.append((f.name, how, value))
+    _set_attrs(g, {**attrs, "units": units})
+    for value in nested:
+        _write_fields(g, value)
+    for name, how, value in arrays:
+        if how.kind == DATASET:
+            description = {} if how.description is None else {"description": how.description}
+            store_array(g, name, np.asarray(value, dtype=how.dtype), **description)
+        else:
+            _write_series(g if how.inline else g.create_group(name), value)
 
 
 def _write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict) -> None:
@@ -224,7 +309,13 @@ def create_measurement(path: str | Path, plan: Plan, provenance: dict, parameter
 
 
 def experiment_group_name(index: int) -> str:
+    """The group of experiment ``index`` under ``experiments``."""
     return f"exp_{index:04d}"
+
+
+def record_group_name(index: int) -> str:
+    """The group of record ``index`` under ``records``."""
+    return f"rec_{index:04d}"
 
 
 def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> None:
@@ -238,27 +329,13 @@ def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> No
             name = experiment_group_name(r.index)
             if name in exps:  # a resumed run never recomputes a stored experiment; keep the first
                 continue
-            g = exps.create_group(name)
-            _set_attrs(g, {
-                "index": np.int64(r.index), "amplitude": r.amplitude, "frequency": r.frequency,
-                "excitation": r.excitation, "U1": np.complex128(r.U1), "V1": np.complex128(r.V1),
-                "H": np.complex128(r.H), "dc": r.dc, "distortion": r.distortion, "converged": bool(r.converged),
-                "settling_time": r.settling_time, "last_change": r.last_change,
-                "remaining_error": r.remaining_error, "window_start": r.window_start,
-                "window_periods": np.int64(r.window_periods), "samples_per_period": np.int64(r.samples_per_period),
-                "hold_error": r.hold_error, "noise_sigma": r.noise_sigma,
-                "H_noisy": None if r.H_noisy is None else np.complex128(r.H_noisy), "dc_noisy": r.dc_noisy,
-                "units": {k: v for k, v in RESULT_UNITS.items()},
-            })
-            store_array(g, "harmonics", np.asarray(r.harmonics, dtype=complex),
-                        description="phasors S_1..S_K of v over the window (m/s)")
-            _write_series(g.create_group("transient"), r.transient)
-            _write_series(g.create_group("window"), r.window)
+            _write_fields(exps.create_group(name), r, units=RESULT_UNITS)
 
     write_hdf5(path, edit, path)
 
 
 def mark_complete(path: str | Path) -> None:
+    """Mark a measurement file complete: every experiment of its plan is stored."""
     path = Path(path)
 
     def edit(f):
@@ -292,27 +369,14 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
             prov = f["provenance"]
             appended = json.loads(hdf5_attr(prov, "appended_by", "[]")) + [provenance.get("command", "")]
             _set_attrs(prov, {"appended_by": appended})
-            if hdf5_attr(f, "schema_version") < 2:  # upgrade: say what the old records meant
+            version = hdf5_attr(f, "schema_version")
+            if version < SCHEMA_VERSION:  # upgrade: say what the old records meant
                 for g in f["records"].values():
-                    g.attrs["intersample"] = "foh"
+                    _set_attrs(g, {f.name: _how(f).before for f in fields(Record) if _how(f).since > version})
                 f.attrs["schema_version"] = SCHEMA_VERSION
         recs = f["records"]
         for i, r in enumerate(records):
-            g = recs.create_group(f"rec_{offset + i:04d}")
-            _set_attrs(g, {"index": np.int64(offset + i), "name": r.name, "source": r.source,
-                           "source_sha256": r.source_sha256, "kind": r.kind, "columns": r.columns,
-                           "sample_rate": r.sample_rate, "velocity_estimate": r.velocity_estimate,
-                           "velocity_cutoff": r.velocity_cutoff, "sinusoidal": r.analysis is not None,
-                           "note": r.note, "intersample": r.intersample, "units": RESULT_UNITS})
-            if r.analysis is not None:
-                a = r.analysis
-                _set_attrs(g, {"frequency": a.frequency, "sine_fraction": a.sine_fraction, "amplitude": a.amplitude,
-                               "U1": np.complex128(a.U1), "V1": np.complex128(a.V1), "H": np.complex128(a.H),
-                               "dc_u": a.dc_u, "dc": a.dc, "distortion": a.distortion,
-                               "converged": bool(a.converged), "settling_time": a.settling_time,
-                               "window_start": a.window_start, "window_periods": np.int64(a.window_periods)})
-                store_array(g, "harmonics", np.asarray(a.harmonics, dtype=complex))
-            _write_series(g, r.series)
+            _write_fields(recs.create_group(record_group_name(offset + i)), r, units=RESULT_UNITS, index=offset + i)
 
     write_hdf5(path, edit, start_from)
     return path
@@ -322,8 +386,8 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
 # Reading
 # ---------------------------------------------------------------------------
 def _read_series(g: h5py.Group) -> Series:
-    """The signals of a group: time, the input u and the velocity v are required (KeyError naming the missing one);
-    every signal has the length of time."""
+    """The signals of a group: those without a default in Series (time, the input u and the velocity v) are
+    required (KeyError naming the missing one); every signal has the length of time."""
     def get(name, required=False):
         if name not in g:
             if required:
@@ -335,43 +399,53 @@ def _read_series(g: h5py.Group) -> Series:
         return values
 
     time = np.asarray(get("time", True))
-    return Series(time=time, u=get("u", True), v=get("v", True), v_noisy=get("v_noisy"), position=get("position"),
-                  reference=get("reference"))
+    return Series(time=time, **{f.name: get(f.name, f.default is MISSING) for f in fields(Series)[1:]})
 
 
-def _read_experiment(g: h5py.Group) -> ExperimentResult:
-    return ExperimentResult(
-        index=int(hdf5_attr(g, "index")), amplitude=float(hdf5_attr(g, "amplitude")), frequency=float(hdf5_attr(g, "frequency")),
-        excitation=str(hdf5_attr(g, "excitation")), U1=complex(hdf5_attr(g, "U1")), V1=complex(hdf5_attr(g, "V1")),
-        H=complex(hdf5_attr(g, "H")), dc=float(hdf5_attr(g, "dc")), harmonics=np.asarray(g["harmonics"][()]),
-        distortion=float(hdf5_attr(g, "distortion")), converged=bool(hdf5_attr(g, "converged")),
-        settling_time=float(hdf5_attr(g, "settling_time")), last_change=float(hdf5_attr(g, "last_change")),
-        remaining_error=float(hdf5_attr(g, "remaining_error")), window_start=float(hdf5_attr(g, "window_start")),
-        window_periods=int(hdf5_attr(g, "window_periods")), samples_per_period=int(hdf5_attr(g, "samples_per_period")),
-        hold_error=float(hdf5_attr(g, "hold_error")), transient=_read_series(g["transient"]),
-        window=_read_series(g["window"]), noise_sigma=hdf5_attr(g, "noise_sigma", None),
-        H_noisy=complex(hdf5_attr(g, "H_noisy")) if "H_noisy" in g.attrs else None,
-        dc_noisy=hdf5_attr(g, "dc_noisy", None))
+# How an attribute read back becomes a value of its dtype.
+_DECODE = {int: int, float: float, complex: complex, bool: bool, str: str, dict: json.loads}
 
 
-def _read_record(g: h5py.Group, version: int) -> Record:
-    analysis = None
-    if bool(hdf5_attr(g, "sinusoidal")):
-        analysis = RecordAnalysis(
-            frequency=float(hdf5_attr(g, "frequency")), sine_fraction=float(hdf5_attr(g, "sine_fraction")),
-            amplitude=float(hdf5_attr(g, "amplitude")), U1=complex(hdf5_attr(g, "U1")), V1=complex(hdf5_attr(g, "V1")),
-            H=complex(hdf5_attr(g, "H")), dc_u=float(hdf5_attr(g, "dc_u")), dc=float(hdf5_attr(g, "dc")),
-            harmonics=np.asarray(g["harmonics"][()]), distortion=float(hdf5_attr(g, "distortion")),
-            converged=bool(hdf5_attr(g, "converged")), settling_time=float(hdf5_attr(g, "settling_time")),
-            window_start=float(hdf5_attr(g, "window_start")), window_periods=int(hdf5_attr(g, "window_periods")))
-    cutoff = hdf5_attr(g, "velocity_cutoff", None)
-    return Record(index=int(hdf5_attr(g, "index")), name=str(hdf5_attr(g, "name")), source=str(hdf5_attr(g, "source")),
-                  source_sha256=str(hdf5_attr(g, "source_sha256")), kind=str(hdf5_attr(g, "kind")),
-                  columns=json.loads(hdf5_attr(g, "columns")), series=_read_series(g),
-                  sample_rate=float(hdf5_attr(g, "sample_rate")), velocity_estimate=str(hdf5_attr(g, "velocity_estimate")),
-                  velocity_cutoff=None if cutoff is None else float(cutoff), analysis=analysis,
-                  note=str(hdf5_attr(g, "note", "")),
-                  intersample=str(hdf5_attr(g, "intersample")) if version >= 2 else "foh")
+def _read_fields(cls, g: h5py.Group, version: int):
+    """The dataclass ``cls`` read from the group ``g`` of a file of schema ``version``, as its fields declare."""
+    values = {}
+    for f in fields(cls):
+        how = _how(f)
+        if version < how.since:
+            values[f.name] = how.before
+        elif how.kind == ATTRIBUTE:
+            value = hdf5_attr(g, f.name, None) if how.optional else hdf5_attr(g, f.name)
+            if value is None:
+                value = None if f.default is MISSING else f.default
+            else:
+                value = _DECODE[how.dtype](value)
+            if how.choices is not None and value not in how.choices:
+                raise ValueError(f"{f.name} {value!r}")
+            values[f.name] = value
+        elif how.kind == DATASET:
+            values[f.name] = np.asarray(g[f.name][()])
+        elif how.kind == SIGNALS:
+            values[f.name] = _read_series(g if how.inline else g[f.name])
+        else:
+            values[f.name] = _read_fields(how.nested, g, version) if bool(hdf5_attr(g, how.flag)) else None
+    return cls(**values)
+
+
+def _check_fields(path: Path, where: str, item) -> None:
+    """Check the numbers of the dataclass ``item`` read from the group ``where`` as its fields declare."""
+    for f in fields(item):
+        how, value = _how(f), getattr(item, f.name)
+        if value is None:
+            continue
+        if how.kind == SIGNALS:
+            where_signals = where if how.inline else f"{where}/{f.name}"
+            for name, signal in value.signals().items():
+                check_values(path, f"{where_signals}/{name}", signal, (value.time.size,))
+        elif how.kind == NESTED:
+            _check_fields(path, where, value)
+        elif how.check is not None:
+            check_values(path, f"{where}/{f.name}", value, () if how.kind == ATTRIBUTE else (None,),
+                         finite=how.check == FINITE)
 
 
 def check_stored_data(path: Path, f: h5py.File, plan: Plan | None, experiments, records) -> None:
@@ -381,35 +455,14 @@ def check_stored_data(path: Path, f: h5py.File, plan: Plan | None, experiments, 
         n = len(plan.experiments)
         for name, values in (("amplitude", [e.amplitude for e in plan.experiments]),
                              ("frequency", [e.frequency for e in plan.experiments])):
-            stored = check_values(path, f"plan/{name}", f["plan"][name][()], (None,))
-            if stored.shape != (n,) or not np.array_equal(stored, values):
+            stored_values = check_values(path, f"plan/{name}", f["plan"][name][()], (None,))
+            if stored_values.shape != (n,) or not np.array_equal(stored_values, values):
                 raise UserError(f"{path}: plan/{name} does not match the plan's {len(plan.amplitudes)} amplitudes × "
                                 f"{len(plan.frequencies)} frequencies (a damaged or foreign file)")
-
-    def series(where: str, s: Series) -> None:
-        for name, values in s.signals().items():
-            check_values(path, f"{where}/{name}", values, (s.time.size,))
-
     for e in experiments:
-        where = experiment_group_name(e.index)
-        for name in ("amplitude", "frequency", "U1", "V1", "H", "dc", "settling_time", "window_start",
-                     "hold_error", "noise_sigma", "H_noisy", "dc_noisy"):
-            if getattr(e, name) is not None:
-                check_values(path, f"{where}/{name}", getattr(e, name), ())
-        for name in ("distortion", "last_change", "remaining_error"):  # inf when it did not settle
-            check_values(path, f"{where}/{name}", getattr(e, name), (), finite=False)
-        check_values(path, f"{where}/harmonics", e.harmonics, (None,))
-        series(f"{where}/transient", e.transient)
-        series(f"{where}/window", e.window)
+        _check_fields(path, experiment_group_name(e.index), e)
     for r in records:
-        where = f"rec_{r.index:04d}"
-        series(where, r.series)
-        check_values(path, f"{where}/sample_rate", r.sample_rate, ())
-        if r.analysis is not None:
-            for name in ("frequency", "amplitude", "U1", "V1", "dc_u", "dc", "settling_time", "window_start"):
-                check_values(path, f"{where}/{name}", getattr(r.analysis, name), ())
-            check_values(path, f"{where}/H", r.analysis.H, (), finite=False)  # NaN when U1 is 0
-            check_values(path, f"{where}/harmonics", r.analysis.harmonics, (None,))
+        _check_fields(path, record_group_name(r.index), r)
 
 
 def read_data_file(path: str | Path) -> DataFile:
@@ -438,38 +491,39 @@ def read_data_file(path: str | Path) -> DataFile:
     ('measurement', 6)
     """
     path = Path(path)
-    with open_hdf5(path, "data file") as f:
-        _, version = check_format(f, path, FORMAT, SCHEMA_VERSION, "data file")
-        try:
-            kind = str(hdf5_attr(f, "kind"))
-            if kind not in KINDS:
-                raise KeyError(f"kind {kind!r}")
-            plan = None
-            if "plan" in f:
-                plan = Plan(tuple(float(x) for x in f["plan"].attrs["amplitudes"]),
-                            tuple(float(x) for x in f["plan"].attrs["frequencies"]))
-            experiments = tuple(sorted((_read_experiment(g) for g in f.get("experiments", {}).values()),
-                                       key=lambda e: e.index))
-            records = tuple(sorted((_read_record(g, version) for g in f.get("records", {}).values()),
-                                   key=lambda r: r.index))
-            bad = [r.intersample for r in records if r.intersample not in INTERSAMPLE]
-            if bad:
-                raise ValueError(f"intersample {bad[0]!r}")
-            prov = f["provenance"]
-            provenance = {k: hdf5_attr(prov, k) for k in prov.attrs}
-            parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
-                if "parameters" in prov else {}
-            complete = bool(hdf5_attr(f, "complete"))
-            check_stored_data(path, f, plan, experiments, records)
-        except UserError:
-            raise
-        except READ_ERRORS as exc:
-            raise UserError(f"{path}: damaged servofmu data file ({read_error_reason(exc)})") from exc
-        if plan is not None:
-            specs = {s.index: s for s in plan.experiments}
-            for e in experiments:
-                s = specs.get(e.index)
-                if s is None or (s.amplitude, s.frequency) != (e.amplitude, e.frequency):
-                    raise UserError(f"{path}: damaged servofmu data file (experiment {e.index} is not in the plan)")
+    return read_hdf5(path, "data file", FORMAT, SCHEMA_VERSION, lambda f, version: _read_data(path, f, version))
+
+
+def _read_data(path: Path, f: h5py.File, version: int) -> DataFile:
+    """The contents of the open data file ``f`` (schema ``version``); a missing or malformed item is a UserError
+    naming ``path``: ``damaged servofmu data file (reason)``."""
+    try:
+        kind = str(hdf5_attr(f, "kind"))
+        if kind not in KINDS:
+            raise KeyError(f"kind {kind!r}")
+        plan = None
+        if "plan" in f:
+            plan = Plan(tuple(float(x) for x in f["plan"].attrs["amplitudes"]),
+                        tuple(float(x) for x in f["plan"].attrs["frequencies"]))
+        experiments = tuple(sorted((_read_fields(ExperimentResult, g, version)
+                                    for g in f.get("experiments", {}).values()), key=lambda e: e.index))
+        records = tuple(sorted((_read_fields(Record, g, version) for g in f.get("records", {}).values()),
+                               key=lambda r: r.index))
+        prov = f["provenance"]
+        provenance = {k: hdf5_attr(prov, k) for k in prov.attrs}
+        parameters = {k: float(hdf5_attr(prov["parameters"], k)) for k in prov["parameters"].attrs} \
+            if "parameters" in prov else {}
+        complete = bool(hdf5_attr(f, "complete"))
+        check_stored_data(path, f, plan, experiments, records)
+    except UserError:
+        raise
+    except READ_ERRORS as exc:
+        raise UserError(f"{path}: damaged servofmu data file ({read_error_reason(exc)})") from exc
+    if plan is not None:
+        specs = {s.index: s for s in plan.experiments}
+        for e in experiments:
+            s = specs.get(e.index)
+            if s is None or (s.amplitude, s.frequency) != (e.amplitude, e.frequency):
+                raise UserError(f"{path}: damaged servofmu data file (experiment {e.index} is not in the plan)")
     return DataFile(path=path, kind=kind, schema_version=version, complete=complete, plan=plan,
-                   experiments=experiments, records=records, provenance=provenance, parameters=parameters)
+                    experiments=experiments, records=records, provenance=provenance, parameters=parameters)
