@@ -30,6 +30,7 @@ from servofmu.model.plant import load_plant
 from servofmu.fileio import file_sha256
 from servofmu.output.export import ROUND_TRIP_TOLERANCE, remeasure
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
+from servofmu.runtime import RunOptions
 
 PLANS = {"g1": ((2.0, 0.6), (0.5, 2.0, 10.0)), "g2": ((4.0, 2.0), (1.0, 2.0, 5.0))}
 FACTORS = (1.0, 1.005, 1.01, 1.02)
@@ -59,7 +60,7 @@ def main() -> None:
             plant = load_plant(name)
             data_file = tmp / f"{name}.h5"
             ds = measure(build_fmu(plant, tmp / f"{name}.fmu"), data_file, amplitudes=amplitudes,
-                         frequencies=frequencies, workers=0)
+                         frequencies=frequencies, run=RunOptions(workers=0))
             data = sine_data(ds)
             sim = BatchSimulator(plant, threads=1)
             feats = sim.steady_state(plant.parameter_vector(), data.amplitudes, data.frequencies,

@@ -35,6 +35,7 @@ from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
+from servofmu.runtime import RunOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 # g2 has a friction-induced limit cycle: at low magnitude or above ~6 Hz no steady state (docs/identification.md)
@@ -73,7 +74,7 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
     amps, freqs = PLANS[name]
     fmu = build_fmu(plant, work / f"{name}.fmu")
     data_file = work / f"{name}.h5"
-    measure(fmu, data_file, amplitudes=amps, frequencies=freqs, workers=0)
+    measure(fmu, data_file, amplitudes=amps, frequencies=freqs, run=RunOptions(workers=0))
     data = sine_data(read_data_file(data_file))
 
     t0 = time.perf_counter()
@@ -124,7 +125,7 @@ def run(name, work: Path, samples: int, noise_seeds: int, n_random: int, lines: 
     worst, covered, total = [], 0, 0
     for seed in range(1, noise_seeds + 1):
         noisy = work / f"{name}-noise{seed}.h5"
-        measure(fmu, noisy, amplitudes=amps, frequencies=freqs, workers=0,
+        measure(fmu, noisy, amplitudes=amps, frequencies=freqs, run=RunOptions(workers=0),
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
         e = identify(sine_data(read_data_file(noisy)))
         worst.append(rel_err(e.theta_, truth).max())

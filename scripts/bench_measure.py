@@ -30,6 +30,7 @@ from servofmu.measurement.measure import Job, MeasureOptions, measure, run_exper
 from servofmu.model.plant import load_plant  # noqa: E402
 from servofmu.simulation.fmu_runner import FmuRunnerFactory
 from servofmu.simulation.parallel import WorkerResource, Workers  # noqa: E402
+from servofmu.runtime import RunOptions  # noqa: E402
 
 AMPLITUDES = (2.0, 0.6)
 FREQUENCIES = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0)
@@ -54,8 +55,10 @@ def throughput(fmus: dict[str, Path], tmp: Path) -> list[str]:
         for name, amplitudes in plans.items():
             n = len(amplitudes) * len(FREQUENCIES)
             timings, results = {}, {}
-            for label, where in (("this process", dict(workers=0)), ("2 local processes", dict(workers=2)),
-                                 ("Dask LocalCluster, 2 workers", dict(scheduler=cluster.scheduler_address))):
+            for label, where in (("this process", dict(run=RunOptions(workers=0))),
+                                 ("2 local processes", dict(run=RunOptions(workers=2))),
+                                 ("Dask LocalCluster, 2 workers",
+                                  dict(run=RunOptions(scheduler=cluster.scheduler_address)))):
                 t1 = time.perf_counter()
                 data = measure(fmus[name], tmp / f"{name}-{len(timings)}.h5", amplitudes=amplitudes,
                                frequencies=FREQUENCIES, **where)

@@ -39,6 +39,7 @@ from servofmu.identification.training_set import make_training_set
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
+from servofmu.runtime import RunOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 # (swarm iterations, search tolerance); the first is identify's default: the paper's 50 (Table I) at SEARCH_RTOL
@@ -55,7 +56,7 @@ def inputs(name: str, demo: Path, work: Path) -> tuple[Path, Path, Path]:
     fmu, data, ds, ann = (work / f"{name}{suffix}" for suffix in (".fmu", ".h5", "-ds.h5", "-ann.h5"))
     build_fmu(plant, fmu)
     plan = read_data_file(demo / "g1.h5").plan
-    measure(fmu, data, amplitudes=list(plan.amplitudes), frequencies=list(plan.frequencies), workers=0)
+    measure(fmu, data, amplitudes=list(plan.amplitudes), frequencies=list(plan.frequencies), run=RunOptions(workers=0))
     make_training_set(plant, sine_data(read_data_file(data)), 10_000, ds, seed=0)
     train_from_file(ds, ann, seed=0)
     return fmu, data, ann
@@ -72,7 +73,7 @@ def run(name: str, demo: Path, work: Path, n_random: int, noise_seeds: int, line
     noisy = []
     for seed in range(1, noise_seeds + 1):
         path = work / f"{name}-noise{seed}.h5"
-        measure(fmu, path, amplitudes=amps, frequencies=freqs, workers=0,
+        measure(fmu, path, amplitudes=amps, frequencies=freqs, run=RunOptions(workers=0),
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
         noisy.append(sine_data(read_data_file(path)))
     sets = {label: settled_plants(plant, data, n_random, spread)[0]

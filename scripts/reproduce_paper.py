@@ -32,6 +32,7 @@ from servofmu.baselines.compare import METHODS, max_relative_errors, run_methods
 from servofmu.output.demo import DEMO_PLANS
 from servofmu.output.paper import COLUMNS, TABLES
 from servofmu.output.report import bode_figures, compute_entries, convergence_figure, friction_figure, velocity_range
+from servofmu.runtime import RunOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 NOISY_METHODS = ("pso-ann", "ga-ann", "aga-ann", "chen2002", "casadi-nls-ann")
@@ -46,7 +47,7 @@ def run(name: str, work: Path, samples: int, seeds: int, figures: Path, lines: l
     amps, freqs = DEMO_PLANS[name]
     fmu = build_fmu(plant, work / f"{name}.fmu")
     data_file = work / f"{name}.h5"
-    dataset = measure(fmu, data_file, amplitudes=amps, frequencies=freqs, workers=0)
+    dataset = measure(fmu, data_file, amplitudes=amps, frequencies=freqs, run=RunOptions(workers=0))
     data = sine_data(dataset)
     make_training_set(plant, data, samples, work / f"{name}-ds.h5", seed=0)
     net, rows = train_from_file(work / f"{name}-ds.h5", work / f"{name}-ann.h5", seed=0)
@@ -74,7 +75,7 @@ def run(name: str, work: Path, samples: int, seeds: int, figures: Path, lines: l
     per_method = {m: [] for m in NOISY_METHODS}
     for seed in range(1, seeds + 1):
         noisy = work / f"{name}-noise{seed}.h5"
-        measure(fmu, noisy, amplitudes=amps, frequencies=freqs, workers=0,
+        measure(fmu, noisy, amplitudes=amps, frequencies=freqs, run=RunOptions(workers=0),
                 options=MeasureOptions(noise_snr_db=40.0, seed=seed))
         for m, r in run_methods(plant, sine_data(read_data_file(noisy)), list(NOISY_METHODS), ann=ann,
                                 seed=seed).items():

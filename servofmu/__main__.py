@@ -1,3 +1,4 @@
+"""`python -m servofmu`: the `servofmu` command."""
 from .cli import run
 
 run()

@@ -16,9 +16,10 @@ from typing import Callable, Iterator
 
 from .errors import MAX_MAGNITUDE, UserError
 
-__all__ = ["file_sha256", "check_output_path", "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr",
-           "open_hdf5", "read_hdf5", "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER",
-           "NO_ROOM", "write_failures"]
+__all__ = ["file_sha256", "claim_output", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
+           "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "open_hdf5", "read_hdf5",
+           "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM",
+           "write_failures"]
 
 # Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers, which hold the
 # attributes, carry checksums, so a flipped bit in an attribute is found on reading, as Fletcher-32 finds one in
@@ -52,16 +53,58 @@ def write_failures(what: str, error: type[UserError] = UserError) -> Iterator[No
         raise error(f"cannot write {what}: {exc.strerror}") from exc
 
 
-def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
-    """An output path whose folder exists and is writable (and, unless ``overwrite``, that does not exist yet):
-    checked before any long work, so that a run never computes to the end to find it cannot save."""
+class OutputExists(UserError):
+    """An output that exists already and that the run was not told to replace (or to continue).
+
+    One rule, one set of words: ``str()`` names the library's keywords (``overwrite=True``, ``resume=True``),
+    :meth:`command_line_text` the command line's options (``--force``, ``--resume``)."""
+
+    def __init__(self, path: Path, can_continue: str | None = None):
+        self.path, self.can_continue = path, can_continue
+        super().__init__(self._text("{}=True", "overwrite"))
+
+    def _text(self, spelling: str, replace: str) -> str:
+        how = f"give {spelling.format(replace)} to replace it"
+        if self.can_continue:
+            how += f", or {spelling.format(self.can_continue)} to {CONTINUE_WORDS[self.can_continue]} it"
+        return f"{self.path}: exists already ({how})"
+
+    def command_line_text(self) -> str:
+        """The same refusal in the command line's words."""
+        return self._text("--{}", "force")
+
+
+# How an existing output is continued, by the name of the keyword (and option) that asks for it.
+CONTINUE_WORDS = {"resume": "continue", "append": "add to"}
+OUTPUT_MODES = ("new", "replace", "continue")
+
+
+def output_mode(overwrite: bool = False, resume: bool = False) -> str:
+    """The mode of :func:`claim_output` for a writer's ``overwrite`` and ``resume`` (or ``append``) arguments."""
+    return "continue" if resume else "replace" if overwrite else "new"
+
+
+def claim_output(path: str | Path, mode: str = "new", inputs=(), can_continue: str | None = None) -> Path:
+    """The one output rule (docs/reliability.md), checked before any work by the command line and by every writer
+    of the library: so that a run never computes to the end to find it cannot (or may not) save.
+
+    ``path``'s folder must exist and be writable; ``path`` must not be one of the run's ``inputs`` (the same file,
+    under any name); and an existing ``path`` is refused (:class:`OutputExists`) unless ``mode`` is "replace"
+    (``overwrite=True``, ``--force``) or "continue" (``resume``/``append``: the writer extends it).
+    ``can_continue`` names the writer's keyword for continuing ("resume" or "append"), for the error's words.
+    Returns ``path`` as a Path."""
+    if mode not in OUTPUT_MODES:
+        raise ValueError(f"mode must be one of {OUTPUT_MODES}, not {mode!r}")
     path = Path(path)
+    for source in inputs:
+        if source is not None and _same_file(path, Path(source)):
+            raise UserError(f"{path}: is also an input of this run (write the output to another file)")
     if not path.parent.is_dir():
         raise UserError(f"{path}: folder {path.parent} does not exist")
     if path.is_dir():
         raise UserError(f"{path}: is a folder, not a file")
-    if not overwrite and path.exists():
-        raise UserError(f"{path}: exists already (choose another name or remove it)")
+    if mode == "new" and path.exists():
+        raise OutputExists(path, can_continue)
     probe = partial_path(path)  # the file every write starts with: can it be made?
     try:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT, 0o644)
@@ -70,6 +113,19 @@ def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
     except OSError as exc:
         raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return path
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
+    """:func:`claim_output` with ``overwrite`` (True: "replace", False: "new"), for writers whose caller has
+    applied the rule already (a fleet's results, a report's figures in its own temporary folder)."""
+    return claim_output(path, "replace" if overwrite else "new")
 
 
 def partial_path(path: Path) -> Path:

@@ -1,5 +1,6 @@
 """What every stage takes from the machine it runs on: cores, memory, the clock, a C compiler, a cache folder,
-temporary folders, and the one progress protocol of long-running library calls."""
+temporary folders, the one progress protocol and the one options object of long-running library calls, and the
+life of a command: stop signals, exit statuses, the quick exit."""
 from __future__ import annotations
 
 import atexit
@@ -12,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Protocol, Sequence
 
@@ -20,7 +22,9 @@ from .errors import UserError
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
            "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
            "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX",
-           "signals_deferred", "unblock_signals", "optional_import", "show_warnings"]
+           "signals_deferred", "unblock_signals", "RunOptions", "EXIT_USER_ERROR", "STOP_SIGNALS", "Terminated",
+           "stop_if_asked", "CommandRun", "run_command", "finish",
+           "optional_import", "show_warnings"]
 
 # Flags of every shared library servofmu compiles (FMU binaries and the batch simulator).
 CFLAGS = ("-shared", "-fPIC", "-O2", "-std=c99")
@@ -35,6 +39,29 @@ class Progress(Protocol):
     """
 
     def __call__(self, done: int, total: int, /) -> None: ...
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a long library call runs, as opposed to what it computes: one object for every such call (measure,
+    make_training_set, train_from_file, identify_files, import_records, ...).
+
+    ``workers``: local worker processes (None: one per core; 0: this process); ``scheduler``: a Dask scheduler
+    address (tcp://HOST:PORT) instead; ``resume``: continue an existing output where an interrupted run stopped;
+    ``overwrite``: replace an existing output (without either, an existing output is refused: fileio.claim_output);
+    ``progress``: the :class:`Progress` callback; ``command``: the command line, recorded as provenance."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    resume: bool = False
+    overwrite: bool = False
+    progress: Progress | None = None
+    command: str = ""
+
+    def report(self, done: int, total: int) -> None:
+        """Call ``progress`` when there is one."""
+        if self.progress is not None:
+            self.progress(done, total)
 
 
 class CompileError(UserError):
@@ -233,6 +260,135 @@ def _bytes(n: float) -> str:
             return f"{n:.3g} {unit}"
         n /= 1000
     return f"{n:.3g} PB"
+
+
+# ---------------------------------------------------------------------------
+# The life of a command
+# ---------------------------------------------------------------------------
+# A UserError (or an OSError) ends a command with one line and exit status 2; no traceback.  Ctrl-C (exit 130) and
+# SIGTERM or SIGHUP (exit 128 + the signal's number) end it the same way, after the same clean-up: temporary
+# folders removed, worker processes stopped, no partial output left.
+EXIT_USER_ERROR = 2
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # what `timeout`, systemd, batch schedulers and a closed terminal send
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP: unwinds like Ctrl-C, so that the same clean-up runs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+_stop_signals: list[int] = []  # the signal that asked to stop, kept: see stop_if_asked
+
+
+def _terminate(signum, frame) -> None:
+    for s in STOP_SIGNALS:  # once: the clean-up is not interrupted by a second signal
+        signal.signal(s, signal.SIG_IGN)
+    _stop_signals.append(signum)
+    raise Terminated(signum)
+
+
+def _interrupt(signum, frame) -> None:
+    """Ctrl-C, as Python's own handler, but kept for stop_if_asked."""
+    _stop_signals.append(signum)
+    raise KeyboardInterrupt
+
+
+def stop_if_asked(*_) -> None:
+    """Raise again if a stop signal came: the handler's exception is lost when the signal arrives while Python runs
+    a finaliser or a weakref callback (garbage collection), which swallow exceptions.  Progress callbacks call it."""
+    if _stop_signals:
+        raise KeyboardInterrupt if _stop_signals[0] == signal.SIGINT else Terminated(_stop_signals[0])
+
+
+def _raise_soon(unraisable) -> None:
+    """``sys.unraisablehook`` while a command runs.  A stop signal's exception raised inside a finaliser is dropped
+    by Python (with a traceback on stderr): raise it again a millisecond later, in ordinary code (SIGALRM runs
+    :func:`stop_if_asked`), instead."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and _stop_signals:
+        signal.setitimer(signal.ITIMER_REAL, 0.001)
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
+@dataclass
+class CommandRun:
+    """One command being run: ``who`` names it in its error line (``servofmu measure``), ``quick_exit`` says that
+    the process may skip the interpreter's teardown once it succeeded (see :func:`finish`), ``message`` is the
+    line to print on stderr when it ended otherwise than by success."""
+
+    who: str
+    quick_exit: bool = False
+    message: str = ""
+
+
+def run_command(run: CommandRun, work: Callable[[CommandRun], None]) -> int:
+    """``work(run)`` with the stop signals turned into exceptions, and its end turned into an exit status: 0, or
+    :data:`EXIT_USER_ERROR` for a UserError or OSError, 130 for Ctrl-C, 128 + n for signal n; ``run.message`` then
+    holds the one line to print.  ``work`` may rename ``run.who`` once it knows the command."""
+    from .fileio import OutputExists
+
+    _stop_signals.clear()  # the handlers first: Ctrl-C while the modules load is one line too
+    handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where Ctrl-C is ignored
+        handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
+    handlers[signal.SIGALRM] = signal.signal(signal.SIGALRM, stop_if_asked)
+    unraisablehook, sys.unraisablehook = sys.unraisablehook, _raise_soon
+    try:
+        work(run)
+        stop_if_asked()
+    except UserError as exc:
+        text = exc.command_line_text() if isinstance(exc, OutputExists) else str(exc)
+        run.message, run.quick_exit = f"{run.who}: error: {text}", False
+        return EXIT_USER_ERROR
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        run.message, run.quick_exit = f"{run.who}: error: {where}{exc.strerror or exc}", False
+        return EXIT_USER_ERROR
+    except BaseException as exc:  # a stop signal, or what it caused (a module interrupted while it loaded)
+        if not isinstance(exc, KeyboardInterrupt) and not (_stop_signals and isinstance(exc, Exception)):
+            raise
+        run.quick_exit = False
+        return _stopped(run, exc)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        sys.unraisablehook = unraisablehook
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+    return 0
+
+
+def _stopped(run: CommandRun, exc: BaseException) -> int:
+    signum = exc.signum if isinstance(exc, Terminated) else _stop_signals[0] if _stop_signals else signal.SIGINT
+    if signum == signal.SIGINT:
+        # Ctrl-C inside code that exec() runs from a string (dataclasses makes methods so while modules load)
+        # marks the interpreter as ended by Ctrl-C, and it would kill itself with SIGINT at its exit instead
+        # of returning 130; the next exec() of a string that ends normally clears the mark.
+        exec("")
+        run.message = f"{run.who}: interrupted"
+        return 130
+    run.message = f"{run.who}: terminated ({signal.Signals(signum).name})"
+    return 128 + signum
+
+
+def finish(code: int, quick_exit: bool = False) -> None:
+    """End the process with ``code``.  With ``quick_exit`` (a command that succeeded and asked for it), the
+    interpreter's teardown (tens of milliseconds spent freeing numpy, h5py and the compiled libraries, a tenth of
+    a quick identify) is skipped when nothing is left to finish: every file servofmu writes is complete and closed
+    when the command returns (servofmu.fileio), and no other thread or process runs."""
+    multiprocessing = sys.modules.get("multiprocessing")
+    if code == 0 and quick_exit and threading.active_count() == 1 and not (
+            multiprocessing and multiprocessing.active_children()):
+        try:
+            remove_temporary_folders()
+            sys.stdout.flush()
+            sys.stderr.flush()
+        except OSError:  # (a closed pipe): the ordinary exit reports it
+            sys.exit(code)
+        os._exit(code)
+    sys.exit(code)
 
 
 # ---------------------------------------------------------------------------

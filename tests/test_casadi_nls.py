@@ -19,6 +19,7 @@ from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import measure
 from servofmu.model.plant import load_plant
 from servofmu.simulation.batch import BatchSimulator
+from servofmu.runtime import RunOptions
 
 G1 = load_plant("g1")
 TRUTH = G1.parameter_vector()[identified_mask(G1)]  # pole1, dc_gain, fc_pos, fc_neg
@@ -28,7 +29,7 @@ TRUTH = G1.parameter_vector()[identified_mask(G1)]  # pole1, dc_gain, fc_pos, fc
 def g1_data(built_fmu, tmp_path_factory) -> SineData:
     """g1 measured from its FMU at the paper's magnitudes 2.0 and 0.6 N, default frequencies, no noise."""
     path = tmp_path_factory.mktemp("nls") / "g1.h5"
-    measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), workers=0)
+    measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), run=RunOptions(workers=0))
     return sine_data(read_data_file(path))
 
 
@@ -76,7 +77,7 @@ def test_converges_to_the_truth_from_five_percent_off(g1_data, method):
 def test_g2_with_its_complex_pair_from_five_percent_off(built_fmu, tmp_path):
     """Third order, a lightly damped pair near 5 Hz; magnitudes and frequencies where g2 settles (no limit cycle)."""
     path = tmp_path / "g2.h5"
-    measure(built_fmu("g2"), path, amplitudes=(4.0, 2.0), frequencies=(0.5, 1.0, 2.0, 5.0), workers=0)
+    measure(built_fmu("g2"), path, amplitudes=(4.0, 2.0), frequencies=(0.5, 1.0, 2.0, 5.0), run=RunOptions(workers=0))
     g2 = load_plant("g2")
     truth = g2.parameter_vector()[identified_mask(g2)]
     theta0 = truth * (1 + 0.05 * np.random.default_rng(3).choice([-1.0, 1.0], truth.size))

@@ -16,6 +16,7 @@ from servofmu.identification.prior import identified_mask
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import measure
 from servofmu.model.plant import load_plant, plant_from_dict
+from servofmu.runtime import RunOptions
 
 
 def df_data(plant, amplitudes, frequencies) -> SineData:
@@ -72,7 +73,7 @@ def test_inverts_describing_function_data_exactly(plant, amplitudes, frequencies
 def test_g1_fmu_data_at_the_papers_magnitudes(built_fmu, tmp_path):
     """The paper's G1 test: biased by stick-slip at m = 0.6 (< 4·Fc), errors of the order of its Table II."""
     path = tmp_path / "g1.h5"
-    measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), workers=0)
+    measure(built_fmu("g1"), path, amplitudes=(2.0, 0.6), run=RunOptions(workers=0))
     plant = load_plant("g1")
     truth = plant.parameter_vector()[identified_mask(plant)]
     result = fit_chen2002(plant, sine_data(read_data_file(path)))

@@ -6,12 +6,13 @@ import pytest
 from clitools import assert_one_line_error, run
 
 from servofmu.measurement.measure import measure
+from servofmu.runtime import RunOptions
 
 
 @pytest.fixture(scope="module")
 def g1_data(tmp_path_factory, built_fmu):
     path = tmp_path_factory.mktemp("compare") / "g1.h5"
-    measure(built_fmu("g1", 3), path, amplitudes=[2.0, 0.6], frequencies=[0.5, 2.0, 10.0], workers=0)
+    measure(built_fmu("g1", 3), path, amplitudes=[2.0, 0.6], frequencies=[0.5, 2.0, 10.0], run=RunOptions(workers=0))
     return path
 
 
@@ -43,6 +44,6 @@ def test_unknown_method(g1_data):
 
 def test_chen2002_needs_two_magnitudes(tmp_path, built_fmu):
     one = tmp_path / "one.h5"
-    measure(built_fmu("g1", 3), one, amplitudes=[2.0], frequencies=[0.5, 2.0], workers=0)
+    measure(built_fmu("g1", 3), one, amplitudes=[2.0], frequencies=[0.5, 2.0], run=RunOptions(workers=0))
     assert_one_line_error(run("compare", one, "--structure", "g1", "--methods", "chen2002"), "one.h5",
                           "two or more excitation magnitudes")

@@ -299,7 +299,7 @@ def test_bad_systems_and_runs_are_one_line_errors(axis, tmp_path, built_fmu):
     t = np.arange(0, 1, TS)
     np.savetxt(tmp_path / "open.csv", np.column_stack([t, np.sin(t), np.cos(t)]), delimiter=",",
                header="t,u,x", comments="")
-    assert run("import", tmp_path / "open.csv", "--time", "t", "--input", "u", "--output", "x", "--kind", "position",
+    assert run("import", tmp_path / "open.csv", "--time", "t", "--input", "u", "--output-variable", "x", "--kind", "position",
                "-o", tmp_path / "open.h5").returncode == 0
     assert_one_line_error(run("identify", tmp_path / "open.h5", "--structure", "linear_axis", "--closed-loop",
                               axis["ctrl"], "-o", tmp_path / "r.h5"), "no reference")

@@ -44,6 +44,7 @@ from servofmu.output.export import (
     load_control,
     remeasure,
 )
+from servofmu.runtime import RunOptions
 
 # Perturbation of the identified parameters: an identification that is off by a few per cent.
 FACTORS = {"g1": 1.02, "g2": 1.01}
@@ -286,7 +287,7 @@ def test_round_trip_reproduces_the_data_within_the_identification_residual(built
 
     amplitudes, frequencies = PLANS[name]
     data_file = tmp_path / "data.h5"
-    ds = measure(built_fmu(name, 3), data_file, amplitudes=amplitudes, frequencies=frequencies, workers=0)
+    ds = measure(built_fmu(name, 3), data_file, amplitudes=amplitudes, frequencies=frequencies, run=RunOptions(workers=0))
     assert all(e.converged for e in ds.experiments)
     sha = hashlib.sha256(data_file.read_bytes()).hexdigest()
 
@@ -312,7 +313,7 @@ def test_round_trip_refuses_data_the_result_was_not_identified_from(tmp_path, bu
     from servofmu.measurement.measure import measure
 
     data_file = tmp_path / "data.h5"
-    measure(built_fmu("g1", 3), data_file, amplitudes=(2.0,), frequencies=(1.0,), workers=0)
+    measure(built_fmu("g1", 3), data_file, amplitudes=(2.0,), frequencies=(1.0,), run=RunOptions(workers=0))
     with pytest.raises(UserError, match="not the data file the result was identified from"):
         remeasure(make_result("g1", 1.0, 0.0), data_file, tmp_path / "x.fmu", tmp_path / "x.h5", workers=0)
     assert not (tmp_path / "x.fmu").exists() and not (tmp_path / "x.h5").exists()

@@ -19,6 +19,7 @@ from servofmu.identification.training_set import make_training_set
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
+from servofmu.runtime import RunOptions
 
 PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
 
@@ -28,7 +29,7 @@ def g1_files(tmp_path_factory, built_fmu):
     """g1 measured through its FMU, a small training set under that plan and a network trained on it."""
     folder = tmp_path_factory.mktemp("identify")
     data = folder / "g1.h5"
-    measure(built_fmu("g1", 3), data, options=MeasureOptions(), workers=0, **PLAN)
+    measure(built_fmu("g1", 3), data, options=MeasureOptions(), run=RunOptions(workers=0), **PLAN)
     ds = folder / "ds.h5"
     make_training_set(load_plant("g1"), sine_data(read_data_file(data)), 400, ds, seed=3)
     ann = folder / "ann.h5"
@@ -128,7 +129,7 @@ def test_identify_cli_with_a_shorter_swarm(g1_files, tmp_path):
 
 def test_refuses_plan_that_does_not_match_the_ann(g1_files, built_fmu, tmp_path):
     other = tmp_path / "other.h5"
-    measure(built_fmu("g1", 3), other, amplitudes=[2.0, 0.6], frequencies=[1.0, 3.0], workers=0)
+    measure(built_fmu("g1", 3), other, amplitudes=[2.0, 0.6], frequencies=[1.0, 3.0], run=RunOptions(workers=0))
     out = tmp_path / "r.h5"
     proc = run("identify", other, "--structure", "g1", "--ann", g1_files["ann"], "-o", out)
     assert_one_line_error(proc, "trained on plan")
@@ -259,7 +260,8 @@ def fleet(g1_files, built_fmu):
     files[0].write_bytes(g1_files["data"].read_bytes())
     for seed in (1, 2):
         files.append(folder / f"axis{seed}.h5")
-        measure(built_fmu("g1", 3), files[-1], options=MeasureOptions(noise_snr_db=40.0, seed=seed), workers=0,
+        measure(built_fmu("g1", 3), files[-1], options=MeasureOptions(noise_snr_db=40.0, seed=seed),
+                run=RunOptions(workers=0),
                 **PLAN)
     return files
 
@@ -280,11 +282,12 @@ def test_many_files_give_the_one_file_results_on_processes_and_on_a_dask_cluster
         out = tmp_path / label
         out.mkdir()
         if label == "local":
-            runs[label] = identify_files(fleet, "g1", out, ann_file=ann, workers=2)
+            runs[label] = identify_files(fleet, "g1", out, ann_file=ann, run=RunOptions(workers=2))
         else:
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                               dashboard_address=None, worker_dashboard_address=None) as cluster:
-                runs[label] = identify_files(fleet, "g1", out, ann_file=ann, scheduler=cluster.scheduler_address)
+                runs[label] = identify_files(fleet, "g1", out, ann_file=ann,
+                                             run=RunOptions(scheduler=cluster.scheduler_address))
     for label, outcomes in runs.items():
         assert [o.status for o in outcomes] == ["identified"] * 3, label
         for o in outcomes:

@@ -20,6 +20,7 @@ from servofmu.measurement.measure import Job, MeasureOptions, estimate_bandwidth
 from servofmu.model.plant import load_plant
 from servofmu.simulation.fmu_runner import FmuRunnerFactory
 from servofmu.simulation.parallel import WorkerResource, Workers
+from servofmu.runtime import RunOptions
 
 FC_POS, FC_NEG = 0.5, 0.4  # g1 and g2 (fmu_models/*.toml)
 
@@ -187,7 +188,7 @@ def test_measure_checks_the_fmu_and_the_plan_before_writing(built_fmu, foreign_f
     for kwargs, message in cases:
         kwargs.setdefault("frequencies", [1.0])
         with pytest.raises(UserError, match=message):
-            measure(output=out, workers=0, **kwargs)
+            measure(output=out, run=RunOptions(workers=0), **kwargs)
         assert not out.exists()
 
 
@@ -218,11 +219,11 @@ def test_local_processes_and_a_dask_cluster_give_exactly_the_in_process_numbers(
 
     fmu = built_fmu("g1")
     kwargs = dict(amplitudes=[2.0, 0.6], frequencies=[1.0, 5.0], options=MeasureOptions(noise_snr_db=30, seed=4))
-    serial = measure(fmu, tmp_path / "serial.h5", workers=0, **kwargs)
-    local = measure(fmu, tmp_path / "local.h5", workers=2, **kwargs)
+    serial = measure(fmu, tmp_path / "serial.h5", run=RunOptions(workers=0), **kwargs)
+    local = measure(fmu, tmp_path / "local.h5", run=RunOptions(workers=2), **kwargs)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None, worker_dashboard_address=None) as cluster:
-        dask = measure(fmu, tmp_path / "dask.h5", scheduler=cluster.scheduler_address, **kwargs)
+        dask = measure(fmu, tmp_path / "dask.h5", run=RunOptions(scheduler=cluster.scheduler_address), **kwargs)
     assert len(serial.experiments) == 4 and serial.complete
     same_results(serial, local)
     same_results(serial, dask)
@@ -270,18 +271,19 @@ def test_noise_has_the_requested_snr_and_depends_only_on_the_seed(runner):
 
 def test_resume_refuses_a_different_fmu_or_plan(built_fmu, tmp_path):
     out = tmp_path / "d.h5"
-    measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], workers=0)
+    measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], run=RunOptions(workers=0))
     before = out.read_bytes()
-    with pytest.raises(UserError, match="exists already.*resume it"):
-        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], workers=0)
+    with pytest.raises(UserError, match=r"exists already \(give overwrite=True to replace it, or resume=True to continue it\)"):
+        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], run=RunOptions(workers=0))
     with pytest.raises(UserError, match="cannot resume: it was measured with a different FMU"):
-        measure(built_fmu("g2"), out, amplitudes=[2.0], frequencies=[5.0], workers=0, resume=True)
+        measure(built_fmu("g2"), out, amplitudes=[2.0], frequencies=[5.0], run=RunOptions(workers=0, resume=True))
     with pytest.raises(UserError, match="cannot resume: its plan"):
-        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0, 10.0], workers=0, resume=True)
+        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0, 10.0],
+                run=RunOptions(workers=0, resume=True))
     with pytest.raises(UserError, match="tolerance"):
-        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], workers=0, resume=True,
+        measure(built_fmu("g1"), out, amplitudes=[2.0], frequencies=[5.0], run=RunOptions(workers=0, resume=True),
                 options=MeasureOptions(tolerance=1e-10))
     assert out.read_bytes() == before
     # a complete file resumed: nothing to do, nothing changes
-    data = measure(built_fmu("g1"), out, workers=0, resume=True)
+    data = measure(built_fmu("g1"), out, run=RunOptions(workers=0, resume=True))
     assert len(data.experiments) == 1 and read_data_file(out).complete

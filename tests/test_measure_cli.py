@@ -53,7 +53,7 @@ def test_import_then_plot_records(tmp_path, capsys):
     v = 0.5 * np.sin(2 * np.pi * 2.0 * t - 0.3)
     csv = tmp_path / "rec.csv"
     np.savetxt(csv, np.column_stack([t, u, v]), delimiter=",", header="time,force,speed", comments="")
-    code, out, err = run_cli(capsys, "import", csv, "--time", "time", "--input", "force", "--output", "speed",
+    code, out, err = run_cli(capsys, "import", csv, "--time", "time", "--input", "force", "--output-variable", "speed",
                              "-o", tmp_path / "r.h5")
     assert code == 0, err
     assert "sine 2 Hz" in out and "H = 0.3333" in out and "-17.19 deg" in out
@@ -143,7 +143,7 @@ BAD = [
     (["measure", "{fmu}", "--frequencies", "1,0", "-o", "{new}"], "frequency must be a positive finite number"),
     (["measure", "{fmu}", "--frequencies", "-5", "-o", "{new}"], "frequency must be a positive finite number"),
     (["measure", "{fmu}", "--amplitudes", "two", "-o", "{new}"], "not a comma-separated list of numbers"),
-    (["measure", "{fmu}", "--output", "speed", "--frequencies", "1", "-o", "{new}"], "no variable named 'speed'"),
+    (["measure", "{fmu}", "--output-variable", "speed", "--frequencies", "1", "-o", "{new}"], "no variable named 'speed'"),
     (["measure", "{fmu}", "--input", "force", "--frequencies", "1", "-o", "{new}"], "no variable named 'force'"),
     (["measure", "{csv}", "--frequencies", "1", "-o", "{new}"], "not an FMU"),
     (["measure", "{fmu}", "--frequencies", "5", "--amplitudes", "2", "-o", "{good}"], "exists already"),
@@ -156,17 +156,17 @@ BAD = [
     (["plot", "{foreign}", "-o", "{tmp}/x.png"], "not a servofmu data file"),
     (["plot", "{tmp}/missing.h5", "-o", "{tmp}/x.png"], "no such data file"),
     (["plot", "{good}", "-o", "{tmp}/nofolder/x.png"], "does not exist"),
-    (["import", "{csv}", "--time", "time", "--input", "force", "--output", "velocity", "-o", "{new}"],
+    (["import", "{csv}", "--time", "time", "--input", "force", "--output-variable", "velocity", "-o", "{new}"],
      "no column 'velocity'"),
-    (["import", "{csv}", "--time", "t", "--input", "force", "--output", "speed", "-o", "{new}"], "no column 't'"),
-    (["import", "NAN", "--time", "time", "--input", "force", "--output", "speed", "-o", "{new}"], "line 6: .* nan"),
-    (["import", "INF", "--time", "time", "--input", "force", "--output", "speed", "-o", "{new}"], "line 6: .* -inf"),
-    (["import", "BACK", "--time", "time", "--input", "force", "--output", "speed", "-o", "{new}"],
+    (["import", "{csv}", "--time", "t", "--input", "force", "--output-variable", "speed", "-o", "{new}"], "no column 't'"),
+    (["import", "NAN", "--time", "time", "--input", "force", "--output-variable", "speed", "-o", "{new}"], "line 6: .* nan"),
+    (["import", "INF", "--time", "time", "--input", "force", "--output-variable", "speed", "-o", "{new}"], "line 6: .* -inf"),
+    (["import", "BACK", "--time", "time", "--input", "force", "--output-variable", "speed", "-o", "{new}"],
      "line 6: time is not strictly increasing"),
-    (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "-o", "{good}"], "exists already"),
-    (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "--append", "-o", "{corrupt}"],
+    (["import", "{csv}", "--time", "time", "--input", "force", "--output-variable", "speed", "-o", "{good}"], "exists already"),
+    (["import", "{csv}", "--time", "time", "--input", "force", "--output-variable", "speed", "--append", "-o", "{corrupt}"],
      "not a readable data file"),
-    (["import", "{csv}", "--time", "time", "--input", "force", "--output", "speed", "--append", "-o", "{good}"],
+    (["import", "{csv}", "--time", "time", "--input", "force", "--output-variable", "speed", "--append", "-o", "{good}"],
      "records can only be appended to a records file"),
 ]
 

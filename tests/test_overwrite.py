@@ -17,7 +17,7 @@ COMMANDS = {
     "build": ["build", "g1", "-o", "OUT"],
     "simulate": ["simulate", "in.fmu", "--stop-time", "1", "-o", "OUT"],
     "measure": ["measure", "in.fmu", "--amplitudes", "2,0.6", "--frequencies", "1", "-o", "OUT"],
-    "import": ["import", "in.csv", "--time", "t", "--input", "u", "--output", "v", "-o", "OUT"],
+    "import": ["import", "in.csv", "--time", "t", "--input", "u", "--output-variable", "v", "-o", "OUT"],
     "plot": ["plot", "in.h5", "-o", "OUT"],
     "dataset": ["dataset", "g1", "--like", "in.h5", "--samples", "10", "-o", "OUT"],
     "train": ["train", "in.h5", "-o", "OUT"],

@@ -10,6 +10,7 @@ from servofmu.errors import UserError
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.measurement.records import import_records, velocity_from_position
 from servofmu.simulation.fmpy_runs import simulate
+from servofmu.runtime import RunOptions
 
 M, F, FS, DURATION = 2.0, 2.0, 1000.0, 6.0
 ENCODER = 1e-5  # m per count
@@ -33,7 +34,7 @@ def machine(built_fmu):
 @pytest.fixture(scope="module")
 def reference_h(built_fmu, tmp_path_factory):
     out = tmp_path_factory.mktemp("ref") / "ref.h5"
-    data = measure(built_fmu("g1"), out, amplitudes=[M], frequencies=[F], workers=0,
+    data = measure(built_fmu("g1"), out, amplitudes=[M], frequencies=[F], run=RunOptions(workers=0),
                    options=MeasureOptions(samples_per_period=1024))
     return data.experiments[0].H
 

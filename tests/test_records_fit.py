@@ -20,6 +20,7 @@ from servofmu.identification.prior import identified_mask
 from servofmu.measurement.datafile import read_data_file
 from servofmu.simulation.batch import BatchSimulator
 from servofmu.simulation.fmpy_runs import hold_table, replay_record
+from servofmu.runtime import RunOptions
 
 DT = 0.01  # 100 Hz, as a drive's log
 
@@ -64,7 +65,7 @@ def records(built_fmu, tmp_path_factory):
 
 
 def import_csv(csv, h5, *extra):
-    proc = run("import", csv, "--time", "t", "--input", "u", "--output", "v", *extra, "-o", h5)
+    proc = run("import", csv, "--time", "t", "--input", "u", "--output-variable", "v", *extra, "-o", h5)
     assert proc.returncode == 0, proc.stderr
     return h5
 
@@ -118,7 +119,7 @@ def test_quantised_encoder_position_is_fitted_without_bias(records):
     csv = records["g1"] / "g1-encoder.csv"
     write_csv(csv, {"t": t, "u": u, "x": counts})
     h5 = csv.with_suffix(".h5")
-    proc = run("import", csv, "--time", "t", "--input", "u", "--output", "x", "--kind", "position", "-o", h5)
+    proc = run("import", csv, "--time", "t", "--input", "u", "--output-variable", "x", "--kind", "position", "-o", h5)
     assert proc.returncode == 0, proc.stderr
     (position,) = record_data(read_data_file(h5)).records
     assert position.output == "position"
@@ -239,7 +240,7 @@ def test_residual_tests_tell_a_wrong_friction_structure(records, tmp_path):
 def test_validate_refuses_bad_input_in_one_line(g1_identified, records, built_fmu, tmp_path):
     # a result whose structure does not match the plant a measurement was made on
     measured = tmp_path / "g2.h5"
-    sf.measure(built_fmu("g2"), measured, amplitudes=[4.0, 2.0], frequencies=[1.0], workers=0)
+    sf.measure(built_fmu("g2"), measured, amplitudes=[4.0, 2.0], frequencies=[1.0], run=RunOptions(workers=0))
     assert_one_line_error(run("validate", g1_identified["result"], measured), "does not match")
     # a records file whose record has no input
     broken = tmp_path / "no-input.h5"
@@ -254,7 +255,7 @@ def test_validate_refuses_bad_input_in_one_line(g1_identified, records, built_fm
                           "x.txt")
     # an unknown intersample behaviour at import
     new = tmp_path / "new.h5"
-    assert_one_line_error(run("import", records["g1"] / "g1-est.csv", "--time", "t", "--input", "u", "--output", "v",
+    assert_one_line_error(run("import", records["g1"] / "g1-est.csv", "--time", "t", "--input", "u", "--output-variable", "v",
                               "--intersample", "cubic", "-o", new), "--intersample", "cubic")
     assert not new.exists()
 

@@ -25,7 +25,7 @@ from ..runtime import Progress
 from ..simulation.batch import BatchSimulator
 
 __all__ = ["METHODS", "NEEDS_ANN", "run_methods", "check_methods", "check_truth", "max_relative_errors",
-           "comparison_json", "comparison_markdown"]
+           "comparison_json", "comparison_markdown", "compare_files"]
 
 METHODS = identifier_methods.METHODS + BASELINE_METHODS
 NEEDS_ANN = identifier_methods.NEEDS_ANN + BASELINE_NEEDS_ANN
@@ -159,3 +159,35 @@ def comparison_markdown(results: dict[str, Result], truth: Plant | None) -> str:
     row("wall time [s]", [f"{results[m].seconds:.2f}" for m in methods])
     row("model evaluations", [str(results[m].evaluations) for m in methods])
     return "\n".join(lines) + "\n"
+
+
+def compare_files(data_file, structure_file, ann_file=None, truth=None, methods: list[str] | None = None,
+                  seed: int = 0, output=None, command: str = "", announce=None,
+                  overwrite: bool = False) -> tuple[dict[str, Result], Plant | None]:
+    """`servofmu compare`: every method (default: all that the inputs allow) on one data file.
+
+    ``truth``: the true plant's file, when known (relative errors); ``output``: where to write every result
+    (.h5, for `servofmu report`) or the table (any other suffix, Markdown), an existing one only with
+    ``overwrite``; ``command`` is recorded as provenance; ``announce(method)`` is called before each method runs.
+    Returns the results by method and the true plant (or None)."""
+    from ..fileio import atomic_write, claim_output, output_mode
+    from ..identification.identifier import load_identification_inputs
+    from ..identification.results import write_comparison
+    from ..identification.run import default_method
+    from ..model.plant import load_plant
+
+    if output is not None:
+        claim_output(output, output_mode(overwrite), inputs=(data_file, structure_file, ann_file, truth))
+    methods = check_methods(methods or [m for m in METHODS if ann_file or m not in NEEDS_ANN], bool(ann_file))
+    structure, data, ann, provenance = load_identification_inputs(data_file, structure_file, ann_file,
+                                                                  default_method(ann_file), command=command)
+    true_plant = load_plant(truth) if truth is not None else None
+    if true_plant is not None:
+        check_truth(structure, true_plant, str(truth))
+    progress = None if announce is None else lambda done, total: announce(methods[done]) if done < total else None
+    results = run_methods(structure, data, methods, ann=ann, seed=seed, provenance=provenance, progress=progress)
+    if output is not None and str(output).endswith(".h5"):
+        write_comparison(output, results, overwrite=True)
+    elif output is not None:
+        atomic_write(output, comparison_markdown(results, true_plant))
+    return results, true_plant

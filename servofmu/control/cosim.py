@@ -23,9 +23,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import ServofmuWarning, UserError
-from ..fileio import check_output_path, file_sha256
+from ..fileio import claim_output, file_sha256, output_mode
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
-from ..runtime import temporary_folder, utc_now
+from ..runtime import RunOptions, temporary_folder, utc_now
 from ..version import __version__
 from .system import COMPONENTS, read_system
 
@@ -154,11 +154,13 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
     return CosimResult(engine=engine, time=np.arange(n + 1) * system.step_size, signals=out)
 
 
-def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path, command: str = "",
-                        append: bool = False, overwrite: bool = False) -> DataFile:
+def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path, append: bool = False,
+                        run: RunOptions | None = None) -> DataFile:
     """The run as a records file: one record (see the module docstring), the input held between samples; an
-    existing ``output`` is appended to (``append``), replaced (``overwrite``) or refused."""
-    output = check_output_path(output, overwrite=overwrite) if not append else Path(output)
+    existing ``output`` is appended to (``append``), replaced (``run.overwrite``) or refused; ``run.command`` is
+    recorded as provenance."""
+    run = run or RunOptions()
+    output = claim_output(output, output_mode(run.overwrite, append), inputs=(ssp,), can_continue="append")
     t = result.time[:-1]
     series = Series(time=t, u=result["force_command"][:-1], v=result["v"][:-1],
                     position=result["position_measured"][1:], reference=result["reference"][:-1])
@@ -171,7 +173,8 @@ def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path
                     series=series, sample_rate=1.0 / float(t[1] - t[0]),
                     velocity_estimate="the plant FMU's output v", velocity_cutoff=None, analysis=None,
                     note=f"co-simulated on {result.engine}", intersample="zoh")
-    provenance = {"package": "servofmu", "package_version": __version__, "command": command, "created": utc_now(),
+    provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
+                  "created": utc_now(),
                   "sources": [Path(ssp).name], "engine": result.engine, "components": list(COMPONENTS)}
-    write_records(output, [record], provenance, append=append, overwrite=overwrite)
+    write_records(output, [record], provenance, append=append, overwrite=run.overwrite)
     return read_data_file(output)

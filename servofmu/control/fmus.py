@@ -16,12 +16,14 @@ import numpy as np
 from ..errors import UserError
 from ..fmu.build import CORE_FILES, assemble_fmu
 from ..fmu.variables import Variable
-from ..model.controller import PARAMETERS, ControllerSpec, params_header
+from ..model.controller import PARAMETERS, ControllerSpec, friction_feedforward, load_controller, params_header
+from ..model.plant import Plant, load_plant
 from ..simulation.closed_loop import CONTROLLER_LAW
 from ..version import __version__
 
 __all__ = ["CONTROLLER_INPUTS", "CONTROLLER_OUTPUTS", "REFERENCE_OUTPUT", "build_controller_fmu",
-           "build_reference_fmu", "controller_variables", "read_reference_csv"]
+           "controller_fmu_from_file", "friction_source", "build_reference_fmu", "controller_variables",
+           "read_reference_csv"]
 
 C_DIR = Path(__file__).resolve().parent / "c"
 VR_TIME, VR_IN0, VR_OUT0, VR_P0 = 0, 1, 100, 1000
@@ -88,9 +90,10 @@ def _sampled_sources(component: str, config: str, generated: dict[str, str]):
 
 
 def build_controller_fmu(spec: ControllerSpec, output: str | Path, fmi_version: int = 3,
-                         provenance: dict | None = None) -> Path:
+                         provenance: dict | None = None, overwrite: bool = False) -> Path:
     """Write the controller FMU (Co-Simulation, FMI ``fmi_version``) of ``spec``; its parameters start at the
-    spec's values and can be changed before initialisation.  Returns the path."""
+    spec's values and can be changed before initialisation.  An existing ``output`` is replaced only with
+    ``overwrite``.  Returns the path."""
     headers = {"controller_params.h": params_header(),
                     "controller_law.h": CONTROLLER_LAW.read_text()}
     config = _config(spec.name, len(CONTROLLER_INPUTS), len(CONTROLLER_OUTPUTS), spec.values,
@@ -102,7 +105,35 @@ def build_controller_fmu(spec: ControllerSpec, output: str | Path, fmi_version: 
     return assemble_fmu(spec.name, output, fmi_version, controller_variables(spec),
                         _sampled_sources("controller_component", config, headers),
                         ["sampled_core.c", "controller_component.c"], summary, CONTROLLER_EQUATIONS, provenance,
-                        title=f"{spec.name} — servo drive controller (FMI {fmi_version}.0)", continuous=False)
+                        title=f"{spec.name} — servo drive controller (FMI {fmi_version}.0)", continuous=False,
+                        overwrite=overwrite)
+
+
+def friction_source(path: str | Path) -> Plant:
+    """The plant whose friction a controller feeds forward: an identified result (RESULT.h5, by its suffix) or a
+    plant file (or the name of an example plant)."""
+    if Path(path).suffix == ".h5":
+        from ..identification.results import read_result
+
+        return read_result(path).plant
+    return load_plant(path)
+
+
+def controller_fmu_from_file(controller: str | Path, output: str | Path | None = None, fmi_version: int = 3,
+                             compensate: str | Path | None = None,
+                             overwrite: bool = False) -> tuple[Path, ControllerSpec]:
+    """`servofmu controller`: the controller file (or example name) ``controller`` as an FMU written to ``output``
+    (default NAME.fmu in the current folder); with ``compensate`` (a result or plant file, see
+    :func:`friction_source`), the friction feed-forward of that plant switched on and named in the FMU's
+    provenance.  Returns the FMU written and the controller it holds."""
+    spec = load_controller(controller)
+    provenance = None
+    if compensate is not None:
+        plant = friction_source(compensate)
+        spec = friction_feedforward(spec, plant)
+        provenance = {"friction_feedforward": f"{plant.friction.model} friction of {Path(compensate).name}"}
+    output = Path(output) if output is not None else Path(f"{spec.name}.fmu")
+    return build_controller_fmu(spec, output, fmi_version, provenance, overwrite=overwrite), spec
 
 
 def read_reference_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path, write_failures
+from ..fileio import atomic_write, claim_output, output_mode, write_failures
 from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import read_fmu
 from ..model.controller import PARAMETERS, ControllerSpec
@@ -124,7 +124,7 @@ def parameter_set_xml(values: dict) -> bytes:
 
 
 def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: tuple[np.ndarray, np.ndarray],
-                 output: str | Path, controller: ControllerSpec | None = None) -> Path:
+                 output: str | Path, controller: ControllerSpec | None = None, overwrite: bool = False) -> Path:
     """Write the SSP archive of an axis.
 
     Parameters
@@ -139,6 +139,8 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
         The controller parameter values to bind (default: the controller FMU's own).
 
     Returns
+    overwrite : bool
+        Replace an existing ``output``; without it an existing file is refused.
     -------
     Path
         The archive written.
@@ -148,7 +150,7 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
     UserError
         For FMUs that are not FMI 2.0 Co-Simulation, a plant without ``u``/``v``/``position``, a bad reference.
     """
-    output = check_output_path(output)
+    output = claim_output(output, output_mode(overwrite), inputs=(plant_fmu, controller_fmu))
     plant_fmu, controller_fmu = Path(plant_fmu), Path(controller_fmu)
     plant = _check_fmi2_cs(plant_fmu, "plant")
     plant.require(*(n for n, _ in PLANT_CONNECTORS))

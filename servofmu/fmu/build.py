@@ -16,7 +16,7 @@ import zipfile
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path, write_failures
+from ..fileio import atomic_write, claim_output, output_mode, write_failures
 from ..model.plant import Plant
 from ..model.symbolic import build_model
 from ..runtime import compile_shared, find_compiler, temporary_folder, utc_now
@@ -60,7 +60,8 @@ def fmi_header_dir() -> Path:
     return path
 
 
-def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance: dict | None = None) -> Path:
+def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance: dict | None = None,
+              overwrite: bool = False) -> Path:
     """Write an FMU of ``plant``: Model Exchange and Co-Simulation in one archive.
 
     Parameters
@@ -68,12 +69,14 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     plant : Plant
         The plant (see :func:`servofmu.load_plant`).
     output : str or Path
-        The .fmu file to write (replaced atomically if it exists).
+        The .fmu file to write.
     fmi_version : {3, 2}
         FMI version of the FMU.
     provenance : dict, optional
         Name/value pairs added to the FMU's description, documentation and annotations (FMI 3.0
         ``<Annotations>``, FMI 2.0 ``<VendorAnnotations>``).
+    overwrite : bool
+        Replace an existing ``output`` (atomically); without it an existing file is refused.
 
     Returns
     -------
@@ -83,7 +86,8 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     Raises
     ------
     BuildError
-        (a UserError) when there is no C compiler, compiling fails or ``output`` cannot be written.
+        (a UserError) when there is no C compiler, compiling fails or ``output`` cannot be written; a UserError
+        when ``output`` exists (without ``overwrite``).
 
     Examples
     --------
@@ -102,19 +106,20 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
 
     return assemble_fmu(plant.name, output, fmi_version, fmu_variables(model), write_sources,
                         list(description.SOURCE_FILES), _summary(plant, provenance), EQUATIONS, provenance,
-                        title=f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)")
+                        title=f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)", overwrite=overwrite)
 
 
 def assemble_fmu(identifier: str, output: str | Path, fmi_version: int, variables: list[Variable], write_sources,
                  sources: list[str], summary: str, equations: str, provenance: dict | None = None,
-                 title: str | None = None, continuous: bool = True) -> Path:
+                 title: str | None = None, continuous: bool = True, overwrite: bool = False) -> Path:
     """Write an FMU: ``write_sources(folder)`` fills sources/ (and returns the instantiation token); the C files
     ``sources`` plus the FMI wrapper fmiN_api.c are compiled for this platform; the model description, a build
     description and documentation/index.html are written; the archive replaces ``output`` atomically.
-    ``continuous=False``: a sampled component, Co-Simulation only."""
+    ``continuous=False``: a sampled component, Co-Simulation only.  An existing ``output`` is refused unless
+    ``overwrite`` (fileio.claim_output)."""
     if fmi_version not in (2, 3):
         raise BuildError(f"fmi_version must be 2 or 3, not {fmi_version}")
-    output = check_output_path(output)
+    output = claim_output(output, output_mode(overwrite))
     find_compiler()  # before any work: a missing compiler is the commonest failure
     headers = fmi_header_dir()
     with temporary_folder("build") as tmp:

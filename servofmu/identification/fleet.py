@@ -10,17 +10,18 @@ swarm iterations is kept, so that a run interrupted and started again only ident
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import check_output_path, file_sha256
+from ..fileio import OutputExists, claim_output, file_sha256
 from ..model.plant import load_plant
-from ..runtime import Progress
+from ..runtime import RunOptions
 from ..simulation.parallel import Workers
-from .identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
+from .identifier import swarm_options
 from .pso import PsoOptions
-from .results import read_result, result_from_estimator, write_result
+from .results import read_result
+from .run import IdentifyOptions, identify_to_file
 
 __all__ = ["FileJob", "FileOutcome", "identify_files", "result_path", "outcomes_table", "outcomes_json"]
 
@@ -33,11 +34,7 @@ class FileJob:
     result_file: str
     structure_file: str
     ann_file: str | None
-    method: str
-    seed: int
-    polish: bool
-    iterations: int
-    skip: float
+    options: IdentifyOptions  # its method and iterations resolved
     threads: int | None
     command: str
 
@@ -64,10 +61,8 @@ def result_path(output_dir: Path, data_file: str | Path) -> Path:
     return Path(output_dir) / f"{Path(data_file).stem}-result.h5"
 
 
-def identify_files(data_files, structure_file, output_dir, ann_file=None, method: str = "pso-ann", seed: int = 0,
-                   polish: bool = True, iterations: int | None = None, skip: float = 0.0, resume: bool = False,
-                   scheduler: str | None = None, workers: int | None = None, command: str = "",
-                   progress: Progress | None = None, overwrite: bool = False) -> list[FileOutcome]:
+def identify_files(data_files, structure_file, output_dir, ann_file=None, options: IdentifyOptions | None = None,
+                   run: RunOptions | None = None) -> list[FileOutcome]:
     """Identify every data file and write one result per file into ``output_dir``.
 
     Parameters
@@ -78,23 +73,15 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
         As for `servofmu identify`: the structure, and the network (for the methods that need one).
     output_dir : str or Path
         An existing folder; the result of A.h5 is written to output_dir/A-result.h5.
-    method, seed, polish
-        As for :class:`servofmu.PSOANNIdentifier`.
-    iterations : int, optional
-        Swarm iterations (`identify --iterations`); default the paper's 50.
-    skip : float
-        Records: seconds left out at the start of every record (as `servofmu identify --skip`).
-    resume : bool
-        Keep the results already in ``output_dir`` that were identified from the same data with the same settings;
-        identify the others.  Without it, a result already there is refused.
-    scheduler : str, optional
-        A Dask scheduler address (tcp://HOST:PORT); default: local worker processes.
-    workers : int, optional
-        Local worker processes (default: one per core; 0: this process, one file after the other).
-    command : str
-        The command line, for the results' provenance.
-    progress : Progress, optional
-        Called with (files done, files).
+    options : IdentifyOptions, optional
+        Method, seed, polish, swarm iterations, skip: as for one file (:func:`identify_to_file`); closed-loop
+        records are identified one file at a time, not here.
+    run : RunOptions, optional
+        ``resume``: keep the results already in ``output_dir`` that were identified from the same data with the
+        same settings, identify the others; ``overwrite``: replace them; without either, a result already there is
+        refused.  ``scheduler`` (a Dask scheduler address, tcp://HOST:PORT; default local worker processes),
+        ``workers`` (default one per core; 0: this process, one file after the other), ``command`` (for the
+        results' provenance), ``progress`` (called with (files done, files)).
 
     Returns
     -------
@@ -105,15 +92,17 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
     Raises
     ------
     UserError
-        For a missing folder, two data files with the same name, an unusable structure or network, or (without
-        ``resume``) a result already in the folder, and with ``resume`` for a result there of other data or
-        settings; nothing has been identified then.  ``overwrite``: replace results already in the folder (the
-        output rule of every subcommand: refuse an existing output unless told to replace or resume it).
+        For a missing folder, two data files with the same name, an unusable structure or network, closed-loop
+        options, or (without ``run.resume`` or ``run.overwrite``) a result already in the folder, and with
+        ``run.resume`` for a result there of other data or settings; nothing has been identified then.
     """
+    options, run = options or IdentifyOptions(), run or RunOptions()
+    if options.closed_loop is not None:
+        raise UserError("closed-loop records are identified one file at a time")
     output_dir = Path(output_dir)
     if not output_dir.is_dir():
         raise UserError(f"{output_dir}: no such folder (the output folder must exist)")
-    check_output_path(result_path(output_dir, "probe"))  # writable, before any work
+    claim_output(result_path(output_dir, "probe"), "replace")  # writable, before any work
     data_files = [str(d) for d in data_files]
     if not data_files:
         raise UserError("no data files to identify")
@@ -128,46 +117,38 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, method
         from .ann import load_ann
 
         load_ann(ann_file)
-    iterations = swarm_options(iterations).iterations  # a bad value is refused before any work
-    in_process = scheduler is None and workers == 0
+    # a bad number of iterations is refused before any work
+    options = replace(options, method=options.method_for(ann_file),
+                      iterations=swarm_options(options.iterations).iterations)
+    in_process = run.scheduler is None and run.workers == 0
     jobs = [FileJob(data_file=d, result_file=r, structure_file=str(structure_file),
-                    ann_file=None if ann_file is None else str(ann_file), method=method, seed=seed, polish=polish,
-                    iterations=iterations, skip=skip, threads=None if in_process else 1, command=command)
+                    ann_file=None if ann_file is None else str(ann_file), options=options,
+                    threads=None if in_process else 1, command=run.command)
             for d, r in zip(data_files, results)]
     outcomes: list[FileOutcome | None] = [None] * len(jobs)
     for i, job in enumerate(jobs):
         if not Path(job.result_file).exists():
             continue
-        if resume:
+        if run.resume:
             outcomes[i] = _kept(job, structure.to_toml())
-        elif not overwrite:
-            raise UserError(f"{job.result_file}: exists already (give --force to replace it, or --resume to keep "
-                            "finished results)")
+        elif not run.overwrite:
+            raise OutputExists(Path(job.result_file), "resume")
     todo = [i for i, o in enumerate(outcomes) if o is None]
     done = len(jobs) - len(todo)
-    if progress is not None:
-        progress(done, len(jobs))
-    with Workers(scheduler=scheduler, workers=workers) as pool:
+    run.report(done, len(jobs))
+    with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         for k, outcome in pool.imap(identify_file, [jobs[i] for i in todo]):
             outcomes[todo[k]] = outcome
             done += 1
-            if progress is not None:
-                progress(done, len(jobs))
+            run.report(done, len(jobs))
     return outcomes
 
 
 def identify_file(_, job: FileJob) -> FileOutcome:
     """Worker task: identify one data file and write its result; a user error becomes a failed outcome."""
-    try:
-        structure, data, ann, provenance = load_identification_inputs(
-            job.data_file, job.structure_file, job.ann_file, job.method, command=job.command, skip=job.skip)
-        est = PSOANNIdentifier(structure, ann=ann, method=job.method, seed=job.seed, polish=job.polish,
-                               pso=swarm_options(job.iterations), threads=job.threads).fit(data)
-        from ..runtime import utc_now
-
-        provenance["date"] = utc_now()
-        result = result_from_estimator(est, job.method, provenance)
-        write_result(job.result_file, result)
+    try:  # the rule was applied to every result before any work
+        result = identify_to_file(job.data_file, job.structure_file, job.result_file, job.ann_file, job.options,
+                                  RunOptions(overwrite=True, command=job.command), threads=job.threads)
     except (UserError, OSError) as exc:
         return FileOutcome(job.data_file, job.result_file, "failed", message=_one_line(exc))
     return _outcome(job, result, "identified")
@@ -181,11 +162,11 @@ def _kept(job: FileJob, structure_toml: str) -> FileOutcome:
         sha = file_sha256(job.data_file)
     except OSError as exc:
         raise UserError(f"{job.data_file}: cannot read ({exc.strerror or exc})") from exc
-    ann = job.ann_file or ""
-    same = (prov.get("data_sha256") == sha and result.method == job.method and prov.get("seed") == job.seed
-            and prov.get("polish") == job.polish and prov.get("ann_file", "") == ann
-            and prov.get("iterations", PsoOptions().iterations) == job.iterations  # results from before the option
-            and prov.get("skip", 0.0) == job.skip
+    ann, o = job.ann_file or "", job.options
+    same = (prov.get("data_sha256") == sha and result.method == o.method and prov.get("seed") == o.seed
+            and prov.get("polish") == o.polish and prov.get("ann_file", "") == ann
+            and prov.get("iterations", PsoOptions().iterations) == o.iterations  # results from before the option
+            and prov.get("skip", 0.0) == o.skip
             and result.structure.to_toml() == structure_toml)
     if not same:
         raise UserError(f"{job.result_file}: was identified from other data or with other settings than this run's "

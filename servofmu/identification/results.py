@@ -10,7 +10,8 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import check_output_path, check_values, file_sha256, hdf5_attr, read_hdf5, store_array, write_hdf5
+from ..fileio import (check_values, claim_output, file_sha256, hdf5_attr, output_mode, read_hdf5, store_array,
+                      write_hdf5)
 from ..model.plant import Plant, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
 from ..version import __version__
@@ -173,7 +174,7 @@ def _fill(group, result: Result) -> None:
     store_array(st, "evaluations", np.array([s.evaluations for s in result.stages]))
 
 
-def write_result(path: str | Path, result: Result) -> Path:
+def write_result(path: str | Path, result: Result, overwrite: bool = False) -> Path:
     """Write an identification result (RESULT.h5, layout in docs/hdf5.md), atomically.
 
     Parameters
@@ -188,27 +189,30 @@ def write_result(path: str | Path, result: Result) -> Path:
     Path
         The file written.
 
+    overwrite : bool
+        Replace an existing file; without it an existing ``path`` is refused.
     Raises
     ------
     UserError
-        When the file cannot be written.
+        When the file cannot be written, or exists (without ``overwrite``).
     """
     def fill(f):
         f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__})
         _fill(f, result)
 
-    return write_hdf5(check_output_path(path), fill)
+    return write_hdf5(claim_output(path, output_mode(overwrite)), fill)
 
 
-def write_comparison(path: str | Path, results: dict[str, Result]) -> Path:
-    """COMPARE.h5: one group per method under /methods, each laid out like a RESULT.h5 root."""
+def write_comparison(path: str | Path, results: dict[str, Result], overwrite: bool = False) -> Path:
+    """COMPARE.h5: one group per method under /methods, each laid out like a RESULT.h5 root (an existing ``path``
+    is refused unless ``overwrite``)."""
     def fill(f):
         f.attrs.update({"format": COMPARE_FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__,
                         "methods": json.dumps(list(results))})
         for method, result in results.items():
             _fill(f.create_group(f"methods/{method}"), result)
 
-    return write_hdf5(check_output_path(path), fill)
+    return write_hdf5(claim_output(path, output_mode(overwrite)), fill)
 
 
 def _read(group, path: Path) -> Result:

@@ -4,8 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import check_output_path
-from ..runtime import Progress
+from ..fileio import claim_output, output_mode
+from ..runtime import RunOptions
 from .ann import FeatureLayout, Network, save_network, train_network
 from .features import ann_features, feature_names, to_targets
 from .prior import identified_names
@@ -15,7 +15,7 @@ __all__ = ["train_from_file"]
 
 
 def train_from_file(training_set: str | Path, output: str | Path, hidden: int = 20, seed: int = 0,
-                    progress: Progress | None = None) -> tuple[Network, int]:
+                    run: RunOptions | None = None) -> tuple[Network, int]:
     """Train the ANN on a training set and write it.
 
     Parameters
@@ -28,8 +28,8 @@ def train_from_file(training_set: str | Path, output: str | Path, hidden: int = 
         Hidden neurons (the paper's 20 by default).
     seed : int
         Seed of the validation split and the initial weights.
-    progress : Progress, optional
-        Called with (epoch, max_epochs).
+    run : RunOptions, optional
+        ``overwrite`` an existing ``output``; ``progress`` called with (epoch, max_epochs).
 
     Returns
     -------
@@ -39,9 +39,11 @@ def train_from_file(training_set: str | Path, output: str | Path, hidden: int = 
     Raises
     ------
     UserError
-        For a file that is not a training set, or one with fewer than 10 usable plants.
+        For a file that is not a training set, or one with fewer than 10 usable plants; an existing ``output``
+        (without ``run.overwrite``), or ``output`` the training set itself.
     """
-    output = check_output_path(output)
+    run = run or RunOptions()
+    output = claim_output(output, output_mode(run.overwrite), inputs=(training_set,))
     ts = load_training_set(training_set)
     rows = ts.usable()
     if rows.sum() < 10:
@@ -49,7 +51,7 @@ def train_from_file(training_set: str | Path, output: str | Path, hidden: int = 
                         "need at least 10 to train (more samples, or a plan whose experiments settle)")
     X = ann_features(ts.H[rows], ts.dc[rows], ts.amplitudes)
     Y = to_targets(ts.structure, ts.parameters[rows])
-    net = train_network(X, Y, hidden=hidden, seed=seed, progress=progress)
+    net = train_network(X, Y, hidden=hidden, seed=seed, progress=run.progress)
     layout = FeatureLayout(feature_names=feature_names(ts.amplitudes.size),
                            parameter_names=identified_names(ts.structure), plan=ts.plan)
     save_network(net, output, layout)

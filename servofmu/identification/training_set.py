@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, check_int
-from ..fileio import check_output_path, check_values, read_hdf5, store_array, write_hdf5
+from ..fileio import check_values, claim_output, output_mode, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
-from ..runtime import Progress, check_memory
+from ..runtime import RunOptions, check_memory
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from ..simulation.parallel import WorkerResource, Workers
 from ..version import __version__
@@ -109,8 +109,7 @@ def _simulate_chunk(simulator, item):
 
 
 def make_training_set(structure: Plant, data: SineData, samples: int, output: str | Path, spread: float = 0.5,
-                      seed: int = 0, resume: bool = False, scheduler: str | None = None, rtol: float = TRAINING_RTOL,
-                      command: str = "", progress: Progress | None = None, overwrite: bool = False) -> TrainingSet:
+                      seed: int = 0, rtol: float = TRAINING_RTOL, run: RunOptions | None = None) -> TrainingSet:
     """Draw plants around a structure, simulate them under a measurement's plan and write the training set.
 
     Parameters
@@ -128,18 +127,13 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
         Prior width: every identified quantity is scaled by a log-uniform factor in [1/(1+spread), 1+spread].
     seed : int
         Seed of the prior draw.
-    resume : bool
-        Complete an existing ``output`` made with the same arguments instead of starting again.
-    overwrite : bool
-        Replace an existing ``output`` (without ``resume``).
-    scheduler : str, optional
-        A Dask scheduler address; default: this machine, all cores.
     rtol : float
         Integrator tolerance of the batch simulator.
-    command : str
-        The command line, for provenance.
-    progress : Progress, optional
-        Called with (plants done, samples).
+    run : RunOptions, optional
+        ``resume``: complete an existing ``output`` made with the same arguments instead of starting again;
+        ``overwrite``: replace an existing ``output``; ``scheduler``: a Dask scheduler address (default: this
+        machine, all cores, in this process: ``workers`` is not used); ``command``: the command line, for
+        provenance; ``progress``: called with (plants done, samples).
 
     Returns
     -------
@@ -150,11 +144,14 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     ------
     UserError
         For bad arguments, a training set too large for this machine's memory, an existing ``output`` (without
-        ``resume`` or ``overwrite``), or a ``resume`` of a file made with other arguments.
+        ``run.resume`` or ``run.overwrite``), ``output`` the data file itself, or a ``resume`` of a file made with
+        other arguments.
     """
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)
-    output = check_output_path(output, overwrite=resume or overwrite)
+    run = run or RunOptions()
+    output = claim_output(output, output_mode(run.overwrite, run.resume), inputs=(data.source,),
+                          can_continue="resume")
     # the arrays below, the file's image in memory and its copy on every write
     check_memory(f"a training set of {samples} plants", 4 * 8 * samples * (2 * len(structure.parameter_names())
                                                                             + 4 * data.amplitudes.size),
@@ -164,13 +161,13 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     attrs = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "structure_toml": structure.to_toml(),
              "parameter_names": json.dumps(identified_names(structure)), "spread": spread, "seed": seed,
              "samples": samples, "data_file": data.source, "rtol": rtol, "package_version": __version__,
-             "command": command or " ".join(sys.argv)}
+             "command": run.command or " ".join(sys.argv)}
     n_exp = data.amplitudes.size
     arrays = {"amplitudes": data.amplitudes, "frequencies": data.frequencies, "parameters": theta,
               "H_re": np.full((samples, n_exp), np.nan), "H_im": np.full((samples, n_exp), np.nan),
               "dc": np.full((samples, n_exp), np.nan), "converged": np.zeros((samples, n_exp), np.uint8),
               "done": np.zeros(samples, np.uint8)}
-    if resume and output.exists():
+    if run.resume and output.exists():
         old = load_training_set(output)
         same = (old.parameters.shape == theta.shape and np.array_equal(old.parameters, theta)
                 and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml())
@@ -184,9 +181,8 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     chunks = [todo[i:i + CHUNK] for i in range(0, len(todo), CHUNK)]
     _write(output, arrays, attrs)
     done = samples - len(todo)
-    if progress:
-        progress(done, samples)
-    workers = Workers(scheduler=scheduler, workers=0) if scheduler is None else Workers(scheduler=scheduler)
+    run.report(done, samples)
+    workers = Workers(scheduler=run.scheduler, workers=0 if run.scheduler is None else None)
     resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
     items = [(full[rows], data.amplitudes, data.frequencies, rtol) for rows in chunks]
     written = time.monotonic()
@@ -200,8 +196,7 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
                     _write(output, arrays, attrs)
                     written = time.monotonic()
                 done += len(rows)
-                if progress:
-                    progress(done, samples)
+                run.report(done, samples)
         finally:  # what is done is kept, also when the run is interrupted
             _write(output, arrays, attrs)
     return load_training_set(output)

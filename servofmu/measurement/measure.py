@@ -25,9 +25,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ServofmuWarning, UserError
-from ..fileio import check_output_path
-from ..runtime import Progress, check_memory, utc_now
+from ..errors import ServofmuWarning, UserError, check_int
+from ..fileio import claim_output, output_mode
+from ..runtime import RunOptions, check_memory, utc_now
 from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
 from ..simulation.parallel import WorkerResource, Workers, report
@@ -377,9 +377,8 @@ def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: f
 
 
 def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=None,
-            options: MeasureOptions | None = None, scheduler: str | None = None, workers: int | None = None,
-            resume: bool = False, command: str = "", progress: Progress | None = None,
-            warn: Callable[[str], None] | None = None, overwrite: bool = False, max_steps: float = MAX_STEPS):
+            options: MeasureOptions | None = None, run: RunOptions | None = None,
+            warn: Callable[[str], None] | None = None, max_steps: float = MAX_STEPS):
     """Stepped-sine measurement of an FMU into a data file.
 
     For every (amplitude, frequency) the FMU runs in Co-Simulation from rest until its response is periodic; the
@@ -398,21 +397,15 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
         resuming, the file's).
     options : MeasureOptions, optional
         Variable names, tolerances, sampling, noise.
-    scheduler : str, optional
-        A Dask scheduler address; default local worker processes.
-    workers : int, optional
-        Local worker processes (default one per core; 0: this process).
-    resume : bool
-        Continue an existing ``output`` where an interrupted run stopped.
-    overwrite : bool
-        Replace an existing ``output`` (without ``resume``): it is replaced when the new file is first written.
+    run : RunOptions, optional
+        ``scheduler`` (a Dask scheduler address; default local worker processes), ``workers`` (default one per
+        core; 0: this process), ``resume`` (continue an existing ``output`` where an interrupted run stopped),
+        ``overwrite`` (replace an existing ``output``: it is replaced when the new file is first written),
+        ``command`` (the command line, for provenance), ``progress`` (called with (done, total) in thousandths of
+        an experiment, PROGRESS_SCALE: as experiments run, each counting the periods it has run out of the most it
+        may run, and when each is stored).
     max_steps : float
         Refuse a plan any of whose experiments could take more FMU steps than this (see :func:`check_work`).
-    command : str
-        The command line, for provenance.
-    progress : Progress, optional
-        Called with (done, total) in thousandths of an experiment (PROGRESS_SCALE): as experiments run (each
-        counts the periods it has run out of the most it may run) and when each is stored.
     warn : callable, optional
         ``warn(text)`` receives what is otherwise issued with ``warnings.warn`` as a
         :class:`~servofmu.errors.ServofmuWarning`: an experiment that reached no steady state.
@@ -425,18 +418,16 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
     Raises
     ------
     UserError
-        For an unusable FMU, bad options, an existing output (without ``resume`` or ``overwrite``), work beyond
+        For an unusable FMU, bad options, an existing output (without ``run.resume`` or ``run.overwrite``) or
+        the FMU itself as the output, work beyond
         the bounds of :func:`check_work`, or a failing simulation.
     """
     options = (options or MeasureOptions()).validate()
     if options.noise_snr_db is not None and options.seed is None:
         options = replace(options, seed=0)  # recorded in the provenance like a given seed
-    out = check_output_path(output)
-    existing = None
-    if out.exists() and resume:
-        existing = read_data_file(out)
-    elif out.exists() and not overwrite:
-        raise UserError(f"{out}: exists already (resume it, or choose another name)")
+    run = run or RunOptions()
+    out = claim_output(output, output_mode(run.overwrite, run.resume), inputs=(fmu,), can_continue="resume")
+    existing = read_data_file(out) if out.exists() and run.resume else None
     info = read_fmu(fmu)
     check_fmu(info, options)
     data = info.path.read_bytes()
@@ -457,7 +448,7 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
         source = f"1-2-5 grid over 0.25..15 x the bandwidth {bandwidth:.6g} Hz estimated from a step response"
     plan = Plan(tuple(amplitudes), tuple(frequencies))
     check_work(plan, options, info.has_builtin_excitation, max_steps)
-    prov = provenance_for(info, sha, options, command, source)
+    prov = provenance_for(info, sha, options, run.command, source)
     if existing is not None:
         _check_resume(out, existing, prov, plan)
     todo = existing.missing() if existing is not None else plan.experiments
@@ -469,10 +460,9 @@ def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=No
     def show(index: int | None = None, fraction: float = 0.0) -> None:
         if index is not None:
             running[index] = fraction
-        if progress:
-            progress(int(PROGRESS_SCALE * (done + sum(running.values()))), PROGRESS_SCALE * total)
+        run.report(int(PROGRESS_SCALE * (done + sum(running.values()))), PROGRESS_SCALE * total)
 
-    with Workers(scheduler=scheduler, workers=workers, on_report=show) as pool:  # connects first: a bad
+    with Workers(scheduler=run.scheduler, workers=run.workers, on_report=show) as pool:  # connects first: a bad
         if existing is None:                                                     # scheduler writes nothing
             create_measurement(out, plan, prov, fmu_parameters(info))
         try:

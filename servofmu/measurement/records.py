@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import file_sha256
+from ..fileio import claim_output, file_sha256, output_mode
 from ..model.signals import INTERSAMPLE
-from ..runtime import utc_now
+from ..runtime import RunOptions, utc_now
 from ..version import __version__
 from .datafile import Record, RecordAnalysis, Series, read_data_file, write_records
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
@@ -241,7 +241,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
 
 def import_records(paths, output: str | Path, time: str, input: str, output_column: str, kind: str = "velocity",
                    cutoff: float | None = None, frequency: float | None = None, append: bool = False,
-                   command: str = "", intersample: str = "zoh", overwrite: bool = False):
+                   intersample: str = "zoh", run: RunOptions | None = None):
     """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
 
     Parameters
@@ -260,13 +260,11 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
         The excitation frequency of sinusoidal records, when it is not to be detected.
     append : bool
         Add the records to an existing records file.
-    overwrite : bool
-        Replace an existing ``output``.
     intersample : {"zoh", "foh"}
         How the input behaves between samples: held (a digital drive's command; the default) or linear.  Every
         replay of the record (identify, validate) applies it.
-    command : str
-        The command line, for provenance.
+    run : RunOptions, optional
+        ``overwrite``: replace an existing ``output``; ``command``: the command line, for provenance.
 
     Returns
     -------
@@ -277,17 +275,16 @@ def import_records(paths, output: str | Path, time: str, input: str, output_colu
     ------
     UserError
         For unreadable files, missing columns, NaN or non-increasing time, an existing output (without
-        ``append`` or ``overwrite``).
+        ``append`` or ``run.overwrite``), an output that is one of ``paths``.
     """
-    output = Path(output)
-    if output.exists() and not (append or overwrite):
-        raise UserError(f"{output}: exists already (append the records to it, or choose another name)")
+    run = run or RunOptions()
+    output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")
     offset = len(read_data_file(output).records) if append and output.exists() else 0
     records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
                            intersample=intersample)
                for i, p in enumerate(paths)]
-    provenance = {"package": "servofmu", "package_version": __version__, "command": command,
+    provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
                   "created": utc_now(), "sources": [r.source for r in records]}
-    write_records(output, records, provenance, append=append, overwrite=overwrite)
+    write_records(output, records, provenance, append=append, overwrite=run.overwrite)
     return read_data_file(output)
 

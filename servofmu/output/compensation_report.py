@@ -13,7 +13,7 @@ import numpy as np
 
 from ..control.compensation import TrackingRun, compare_compensation, reconstructed_friction
 from ..model.friction import steady_friction, viscous_damping
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, claim_output, output_mode
 from ..identification.results import read_result
 from ..model.plant import Plant, load_plant
 from ..runtime import utc_now
@@ -94,10 +94,12 @@ def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant |
 
 
 def compensate_files(result_path: str | Path, ssp: str | Path, truth: str | Path | None = None,
-                     output: str | Path | None = None, engine: str = "libcosim") -> list[TrackingRun]:
-    """Run the comparison for a result file and an axis archive; write the HTML page ``output`` if given."""
+                     output: str | Path | None = None, engine: str = "libcosim",
+                     overwrite: bool = False) -> list[TrackingRun]:
+    """Run the comparison for a result file and an axis archive; write the HTML page ``output`` if given (an
+    existing one only with ``overwrite``)."""
     if output is not None:
-        output = check_output_path(output)
+        output = claim_output(output, output_mode(overwrite), inputs=(result_path, ssp))
     identified = read_result(result_path).plant
     true_plant = load_plant(truth) if truth is not None else None
     runs = compare_compensation(ssp, identified, true_plant, engine=engine)

@@ -22,9 +22,10 @@ from ..identification.results import paper_rows, result_from_estimator, write_re
 from ..identification.train import train_from_file
 from ..identification.training_set import make_training_set
 from ..measurement.measure import measure
+from ..runtime import RunOptions
 from ..model.plant import load_plant
 from .compensation_report import compensate_files, compensation_text
-from ..fileio import file_sha256
+from ..fileio import OutputExists, file_sha256
 from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
@@ -43,24 +44,30 @@ DEMO_PLANS = {"g1": ((2.0, 0.6), (0.5, 1.0, 2.0, 5.0, 10.0, 20.0)),
 DEMO_SAMPLES = 3000  # training-set size of the demo (`servofmu dataset --samples`)
 
 
-def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPLES) -> dict:
+def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPLES, overwrite: bool = False) -> dict:
     """The whole path for g1 and g2: build → measure → dataset → train → identify → report → export → re-measure.
 
-    ``report`` receives one line (or table) of progress at a time.  Returns per plant the identification result.
+    ``out`` is the demo's folder: a folder that exists and is not empty is refused unless ``overwrite`` (the demo's
+    files in it are then replaced).  ``report`` receives one line (or table) of progress at a time.  Returns per
+    plant the identification result.
     """
+    out = Path(out)
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise OutputExists(out)  # a folder that is not empty: the rule of every output
     out.mkdir(parents=True, exist_ok=True)
     command = f"servofmu demo --out {out}"
     results = {}
     for name in DEMO_PLANTS:
         plant = load_plant(name)
         amplitudes, frequencies = DEMO_PLANS[name]
-        fmu = build_fmu(plant, out / f"{name}.fmu", fmi_version=3)
+        fmu = build_fmu(plant, out / f"{name}.fmu", fmi_version=3, overwrite=True)
         report(f"built {fmu}")
         # the demo's own outputs of an earlier run are replaced: the FMU is new
         for suffix in (".h5", "-ds.h5", "-remeasured.h5"):
             (out / f"{name}{suffix}").unlink(missing_ok=True)
         data_file = out / f"{name}.h5"
-        data = measure(fmu, data_file, amplitudes=amplitudes, frequencies=frequencies, command=command)
+        data = measure(fmu, data_file, amplitudes=amplitudes, frequencies=frequencies,
+                       run=RunOptions(command=command))
         unsettled = sum(not e.converged for e in data.experiments)
         report(f"measured {data_file}: {len(data.experiments)} experiments, magnitudes "
                f"{', '.join(map(str, amplitudes))} N at {', '.join(f'{f:g}' for f in frequencies)} Hz"
@@ -68,23 +75,25 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
         grid = np.logspace(np.log10(min(frequencies) / 2), np.log10(max(frequencies) * 2), 200)
         figure = bode_figure(data, out / f"{name}-bode.png",
                              references={"linear G(jw), no friction": (grid, plant.frequency_response(2 * np.pi * grid))},
-                             title=f"{name}: first harmonic of v at two excitation magnitudes")
+                             title=f"{name}: first harmonic of v at two excitation magnitudes", overwrite=True)
         report(f"wrote {figure}")
 
         sines = sine_data(data)
         t0 = time.perf_counter()
-        make_training_set(plant, sines, samples, out / f"{name}-ds.h5", seed=0, command=command)
-        net, rows = train_from_file(out / f"{name}-ds.h5", out / f"{name}-ann.h5", seed=0)
+        make_training_set(plant, sines, samples, out / f"{name}-ds.h5", seed=0, run=RunOptions(command=command))
+        net, rows = train_from_file(out / f"{name}-ds.h5", out / f"{name}-ann.h5", seed=0,
+                                    run=RunOptions(overwrite=True))
         report(f"trained {out / f'{name}-ann.h5'} on {rows} simulated plants ({time.perf_counter() - t0:.1f} s)")
         ann = AnnModel(*load_network(out / f"{name}-ann.h5"), source=str(out / f"{name}-ann.h5"))
         est = PSOANNIdentifier(plant, ann=ann, seed=0).fit(sines)
         result = result_from_estimator(est, "pso-ann", {"data_file": str(data_file),
                                                         "data_sha256": file_sha256(data_file), "command": command})
-        write_result(out / f"{name}-result.h5", result)
+        write_result(out / f"{name}-result.h5", result, overwrite=True)
         results[name] = result
         report(paper_comparison(name, result))
 
-        page = make_report(out / f"{name}-result.h5", out / f"{name}-report.html", data=data_file, truth=name)
+        page = make_report(out / f"{name}-result.h5", out / f"{name}-report.html", data=data_file, truth=name,
+                           overwrite=True)
         report(f"wrote {page}")
         trip = remeasure(result, data_file, out / f"{name}-identified.fmu", out / f"{name}-remeasured.h5",
                          command=command)
@@ -116,17 +125,17 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     """linear_axis with axis_controller: system → co-simulation (libcosim) with a 1 µm encoder and actuator noise →
     closed-loop identification → validation on a second run → friction compensation.  Returns the result."""
     plant, controller = load_plant("linear_axis"), load_controller("axis_controller")
-    build_fmu(plant, out / "axis.fmu", fmi_version=2)
-    build_controller_fmu(controller, out / "axis-controller.fmu", fmi_version=2)
+    build_fmu(plant, out / "axis.fmu", fmi_version=2, overwrite=True)
+    build_controller_fmu(controller, out / "axis-controller.fmu", fmi_version=2, overwrite=True)
     references = reference_trajectories(controller.sample_time)
     runs = {}
     for seed, role in enumerate(("identify", "validate")):
         noisy = controller.with_values(force_noise=1.5, noise_seed=seed)  # about 40 dB below the force command
         ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references[role],
-                           out / f"axis-{role}.ssp", controller=noisy)
+                           out / f"axis-{role}.ssp", controller=noisy, overwrite=True)
         (out / f"axis-{role}.h5").unlink(missing_ok=True)
         result = cosimulate(ssp, engine="libcosim")
-        runs[role] = write_cosim_records(result, ssp, out / f"axis-{role}.h5", command=command)
+        runs[role] = write_cosim_records(result, ssp, out / f"axis-{role}.h5", run=RunOptions(command=command))
         error = result["reference"] - result["position"]
         report(f"co-simulated {ssp} on {result.engine} into {out / f'axis-{role}.h5'}: tracking error RMS "
                f"{np.sqrt(np.mean(error ** 2)):.3g} m")
@@ -135,7 +144,7 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     provenance = {"data_file": str(out / "axis-identify.h5"), "data_sha256": file_sha256(out / "axis-identify.h5"),
                   "controller_file": str(controller.source), "command": command}
     result = est.result(provenance)
-    write_result(out / "axis-result.h5", result)
+    write_result(out / "axis-result.h5", result, overwrite=True)
     true = plant.parameter_vector()[identified_mask(plant)]
     report("identified linear_axis in the loop: "
            + ", ".join(f"{n} {v:.6g} (true {t:g})" for n, v, t in zip(est.names_, est.theta_, true))
@@ -144,7 +153,7 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     report("validated on the second run: " + ", ".join(f"{r.output} fit {r.fit:.3f} %" for r in check.records)
            + ("; residuals independent of the reference" if check.passed else "; residual tests FAILED"))
     ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references["reversals"],
-                       out / "axis-reversals.ssp")
+                       out / "axis-reversals.ssp", overwrite=True)
     (out / "axis-compensation.html").unlink(missing_ok=True)
     tracking = compensate_files(out / "axis-result.h5", ssp, truth="linear_axis",
                                 output=out / "axis-compensation.html")

@@ -22,10 +22,10 @@ from typing import Callable
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path, file_sha256
+from ..fileio import atomic_write, check_output_path, claim_output, file_sha256, output_mode
 from ..identification.results import Result, read_result, to_json
 from ..model.plant import Friction, Plant, plant_from_dict
-from ..runtime import optional_import, utc_now
+from ..runtime import RunOptions, optional_import, utc_now
 from ..version import __version__
 from .formats import FORMATS, SUFFIX_FORMATS
 
@@ -120,11 +120,12 @@ def _pairs(roots) -> list[list[float]]:
 # The formats
 # ---------------------------------------------------------------------------
 def export_fmu(result: Result, output: str | Path, fmi_version: int = 3, name: str | None = None,
-               provenance: dict | None = None) -> Path:
+               provenance: dict | None = None, overwrite: bool = False) -> Path:
+    """The identified plant of ``result`` as an FMU (servofmu.build_fmu), its provenance in the description."""
     from ..fmu import build_fmu
 
     return build_fmu(identified_plant(result, name), output, fmi_version=fmi_version,
-                     provenance=provenance if provenance is not None else export_provenance(result))
+                     provenance=provenance if provenance is not None else export_provenance(result), overwrite=overwrite)
 
 
 def control_document(result: Result, name: str | None = None, provenance: dict | None = None) -> dict:
@@ -252,7 +253,8 @@ def format_of(output: str | Path, fmt: str | None) -> str:
 
 
 def export_result(result_file: str | Path, output: str | Path, fmt: str | None = None,
-                  fmi_version: int | None = None, name: str | None = None, command: str = "") -> tuple[Path, str]:
+                  fmi_version: int | None = None, name: str | None = None, command: str = "",
+                  overwrite: bool = False) -> tuple[Path, str]:
     """Export an identified model to another tool, with its provenance.
 
     Parameters
@@ -273,12 +275,15 @@ def export_result(result_file: str | Path, output: str | Path, fmt: str | None =
     Returns
     -------
     tuple of (Path, str)
+    overwrite : bool
+        Replace an existing ``output``; without it an existing file is refused.
         The file written and its format.
 
     Raises
     ------
     UserError
-        For an unreadable result, an unknown format, or an output that cannot be written.
+        For an unreadable result, an unknown format, or an output that cannot be written, exists (without
+        ``overwrite``) or is the result file itself.
 
     Notes
     -----
@@ -287,11 +292,11 @@ def export_result(result_file: str | Path, output: str | Path, fmt: str | None =
     fmt = format_of(output, fmt)
     if fmi_version is not None and fmt != "fmu":
         raise UserError(f"fmi_version applies to FMU export only, not to format {fmt}")
-    check_output_path(output)
+    claim_output(output, output_mode(overwrite), inputs=(result_file,))
     result = read_result(result_file)
     prov = export_provenance(result, result_file, command)
     if fmt == "fmu":
-        return export_fmu(result, output, fmi_version or 3, name, prov), fmt
+        return export_fmu(result, output, fmi_version or 3, name, prov, overwrite=True), fmt
     writer = {"control": export_control, "mat": export_mat, "json": export_json, "toml": export_toml}[fmt]
     return writer(result, output, name, prov), fmt
 
@@ -343,11 +348,12 @@ def remeasure(result: Result, data_file: str | Path, fmu_path: str | Path, measu
     data = sine_data(ds)
     check_output_path(fmu_path)
     check_output_path(measured_path, overwrite=False)
-    fmu = export_fmu(result, fmu_path, fmi_version, name, export_provenance(result, result_file, command))
+    fmu = export_fmu(result, fmu_path, fmi_version, name, export_provenance(result, result_file, command),
+                     overwrite=True)
     options = MeasureOptions(**{k: ds.provenance[k] for k in _MEASURE_KEYS if k in ds.provenance})
     measured = measure(fmu, measured_path, amplitudes=ds.plan.amplitudes, frequencies=ds.plan.frequencies,
-                       options=options, scheduler=scheduler, workers=workers, command=command, progress=progress,
-                       warn=warn)
+                       options=options, warn=warn,
+                       run=RunOptions(scheduler=scheduler, workers=workers, command=command, progress=progress))
     again = [measured.experiment(m, f) for m, f in zip(data.amplitudes, data.frequencies)]
     H = np.array([e.H for e in again], dtype=complex)
     dc = np.array([e.dc for e in again], dtype=float)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import DataFile
 
 __all__ = ["bode_figure", "time_series_figure", "bode_points", "pyplot", "MAX_PANELS"]
@@ -24,8 +24,8 @@ def pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> None:
-    path = check_output_path(path)
+def _save(fig, path: Path, overwrite: bool) -> None:
+    path = claim_output(path, output_mode(overwrite))
     buffer = io.BytesIO()
     try:
         fig.savefig(buffer, dpi=110, format=path.suffix.lstrip(".") or "png")
@@ -51,8 +51,10 @@ def bode_points(data_file: DataFile) -> dict[str, tuple[np.ndarray, np.ndarray, 
     return out
 
 
-def bode_figure(data_file: DataFile, path: str | Path, references: dict | None = None, title: str | None = None) -> Path:
-    """Bode magnitude and phase of H = V1/U1, one curve per excitation amplitude on one figure.
+def bode_figure(data_file: DataFile, path: str | Path, references: dict | None = None, title: str | None = None,
+                overwrite: bool = False) -> Path:
+    """Bode magnitude and phase of H = V1/U1, one curve per excitation amplitude on one figure, written to
+    ``path`` (an existing file only with ``overwrite``).
 
     ``references``: label -> (frequencies in Hz, complex response), drawn as lines (e.g. the linear G(jω)).
     Experiments that reached no steady state are drawn as open markers.
@@ -82,12 +84,14 @@ def bode_figure(data_file: DataFile, path: str | Path, references: dict | None =
         ax.grid(True, which="both", alpha=0.4)
     ax_mag.legend(fontsize=8)
     ax_mag.set_title(title or f"{Path(data_file.path).name}: first-harmonic response")
-    return _finish(plt, fig, path)
+    return _finish(plt, fig, path, overwrite)
 
 
-def time_series_figure(data_file: DataFile, path: str | Path, title: str | None = None) -> Path:
+def time_series_figure(data_file: DataFile, path: str | Path, title: str | None = None,
+                       overwrite: bool = False) -> Path:
     """Records: u and v over time, one panel pair per record.  Measurements: the analysed windows of v,
-    over the excitation phase, one panel per amplitude."""
+    over the excitation phase, one panel per amplitude.  Written to ``path`` (an existing file only with
+    ``overwrite``)."""
     plt = pyplot()
     if data_file.records:
         recs = data_file.records[:MAX_PANELS]
@@ -123,14 +127,14 @@ def time_series_figure(data_file: DataFile, path: str | Path, title: str | None 
         raise UserError(f"{data_file.path}: has no experiments or records to plot")
     if title:
         fig.suptitle(title)
-    return _finish(plt, fig, path)
+    return _finish(plt, fig, path, overwrite)
 
 
-def _finish(plt, fig, path) -> Path:
+def _finish(plt, fig, path, overwrite: bool) -> Path:
     """Lay out, save (atomically) and close a figure."""
     fig.tight_layout()
     try:
-        _save(fig, Path(path))
+        _save(fig, Path(path), overwrite)
     finally:
         plt.close(fig)
     return Path(path)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..model.controller import load_controller
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, claim_output, output_mode
 from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_residuals, steady_state_options
 from ..identification.results import Result, find_data_file, paper_rows, read_results
 from ..measurement.datafile import DataFile, read_data_file
@@ -426,10 +426,11 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
 
 
 def make_report(source: str | Path, output: str | Path, data: str | Path | None = None,
-                truth: str | Path | None = None, validate: str | Path | None = None) -> Path:
-    """Read a result or comparison file (and the data it was identified from), write the HTML report ``output``;
-    with ``validate``, a data file to validate every result on (a section of `servofmu validate`)."""
-    output = check_output_path(output)
+                truth: str | Path | None = None, validate: str | Path | None = None, overwrite: bool = False) -> Path:
+    """Read a result or comparison file (and the data it was identified from), write the HTML report ``output``
+    (an existing one only with ``overwrite``); with ``validate``, a data file to validate every result on (a
+    section of `servofmu validate`)."""
+    output = claim_output(output, output_mode(overwrite), inputs=(source, data, validate))
     source = Path(source)
     labelled = read_entries(source)
     true_plant = load_plant(truth) if truth is not None else None

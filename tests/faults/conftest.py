@@ -71,7 +71,7 @@ def inputs(tmp_path_factory, built_fmu) -> dict[str, Path]:
     create_measurement(f["partial"], data.plan, data.provenance, data.parameters)
     add_experiments(f["partial"], data.experiments[:2])
     write_record_csv(f["records_csv"])
-    servofmu("import", f["records_csv"], "--time", "time", "--input", "u", "--output", "v", "-o", f["records"])
+    servofmu("import", f["records_csv"], "--time", "time", "--input", "u", "--output-variable", "v", "-o", f["records"])
     servofmu("dataset", "g1", "--like", f["data"], "--samples", "200", "-o", f["ds"])
     servofmu("train", f["ds"], "-o", f["ann"])
     servofmu("identify", f["data"], "--structure", "g1", "--ann", f["ann"], "-o", f["result"])

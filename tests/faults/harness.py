@@ -55,7 +55,7 @@ WRITERS = {
                         "out.csv", "--force"), "out.csv"),
     "measure": Writer(("measure", "{g1_fmu}", "--amplitudes", "2,0.6", "--frequencies", "1,5", "--resume", "-o",
                        "out.h5"), "out.h5", previous="partial", resumable=True),
-    "import": Writer(("import", "{records_csv}", "--time", "time", "--input", "u", "--output", "v", "-o", "out.h5",
+    "import": Writer(("import", "{records_csv}", "--time", "time", "--input", "u", "--output-variable", "v", "-o", "out.h5",
                       "--force"), "out.h5"),
     "plot": Writer(("plot", "{data}", "-o", "out.png", "--force"), "out.png"),
     "dataset": Writer(("dataset", "g1", "--like", "{data}", "--samples", "600", "-o", "out.h5"), "out.h5",

@@ -80,11 +80,12 @@ def test_3_a_plan_beyond_the_bounds_is_refused_up_front_with_the_estimate(inputs
 def test_3_a_running_experiment_reports_its_progress(inputs, tmp_path, monkeypatch):
     """Not only finished experiments: a long one (a high-order plant's) shows how far it is."""
     import servofmu.measurement.measure as measure_module
+    from servofmu.runtime import RunOptions
 
     monkeypatch.setattr(measure_module, "REPORT_EVERY", 0.0)  # report at every period
     seen = []
-    measure_module.measure(inputs["g1_fmu"], tmp_path / "out.h5", amplitudes=[2.0], frequencies=[5.0], workers=0,
-                           progress=lambda done, total: seen.append((done, total)))
+    run = RunOptions(workers=0, progress=lambda done, total: seen.append((done, total)))
+    measure_module.measure(inputs["g1_fmu"], tmp_path / "out.h5", amplitudes=[2.0], frequencies=[5.0], run=run)
     scale = measure_module.PROGRESS_SCALE
     assert all(total == scale for _, total in seen)
     within = [done for done, _ in seen if 0 < done < scale]

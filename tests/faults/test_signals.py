@@ -109,6 +109,7 @@ def test_sigterm_that_arrives_inside_a_finaliser_still_stops_the_command_with_on
     import gc
 
     from servofmu import cli
+    from servofmu.cli import model
 
     class SignalledWhenCollected:
         def __del__(self):
@@ -122,7 +123,7 @@ def test_sigterm_that_arrives_inside_a_finaliser_still_stops_the_command_with_on
             time.sleep(0.01)
         raise AssertionError("the stop signal was lost")
 
-    monkeypatch.setattr(cli, "cmd_build", command)
+    monkeypatch.setattr(model, "cmd_build", command)
     rc = cli.main(["build", "g1", "-o", str(tmp_path / "g1.fmu")])
     err = capsys.readouterr().err
     assert rc == 143

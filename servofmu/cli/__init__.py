@@ -1,0 +1,94 @@
+"""The `servofmu` command: a thin front end over the library.
+
+This is the only place that prints, configures logging or shows progress bars.  Each subcommand lives in the
+module of its group (model, measure, identify, output, control, demo), its arguments beside its handler; a handler
+calls one library function and prints what it returned.  How a command ends — one line and exit status 2 for a
+user error, 130 for Ctrl-C, 128 + n for SIGTERM or SIGHUP, no traceback, nothing partial left — is
+servofmu.runtime's (run_command, finish).
+
+One rule for every output (docs/reliability.md, servofmu.fileio.claim_output): every ``-o`` of every subcommand is
+checked before any work — its folder exists and is writable, it is none of the command's inputs, and it does not
+exist yet unless ``--force`` (replace it) or the subcommand's ``--resume`` or ``--append`` is given.
+
+``servofmu`` alone prints the usage and the list of subcommands on stderr and exits with status 2, as a command
+line without its subcommand is an incomplete one.
+"""
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+from ..runtime import EXIT_USER_ERROR, CommandRun, finish, run_command
+from . import control, demo, identify, measure, model, output
+from .common import Parser, output_mode_of
+
+__all__ = ["main", "build_parser", "run"]
+
+GROUPS = (model, measure, identify, output, control, demo)  # in the order of the help's list
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of every subcommand (each group's module registers its own)."""
+    from ..version import __version__
+
+    parser = Parser(prog="servofmu", description="Servo drives with friction: FMUs, measurement, identification.")
+    parser.add_argument("--version", action="version", version=f"servofmu {__version__}",
+                        help="print the version and exit")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    for group in GROUPS:
+        group.register(sub)
+    return parser
+
+
+def _claim_outputs(args) -> None:
+    """The output rule, before any work (see the module's docstring)."""
+    from ..fileio import claim_output
+
+    inputs = []
+    for dest in getattr(args, "inputs", ()):
+        value = getattr(args, dest)
+        inputs += value if isinstance(value, list) else [value]
+    can_continue = next((name for name in ("resume", "append") if hasattr(args, name)), None)
+    for dest in getattr(args, "outputs", ()):
+        if getattr(args, dest):
+            claim_output(getattr(args, dest), output_mode_of(args), inputs, can_continue)
+
+
+def _command(run: CommandRun, argv: list[str]) -> None:
+    from ..runtime import sweep_temporary_folders
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        raise SystemExit(EXIT_USER_ERROR)
+    run.who = f"servofmu {args.command}"
+    args.command_line = shlex.join(["servofmu", *argv])
+    sweep_temporary_folders()
+    _claim_outputs(args)
+    args.func(args)
+    run.quick_exit = getattr(args, "quick_exit", False)
+
+
+def _main(argv: list[str] | None) -> tuple[int, CommandRun]:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    words = [a for a in argv if not a.startswith("-")]
+    run = CommandRun(who=f"servofmu {words[0]}" if words else "servofmu")  # (a stop while the modules load names it)
+    code = run_command(run, lambda r: _command(r, argv))
+    if run.message:
+        print(run.message, file=sys.stderr)
+    return code, run
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv`` (default: this process's arguments); returns the exit status."""
+    return _main(argv)[0]
+
+
+def run() -> None:
+    """The installed `servofmu` command: :func:`main`, then the exit — quick (no interpreter teardown) after a
+    command that asks for it, identify, which is called in loops over axes, records and structures
+    (runtime.finish)."""
+    code, command = _main(None)
+    finish(code, command.quick_exit)

@@ -1,0 +1,86 @@
+"""`servofmu validate`, `report` and `export`: an identified model checked, shown and handed to other tools."""
+from __future__ import annotations
+
+__all__ = ["register", "cmd_validate", "cmd_report", "cmd_export"]
+
+
+def cmd_validate(args) -> None:
+    """Simulate a result on other data: fit % and residual tests; exit status 1 when the verdict is "failed"."""
+    import json
+
+    from ..output.validate import validate_files, validation_json, validation_text
+
+    v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
+                       overwrite=args.force, **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+    if args.json:
+        print(json.dumps(validation_json(v), allow_nan=True))
+    else:
+        print(validation_text(v))
+        if args.output:
+            print(f"wrote {args.output}")
+    if not v.passed:
+        raise SystemExit(1)  # the model failed: not a user error (2), the files are written
+
+
+def cmd_report(args) -> None:
+    """One self-contained HTML page of an identification."""
+    from ..output.report import make_report
+
+    path = make_report(args.source, args.output, data=args.data, truth=args.truth, validate=args.validate,
+                       overwrite=args.force)
+    print(f"wrote {path} (self-contained HTML: tables and figures)")
+
+
+EXPORTED = {"fmu": "FMI {v}.0 FMU, Model Exchange + Co-Simulation, provenance in its description, annotations and "
+                   "documentation/index.html",
+            "control": "python-control model: servofmu.output.export.load_control(path)", "mat": "MATLAB .mat",
+            "json": "JSON", "toml": "plant file: servofmu build accepts it"}
+
+
+def cmd_export(args) -> None:
+    """An identified model as an FMU, python-control, MATLAB, JSON or plant file."""
+    from ..output.export import export_result
+
+    path, fmt = export_result(args.result, args.output, fmt=args.format, fmi_version=args.fmi_version,
+                              name=args.name, command=args.command_line, overwrite=args.force)
+    print(f"wrote {path} ({EXPORTED[fmt].format(v=args.fmi_version or 3)})")
+
+
+def register(sub) -> None:
+    """Add the subcommands validate, report and export to the subparsers ``sub``."""
+    from ..output.formats import FORMATS, SUFFIX_FORMATS
+
+    p = sub.add_parser("validate", help="simulate an identified model on other data: fit %% and residual tests")
+    p.add_argument("result", metavar="RESULT.h5", role="input", help="result file from `servofmu identify`")
+    p.add_argument("data", metavar="DATA.h5", role="input",
+                   help="data file (records or a measurement) it was not fitted to")
+    p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
+                   help="leave the first SECONDS of every record out (as identify --skip)")
+    p.add_argument("--closed-loop", metavar="CTRL.toml", role="input",
+                   help="closed-loop records of this controller: replayed in the loop from their reference")
+    p.add_argument("--min-fit", type=float, metavar="PCT",
+                   help="the fit (%%) every record and experiment must reach (default 80, "
+                        "servofmu.output.validate.MIN_FIT; docs/validation.md); exit status 1 when the model fails")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", dest="output", metavar="FILE.html|FILE.png", help="write a page or a figure")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("report", help="one self-contained HTML page of an identification: tables and figures")
+    p.add_argument("source", metavar="RESULT.h5|COMPARE.h5", role="input",
+                   help="result file from `servofmu identify` or comparison file from `servofmu compare`")
+    p.add_argument("--data", metavar="DATA.h5", role="input", help="the data file it was identified from (default: "
+                   "the path its provenance records, or that name beside it)")
+    p.add_argument("--truth", metavar="PLANT", help="the true plant (file or name in fmu_models/), when known: "
+                                                    "drawn in the friction figure, relative errors in the table")
+    p.add_argument("--validate", metavar="DATA.h5", role="input", help="add the validation on another data file "
+                   "(fit %%, residual tests; see `servofmu validate`)")
+    p.add_argument("-o", dest="output", metavar="REPORT.html", required=True, help="HTML file to write")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("export", help="export an identified model: FMU, python-control, MATLAB, JSON, plant TOML")
+    p.add_argument("result", metavar="RESULT.h5", role="input", help="result file from `servofmu identify`")
+    p.add_argument("--format", choices=FORMATS, help=f"default: from the suffix of -o ({', '.join(SUFFIX_FORMATS)})")
+    p.add_argument("--fmi-version", type=int, choices=(2, 3), help="FMI version of an FMU (default 3)")
+    p.add_argument("--name", help="model name in the export (default: the plant's name + _identified)")
+    p.add_argument("-o", dest="output", metavar="FILE", required=True, help="file to write")
+    p.set_defaults(func=cmd_export)

@@ -1,0 +1,98 @@
+"""One identification from files to a result file (`servofmu identify DATA -o RESULT.h5`): the choices between
+open- and closed-loop data, the method's default and the combinations of methods and inputs, made once here for
+the command line and for a fleet's workers (identification.fleet)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import UserError
+from ..fileio import claim_output, output_mode
+from ..runtime import RunOptions, utc_now
+from .identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
+from .results import Result, result_from_estimator, write_result
+
+__all__ = ["IdentifyOptions", "default_method", "identify_to_file"]
+
+
+def default_method(ann_file) -> str:
+    """The method when none is given: the paper's hybrid pso-ann with a network, the swarm alone (pso) without."""
+    return "pso-ann" if ann_file is not None else "pso"
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """What an identification from files computes.
+
+    ``method``: one of identification.methods.METHODS (None: :func:`default_method`); ``seed``, ``polish`` as for
+    :class:`servofmu.PSOANNIdentifier`; ``iterations``: swarm iterations (None: the paper's 50); ``skip``: seconds
+    left out at the start of every record; ``closed_loop``: the controller file of closed-loop records (the
+    candidates are then simulated in the loop from the recorded reference; the swarm alone searches)."""
+
+    method: str | None = None
+    seed: int = 0
+    polish: bool = True
+    iterations: int | None = None
+    skip: float = 0.0
+    closed_loop: str | Path | None = None
+
+    def method_for(self, ann_file) -> str:
+        """The method of a run with (or without) the network ``ann_file``."""
+        return self.method or default_method(ann_file)
+
+
+def identify_to_file(data_file, structure_file, output, ann_file=None, options: IdentifyOptions | None = None,
+                     run: RunOptions | None = None, threads: int | None = None) -> Result:
+    """Identify the plant of one data file and write its result file.
+
+    Parameters
+    ----------
+    data_file : str or Path
+        Stepped-sine data (`servofmu measure`) or records (`servofmu import`, `servofmu cosim`).
+    structure_file : str or Path
+        The structure: a plant file or the name of an example plant.
+    output : str or Path
+        The result file (RESULT.h5) to write.
+    ann_file : str or Path, optional
+        The trained network (`servofmu train`), for the methods that need one.
+    options : IdentifyOptions, optional
+        Method, seed, polish, swarm iterations, skip, closed loop.
+    run : RunOptions, optional
+        ``overwrite`` an existing ``output``; ``command`` recorded as provenance; ``progress`` called with (swarm
+        iterations done, iterations).
+    threads : int, optional
+        Threads of the batch simulator (default: all cores); the result does not depend on it.
+
+    Returns
+    -------
+    Result
+        The result written, its provenance stamped (inputs, their SHA-256, command, date, settings).
+
+    Raises
+    ------
+    UserError
+        For an existing ``output`` (without ``run.overwrite``) or ``output`` one of the inputs, unusable inputs, a
+        method that needs a network without one, or a closed-loop identification with another method than pso.
+    """
+    options, run = options or IdentifyOptions(), run or RunOptions()
+    method = options.method_for(ann_file)
+    claim_output(output, output_mode(run.overwrite), inputs=(data_file, structure_file, ann_file,
+                                                            options.closed_loop))
+    if options.closed_loop is not None:
+        from .closed_loop import load_closed_loop_inputs
+
+        if method != "pso" or ann_file is not None:
+            raise UserError("a closed-loop identification searches with the swarm alone (--method pso, no --ann)")
+        structure, data, provenance = load_closed_loop_inputs(data_file, structure_file, options.closed_loop,
+                                                              command=run.command, skip=options.skip)
+        ann = None
+    else:
+        structure, data, ann, provenance = load_identification_inputs(data_file, structure_file, ann_file, method,
+                                                                      command=run.command, skip=options.skip)
+    est = PSOANNIdentifier(structure, ann=ann, method=method, seed=options.seed, polish=options.polish,
+                           pso=swarm_options(options.iterations), progress=run.progress, threads=threads)
+    est.fit(data)
+    provenance["date"] = utc_now()
+    result = result_from_estimator(est, method, provenance)
+    write_result(output, result, overwrite=True)  # claimed above
+    return result

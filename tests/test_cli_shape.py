@@ -1,0 +1,159 @@
+"""The command line reads well and stays thin: help on every option, the old spelling of a renamed option still
+working, a bare `servofmu` listing the commands, an output that is one of the run's inputs refused before any work;
+and the shape of the package measured (function and module lengths, handler lengths)."""
+from __future__ import annotations
+
+import argparse
+import ast
+from pathlib import Path
+
+import pytest
+from clitools import assert_one_line_error, run
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "servofmu"
+MAX_FUNCTION, MAX_HANDLER, MAX_MODULE = 80, 20, 500
+# Modules above MAX_MODULE lines that other changes in progress are splitting or shortening: marked, not hidden
+# (each shows as XFAIL with this reason, and as XPASS once it is short enough; then remove it here).
+BEING_SHORTENED = {"servofmu/identification/ann.py", "servofmu/measurement/datafile.py", "servofmu/output/report.py",
+                   "servofmu/output/validate.py", "servofmu/simulation/batch.py"}
+
+
+def subcommands():
+    from servofmu.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return parser, sub.choices
+
+
+def test_every_option_of_every_subcommand_has_help(capsys):
+    parser, choices = subcommands()
+    assert len(choices) >= 17
+    for name, p in [("servofmu", parser), *choices.items()]:
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                continue
+            assert action.help and action.help != argparse.SUPPRESS, (name, action.option_strings or action.dest)
+        with pytest.raises(SystemExit) as exit_:
+            parser.parse_args([name, "--help"] if name != "servofmu" else ["--help"])
+        assert exit_.value.code == 0
+        assert "usage:" in capsys.readouterr().out
+
+
+def test_a_bare_servofmu_prints_the_usage_and_the_commands_with_status_2():
+    proc = run()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("usage: servofmu")
+    for command in ("build", "measure", "identify", "export", "controller", "demo"):
+        assert f"    {command} " in proc.stderr or f"    {command}\n" in proc.stderr, command
+
+
+def test_building_a_controller_file_as_a_plant_points_to_the_controller_command(tmp_path):
+    proc = run("build", "axis_controller", "-o", tmp_path / "x.fmu")
+    assert_one_line_error(proc, "axis_controller", "controller file", "servofmu controller")
+    assert "unknown key" not in proc.stderr
+
+
+def test_the_old_spelling_output_still_names_the_output_variable_with_one_deprecation_line(tmp_path):
+    csv = tmp_path / "r.csv"
+    csv.write_text("time,force,speed\n" + "".join(f"{k * 1e-3},{(-1) ** (k // 50)},{0.01 * k}\n"
+                                                  for k in range(400)))
+    old = run("import", csv, "--time", "time", "--input", "force", "--output", "speed", "-o", tmp_path / "old.h5")
+    new = run("import", csv, "--time", "time", "--input", "force", "--output-variable", "speed",
+              "-o", tmp_path / "new.h5")
+    assert old.returncode == 0 and new.returncode == 0, (old.stderr, new.stderr)
+    assert old.stderr.strip().splitlines() == ["servofmu import: warning: --output is deprecated, use "
+                                               "--output-variable"]
+    assert new.stderr == ""
+    assert old.stdout.replace("old.h5", "new.h5") == new.stdout
+
+
+@pytest.mark.parametrize("argv", [
+    ["identify", "in.h5", "--structure", "g1", "--method", "pso", "--force", "-o", "in.h5"],
+    ["measure", "in.fmu", "--frequencies", "1", "--force", "-o", "in.fmu"],
+    ["export", "in.h5", "--format", "toml", "--force", "-o", "in.h5"],
+    ["train", "in.h5", "--force", "-o", "in.h5"],
+    ["dataset", "g1", "--like", "in.h5", "--samples", "10", "--force", "-o", "in.h5"],
+    ["import", "in.csv", "--time", "t", "--input", "u", "--output-variable", "v", "--force", "-o", "in.csv"],
+])
+def test_an_output_that_is_one_of_the_inputs_is_refused_before_any_work(tmp_path, argv):
+    for name in ("in.h5", "in.fmu", "in.csv"):
+        (tmp_path / name).write_bytes(b"the input\n")
+    proc = run(*argv, cwd=tmp_path)
+    assert_one_line_error(proc, f"{argv[-1]}: is also an input of this run")
+    assert (tmp_path / argv[-1]).read_bytes() == b"the input\n"
+
+
+def test_the_library_refuses_the_same_file_under_another_name(tmp_path):
+    from servofmu.errors import UserError
+    from servofmu.fileio import claim_output
+
+    (tmp_path / "a.h5").write_bytes(b"x")
+    (tmp_path / "b.h5").symlink_to(tmp_path / "a.h5")
+    with pytest.raises(UserError, match="is also an input"):
+        claim_output(tmp_path / "b.h5", "replace", inputs=[tmp_path / "a.h5"])
+    assert claim_output(tmp_path / "c.h5", "new", inputs=[tmp_path / "a.h5"]) == tmp_path / "c.h5"
+
+
+def test_the_library_and_the_command_line_refuse_an_existing_output_in_the_same_words(tmp_path):
+    from servofmu.fileio import OutputExists, claim_output
+
+    (tmp_path / "a.h5").write_bytes(b"x")
+    with pytest.raises(OutputExists) as refused:
+        claim_output(tmp_path / "a.h5", "new", can_continue="resume")
+    assert str(refused.value).endswith("a.h5: exists already (give overwrite=True to replace it, or resume=True to "
+                                       "continue it)")
+    assert refused.value.command_line_text().endswith("a.h5: exists already (give --force to replace it, or "
+                                                      "--resume to continue it)")
+    assert claim_output(tmp_path / "a.h5", "replace") == tmp_path / "a.h5"
+    assert claim_output(tmp_path / "a.h5", "continue") == tmp_path / "a.h5"
+
+
+# ---------------------------------------------------------------------------
+# The shape of the package
+# ---------------------------------------------------------------------------
+def functions(path: Path):
+    """(name, lines without the docstring) of every function and method in ``path``."""
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            signature = body[0].lineno - node.lineno or 1  # the def line(s) count
+            if isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str):
+                body = body[1:]
+            yield node.name, signature + ((body[-1].end_lineno - body[0].lineno + 1) if body else 0)
+
+
+def package_modules():
+    return sorted(PACKAGE.rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", package_modules(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_function_is_longer_than_80_lines(path):
+    long = [(name, n) for name, n in functions(path) if n > MAX_FUNCTION]
+    assert not long, f"{path.relative_to(ROOT)}: {long}"
+
+
+def module_cases():
+    reason = "above 500 lines; being shortened by a change in progress"
+    return [pytest.param(p, marks=pytest.mark.xfail(reason=reason, strict=False))
+            if str(p.relative_to(ROOT)) in BEING_SHORTENED else p for p in package_modules()]
+
+
+@pytest.mark.parametrize("path", module_cases(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_module_is_longer_than_500_lines_unless_its_docstring_says_why(path):
+    lines = len(path.read_text().splitlines())
+    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+    assert lines <= MAX_MODULE or "500 lines" in doc, f"{path.relative_to(ROOT)}: {lines} lines"
+
+
+def test_every_command_line_handler_is_short_and_the_cli_is_one_module_per_group():
+    handlers = {}
+    for path in sorted((PACKAGE / "cli").glob("*.py")):
+        handlers.update({f"{path.stem}.{name}": n for name, n in functions(path) if name.startswith("cmd_")})
+    assert len(handlers) >= 18, handlers
+    long = {name: n for name, n in handlers.items() if n > MAX_HANDLER}
+    assert not long, long
+    assert not (PACKAGE / "cli.py").exists()
