@@ -53,5 +53,6 @@ class BaselineResult:
         return structure.with_parameters(full_vectors(structure, self.theta)[0])
 
     def parameters(self) -> dict[str, float]:
+        """The identified parameters by name (units of the plant file: 1/s, m/(N·s), N, ...)."""
         return dict(zip(self.names, self.theta.tolist()))
 

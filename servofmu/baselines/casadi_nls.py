@@ -243,6 +243,7 @@ class PeriodicSteadyState:
         return x0, converged
 
     def features_failed(self, jacobian: bool) -> PeriodicFeatures:
+        """The features of a parameter vector without a steady state: NaN everywhere, nothing converged."""
         nan = np.full(self.n_exp, np.nan)
         full = np.full((self.n_exp, self.n_theta), np.nan)
         return PeriodicFeatures(H=nan + 0j, dc=nan, converged=np.zeros(self.n_exp, bool),
@@ -304,6 +305,8 @@ class CasadiCriterion:
         return sine_residuals(self.data, f.H, f.dc)
 
     def residuals_and_jacobian(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals at ``theta`` (as :meth:`residuals`) and their exact derivatives (residuals, p) from the
+        CasADi sensitivities of the periodic steady state."""
         self.evaluations += 1
         f = self.steady.features(theta, True, self.options.steady_state_passes)
         return sine_residuals(self.data, f.H, f.dc), sine_residual_jacobian(self.data, f.dH, f.ddc)

@@ -79,7 +79,7 @@ def run_methods(structure: Plant, data, methods: list[str], ann=None, seed: int 
     Returns
     -------
     dict
-        method -> :class:`servofmu.Result`, in the order given.
+        method -> :class:`~servofmu.identification.results.Result`, in the order given.
     """
     check_int("seed", seed, 0)
     provenance = dict(provenance or {})
@@ -122,12 +122,16 @@ def run_methods(structure: Plant, data, methods: list[str], ann=None, seed: int 
 
 
 def max_relative_errors(results: dict[str, Result], truth: Plant) -> dict[str, float]:
+    """Per method, the largest |θ/θ_true − 1| over the identified parameters (inf where a fit has no finite
+    result)."""
     t = truth.parameter_vector()[identified_mask(truth)]
     return {m: float(np.max(np.abs(r.theta / t - 1))) if np.all(np.isfinite(r.theta)) else float("inf")
             for m, r in results.items()}
 
 
 def comparison_json(results: dict[str, Result], truth: Plant | None) -> dict:
+    """The comparison as JSON-ready data: per method its result (:func:`to_json`), and with a ``truth`` its
+    ``max_relative_error``."""
     errors = max_relative_errors(results, truth) if truth is not None else {}
     out = {}
     for m, r in results.items():

@@ -37,6 +37,7 @@ class TrackingRun:
 
     @property
     def error(self) -> np.ndarray:
+        """The tracking error, reference minus position (m), at every communication step."""
         return self.result["reference"] - self.result["position"]
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode, write_failures
 from ..runtime import temporary_folder
-from ..simulation.fmpy_runs import read_fmu
+from ..simulation.fmpy_runs import FmuInfo, read_fmu
 from ..model.controller import PARAMETERS, ControllerSpec
 from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
 
@@ -52,6 +52,7 @@ class System:
     stop_time: float
 
     def fmu(self, component: str) -> Path:
+        """The extracted FMU of a component ("plant", "controller" or "reference")."""
         return self.folder / "resources" / f"{component}.fmu"
 
 
@@ -70,7 +71,8 @@ def controller_from_fmu(path: str | Path) -> ControllerSpec:
                           str(path))
 
 
-def _check_fmi2_cs(path: Path, role: str) -> None:
+def _check_fmi2_cs(path: Path, role: str) -> FmuInfo:
+    """The FMU's description, after checking that it can be a part of a system (FMI 2.0 Co-Simulation)."""
     info = read_fmu(path)
     if not info.fmi_version.startswith("2") or "cs" not in info.interfaces:
         raise UserError(f"{path}: the {role} of a system must be an FMI 2.0 Co-Simulation FMU (libcosim and FMPy's "

@@ -161,6 +161,7 @@ def model_description_fmi2(identifier: str, guid: str, variables: list[Variable]
 
 
 def build_description(identifier: str, sources: list[str]) -> bytes:
+    """sources/buildDescription.xml of an FMI 3.0 source FMU: one C99 build configuration of ``sources``."""
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
     bc = ET.SubElement(root, "BuildConfiguration", modelIdentifier=identifier)
     fs = ET.SubElement(bc, "SourceFileSet", language="C99")
@@ -171,6 +172,9 @@ def build_description(identifier: str, sources: list[str]) -> bytes:
 
 def documentation_html(title: str, summary: str, equations: str, variables: list[Variable],
                        extra_sections: list[tuple[str, str]] = ()) -> str:
+    """documentation/index.html of an FMU: title, summary, the equations (preformatted), the table of
+    ``variables`` (name, value reference, causality, start, unit, description) and ``extra_sections``
+    ((heading, HTML body) pairs)."""
     rows = "\n".join(
         f"<tr><td>{html.escape(v.name)}</td><td>{v.vr}</td><td>{v.causality}</td>"
         f"<td>{'' if v.start is None else _fmt(v.start)}</td><td>{html.escape(v.unit or '')}</td>"

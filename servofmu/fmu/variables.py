@@ -23,6 +23,9 @@ __all__ = ["Variable", "VALUE_REFERENCES", "fmu_variables", "state_nominals", "p
 
 @dataclass(frozen=True)
 class Variable:
+    """One FMU variable as both model descriptions declare it: name, value reference (``vr``), FMI causality and
+    variability, description, unit, start value, initial and (for a derivative) the reference of its state."""
+
     name: str
     vr: int
     causality: str          # independent | input | output | parameter | local
@@ -39,10 +42,12 @@ def unit_or_none(unit: str) -> str | None:
 
 
 def state_vr(model: SymbolicModel, i: int) -> int:
+    """The value reference of state ``i``: the output ``position`` for the position state, 2000 + i otherwise."""
     return VR_Y0 + 1 if i == position_index(model) else VR_X0 + i
 
 
 def position_index(model: SymbolicModel) -> int:
+    """The index of the position state among the model's states."""
     return model.state_names.index("position")
 
 
@@ -53,6 +58,9 @@ def state_units(model: SymbolicModel) -> list[str | None]:
 
 def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
                   excitation_frequency: float = 1.0) -> list[Variable]:
+    """Every variable of the plant FMU of ``model`` in value-reference order: time, the input ``u`` (N), the
+    outputs, the parameters (with the built-in excitation's amplitude (N) and frequency (Hz) as start values),
+    the states and their derivatives."""
     out = [Variable("time", VR_TIME, "independent", "continuous", "simulation time", unit="s"),
            Variable("u", VR_U, "input", "continuous", INPUT_INFO[1], unit=INPUT_INFO[0], start=0.0)]
     for i, name in enumerate(OUTPUT_NAMES):

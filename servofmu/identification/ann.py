@@ -134,14 +134,17 @@ class Network:
 
     @property
     def inputs(self) -> int:
+        """Number of input features."""
         return self.w1.shape[1]
 
     @property
     def hidden(self) -> int:
+        """Number of hidden neurons."""
         return self.w1.shape[0]
 
     @property
     def outputs(self) -> int:
+        """Number of outputs (identified parameters)."""
         return self.w2.shape[0]
 
     @property

@@ -82,6 +82,7 @@ class ClosedLoopCriterion(TimeDomainCriterion):
         super().__init__(structure)
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
+        """Per record its measured position (m) and force command (N) at the fitted samples, with their names."""
         return [pair for r in self.data.records for pair in ((f"{r.name} position", r.position[r.fitted]),
                                                              (f"{r.name} force", r.command[r.fitted]))]
 

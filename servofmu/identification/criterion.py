@@ -284,9 +284,12 @@ class TimeDomainCriterion:
         self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
+        """The measured signals at their fitted samples, as (name, values) pairs (the subclass's)."""
         raise NotImplementedError
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+        """Model minus measurement for the N candidates ``theta``: one (N, samples) array per signal, simulated
+        at relative tolerance ``rtol`` (the subclass's)."""
         raise NotImplementedError
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
@@ -315,6 +318,7 @@ class RecordCriterion(TimeDomainCriterion):
         super().__init__(structure)
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
+        """Per record its measured output (velocity in m/s or position in m) at the fitted samples, by name."""
         return [(r.name, r.y[r.fitted]) for r in self.data.records]
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:

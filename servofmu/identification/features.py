@@ -17,6 +17,8 @@ __all__ = ["feature_names", "ann_features", "to_targets", "from_targets", "targe
 
 # ---------------------------------------------------------------------------
 def feature_names(n_exp: int) -> list[str]:
+    """The names of the 4·n_exp ANN features, in :func:`ann_features` order (per experiment log|H|, cos∠H, sin∠H
+    and the mean velocity relative to the amplitude)."""
     return [f"{q}[{k}]" for k in range(n_exp) for q in ("log_abs_H", "cos_arg_H", "sin_arg_H", "dc_ratio")]
 
 

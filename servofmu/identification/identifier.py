@@ -70,7 +70,7 @@ class PSOANNIdentifier:
         The structure to identify (order, which roots are complex, friction model); its values are the
         centre of the prior and the fixed parameters (``fv``, ``v_smooth``).
     ann : AnnModel, optional
-        A trained network (:func:`servofmu.load_network`); needed by ``pso-ann``, ``ga-ann`` and ``aga-ann``.
+        A trained network (:func:`servofmu.load_ann`); needed by ``pso-ann``, ``ga-ann`` and ``aga-ann``.
     method : {"pso-ann", "pso", "ga-ann", "aga-ann"}
         The paper's hybrid, the swarm alone (prior box), or the GA comparators.
     pso : PsoOptions
@@ -264,7 +264,7 @@ class PSOANNIdentifier:
         return self
 
     def result(self, provenance: dict | None = None) -> Result:
-        """The fitted identification as a :class:`servofmu.Result` (what :func:`servofmu.write_result` stores).
+        """The fitted identification as a :class:`~servofmu.identification.results.Result` (what :func:`servofmu.write_result` stores).
 
         Parameters
         ----------

@@ -29,10 +29,12 @@ FIXED_PARAMETERS = ("fv", "v_smooth")
 
 
 def identified_names(structure: Plant) -> list[str]:
+    """The names of the parameters a fit identifies: all of the structure's but the fixed ones (fv, v_smooth)."""
     return [n for n in structure.parameter_names() if n not in FIXED_PARAMETERS]
 
 
 def identified_mask(structure: Plant) -> np.ndarray:
+    """Boolean mask over ``structure.parameter_names()``: True for the identified parameters."""
     return np.array([n not in FIXED_PARAMETERS for n in structure.parameter_names()])
 
 

@@ -80,6 +80,8 @@ def _pairs(roots) -> list[list[float]]:
 
 
 def parameters_json(plant: Plant) -> dict:
+    """A plant as JSON-ready data: poles and zeros as [re, im] pairs (1/s), the DC gain (m/(N·s); None for an
+    integrating plant), the numerator gain K and the friction model with its values (N, N·s/m, m/s)."""
     fr = plant.friction.values()
     dc = None
     if not any(p == 0 for p in plant.all_poles()):
@@ -90,6 +92,9 @@ def parameters_json(plant: Plant) -> dict:
 
 
 def to_json(result: Result) -> dict:
+    """A result as JSON-ready data (the ``--json`` output of identify): method, the identified plant
+    (:func:`parameters_json`), fitness, time (s), 95 % intervals by parameter, evaluations, the stages and, for
+    records, the fit % of each."""
     return {"method": result.method, "parameters": parameters_json(result.plant), "fitness": result.fitness,
             "seconds": result.seconds,
             "intervals": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(result.names, result.intervals)},
@@ -99,6 +104,7 @@ def to_json(result: Result) -> dict:
 
 
 def to_json_text(result: Result) -> str:
+    """:func:`to_json` as text (NaN written as NaN)."""
     return json.dumps(to_json(result), allow_nan=True)
 
 

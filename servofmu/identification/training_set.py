@@ -56,6 +56,7 @@ class TrainingSet:
 
     @property
     def plan(self) -> np.ndarray:
+        """(2, n_exp): the amplitudes (N) over the frequencies (Hz) of the experiments."""
         return np.vstack([self.amplitudes, self.frequencies])
 
     def usable(self) -> np.ndarray:

@@ -40,6 +40,7 @@ class Plan:
 
     @property
     def experiments(self) -> tuple[ExperimentSpec, ...]:
+        """Every (amplitude, frequency) pair, amplitude-major, with its index."""
         return tuple(ExperimentSpec(index=i, amplitude=m, frequency=f)
                      for i, (m, f) in enumerate((m, f) for m in self.amplitudes for f in self.frequencies))
 

@@ -41,10 +41,12 @@ class Harmonics:
 
     @property
     def first(self) -> complex:
+        """S_1, the first harmonic's phasor (the signal's unit)."""
         return complex(self.phasors[0])
 
     @property
     def distortion(self) -> float:
+        """sqrt(Σ_{k≥2} |S_k|²) / |S_1| of these phasors (:func:`distortion`)."""
         return distortion(self.phasors)
 
 
@@ -149,15 +151,18 @@ class SteadyStateDetector:
 
     @property
     def periods(self) -> int:
+        """Periods seen so far."""
         return len(self.s1)
 
     @property
     def converged(self) -> bool:
+        """Whether the last ``consecutive`` changes were all below ``threshold``."""
         last = self.changes[-self.consecutive:]
         return len(last) == self.consecutive and all(c < self.threshold for c in last)
 
     @property
     def last_change(self) -> float:
+        """The relative change of the last period (inf before the second period)."""
         return self.changes[-1] if self.changes else math.inf
 
     @property

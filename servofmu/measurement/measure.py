@@ -86,6 +86,7 @@ class MeasureOptions:
     seed: int | None = None
 
     def validate(self) -> "MeasureOptions":
+        """These options, after checking every value (UserError naming the first bad one)."""
         if not 0 < self.tolerance < 1:
             raise UserError(f"tolerance must be in (0, 1), not {self.tolerance:g}")
         if self.samples_per_period < 16 or self.settle_samples_per_period < 8:
@@ -108,6 +109,8 @@ class MeasureOptions:
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Job:
+    """One experiment to measure and the options to measure it with (what a worker receives)."""
+
     spec: ExperimentSpec
     options: MeasureOptions
 

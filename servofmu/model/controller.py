@@ -94,6 +94,7 @@ class ControllerSpec:
         return self.values[INDEX[name]]
 
     def vector(self) -> np.ndarray:
+        """The parameter values as an array, in :data:`PARAMETERS` order."""
         return np.array(self.values, dtype=float)
 
     def with_values(self, **changes: float) -> "ControllerSpec":
@@ -110,6 +111,7 @@ class ControllerSpec:
 
     @property
     def sample_time(self) -> float:
+        """The controller's sample time Ts (s)."""
         return self["sample_time"]
 
 

@@ -54,6 +54,11 @@ class PlantError(UserError):
 
 @dataclass(frozen=True)
 class Friction:
+    """The friction of a plant: its model ("coulomb", "stribeck", "lugre") and values (docs/plant-format.md):
+    Coulomb and static levels fc±, fs± (N), Stribeck velocity vs (m/s), viscous fv (N·s/m), the tanh sign's
+    velocity scale v_smooth (m/s) and LuGre's bristle stiffness sigma0 (N/m) and damping sigma1 (N·s/m); the
+    values a model does not use are None."""
+
     model: str
     fc_pos: float
     fc_neg: float
@@ -66,9 +71,11 @@ class Friction:
     sigma1: float | None = None
 
     def keys(self) -> tuple[str, ...]:
+        """The names of the model's parameters, in parameter-vector order."""
         return _FRICTION_KEYS[self.model]
 
     def values(self) -> dict[str, float]:
+        """The model's parameters by name (units as in the class docstring)."""
         return {k: float(getattr(self, k)) for k in self.keys()}
 
 
@@ -105,16 +112,20 @@ class Plant:
     # ---- structure -------------------------------------------------------
     @property
     def order(self) -> int:
+        """The order of G(s): the number of poles, a complex pair counting two."""
         return sum(2 if r.imag != 0 else 1 for r in self.poles)
 
     @property
     def gain_key(self) -> str:
+        """The name of the gain parameter: "dc_gain" (G(0), m/(N·s)) or "gain" (K, for an integrating plant)."""
         return "dc_gain" if self.dc_gain is not None else "gain"
 
     def all_poles(self) -> list[complex]:
+        """Every pole (1/s), each complex pair as both conjugates."""
         return _expand(self.poles)
 
     def all_zeros(self) -> list[complex]:
+        """Every zero (1/s), each complex pair as both conjugates."""
         return _expand(self.zeros)
 
     def numerator_gain(self) -> float:
@@ -139,11 +150,14 @@ class Plant:
 
     # ---- parameter vector --------------------------------------------------
     def parameter_names(self) -> list[str]:
+        """The names of the parameter vector: poles and zeros (pole1, or pole1_re and pole1_im for a pair), the
+        gain (:attr:`gain_key`), then the friction's (:meth:`Friction.keys`)."""
         return root_names("pole", self.poles) + root_names("zero", self.zeros) + [self.gain_key] + list(
             self.friction.keys()
         )
 
     def parameter_vector(self) -> np.ndarray:
+        """The parameter values in :meth:`parameter_names` order."""
         values = []
         for r in (*self.poles, *self.zeros):
             values += [r.real, r.imag] if r.imag != 0 else [r.real]
@@ -152,6 +166,7 @@ class Plant:
         return np.array(values, dtype=float)
 
     def parameters(self) -> dict[str, float]:
+        """The parameters by name."""
         return dict(zip(self.parameter_names(), self.parameter_vector().tolist()))
 
     def with_parameters(self, vector) -> "Plant":
@@ -308,6 +323,8 @@ def load_plant(plant: str | Path) -> Plant:
 
 
 def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
+    """A plant from the contents of a plant file (docs/plant-format.md), every key and value checked; ``source``
+    names the file in errors (PlantError, a UserError, naming the key)."""
     def fail(key: str, why: str):
         raise PlantError(f"{source}: {key}: {why}")
 

@@ -60,9 +60,11 @@ class SymbolicModel:
 
     @property
     def parameter_names(self) -> list[str]:
+        """The names of ``p``: the plant's parameters, then excitation_amplitude and excitation_frequency."""
         return self.plant.parameter_names() + list(EXCITATION_PARAMETERS)
 
     def parameter_start(self, excitation_amplitude: float = 0.0, excitation_frequency: float = 1.0) -> np.ndarray:
+        """Values of ``p``: the plant's, then the excitation's amplitude (N) and frequency (Hz)."""
         return np.concatenate([self.plant.parameter_vector(), [excitation_amplitude, excitation_frequency]])
 
     def parameter_info(self, name: str) -> tuple[str, str]:
@@ -70,10 +72,12 @@ class SymbolicModel:
 
     @property
     def nx(self) -> int:
+        """Number of states."""
         return self.x.numel()
 
     @property
     def np(self) -> int:
+        """Number of parameters (with the two excitation parameters)."""
         return self.p.numel()
 
     def _fn(self, name, outputs, out_names):
@@ -102,6 +106,7 @@ class SymbolicModel:
                         ["J"])
 
     def rhs(self, t, x, u, p) -> np.ndarray:
+        """dx/dt at time t (s), states x, input force u (N) and parameters p, as a flat array."""
         return np.asarray(self.ode(t, x, u, p)).ravel()
 
 
@@ -144,6 +149,8 @@ def friction_force(plant: Plant, par: dict, v, z=None):
 
 
 def build_model(plant: Plant) -> SymbolicModel:
+    """The CasADi model of ``plant``'s structure: states, the ODE right-hand side and the outputs (v, position,
+    friction_force) as expressions of symbolic parameters (its values are only the start values)."""
     names = plant.parameter_names() + list(EXCITATION_PARAMETERS)
     p = ca.SX.sym("p", len(names))
     par = {name: p[i] for i, name in enumerate(names)}

@@ -34,6 +34,8 @@ def compensation_json(runs: list[TrackingRun]) -> dict:
 
 
 def compensation_text(runs: list[TrackingRun]) -> str:
+    """A plain-text table of the runs (RMS and peak tracking error in m, velocity distortion) and a line with the
+    RMS error's reduction by the compensation."""
     lines = [f"{'run':<22}{'RMS error [m]':>16}{'peak error [m]':>16}{'v distortion':>14}"]
     lines += [f"{r.label:<22}{r.rms_error:>16.4e}{r.peak_error:>16.4e}{r.distortion:>14.3e}" for r in runs]
     summary = compensation_json(runs)
@@ -77,6 +79,8 @@ def _error_png(runs: list[TrackingRun]) -> bytes:
 
 
 def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant | None, source: str) -> str:
+    """The compensation page: the runs' table, the tracking errors over time and the identified (and true)
+    friction curves, as one self-contained HTML page about ``source``."""
     rows = [[r.label, number(r.rms_error, ".4e"), number(r.peak_error, ".4e"), number(r.distortion, ".3e")]
             for r in runs]
     parts = [f"<h1>Friction compensation on {escape(source)}</h1>",

@@ -145,6 +145,8 @@ def control_document(result: Result, name: str | None = None, provenance: dict |
 
 def export_control(result: Result, output: str | Path, name: str | None = None,
                    provenance: dict | None = None) -> Path:
+    """Write the python-control file of a result (:func:`control_document`, read back by :func:`load_control`);
+    returns the path written."""
     return atomic_write(output, _json_text(control_document(result, name, provenance)))
 
 
@@ -228,6 +230,7 @@ def export_json(result: Result, output: str | Path, name: str | None = None, pro
 
 
 def toml_text(result: Result, name: str | None = None, provenance: dict | None = None) -> str:
+    """The identified plant as a plant file (TOML), headed by comments with its provenance."""
     plant = identified_plant(result, name)
     prov = provenance if provenance is not None else export_provenance(result)
     head = ["# Identified plant, exported by servofmu; `servofmu build` turns it into an FMU.",
@@ -236,6 +239,7 @@ def toml_text(result: Result, name: str | None = None, provenance: dict | None =
 
 
 def export_toml(result: Result, output: str | Path, name: str | None = None, provenance: dict | None = None) -> Path:
+    """Write :func:`toml_text` to ``output`` (atomically); returns the path written."""
     return atomic_write(output, toml_text(result, name, provenance))
 
 

@@ -31,12 +31,15 @@ class FmuInfo:
 
     @property
     def has_builtin_excitation(self) -> bool:
+        """Whether the FMU has servofmu's sine excitation (excitation_amplitude and excitation_frequency)."""
         return all(name in self.variables for name in EXCITATION)
 
     def outputs(self) -> list[str]:
+        """The names of the FMU's output variables."""
         return [n for n, v in self.variables.items() if v.causality == "output"]
 
     def require(self, *names: str) -> None:
+        """Raise a UserError naming the FMU and the first of ``names`` it has no variable of."""
         for name in names:
             if name not in self.variables:
                 raise UserError(f"{self.path}: the FMU has no variable named {name!r} "
@@ -44,6 +47,8 @@ class FmuInfo:
 
 
 def read_fmu(path: str | Path) -> FmuInfo:
+    """The model description of the FMU at ``path`` (read with FMPy): FMI version, interfaces, variables; a
+    UserError for a missing file or one that is not an FMU."""
     from fmpy import read_model_description
 
     path = Path(path)

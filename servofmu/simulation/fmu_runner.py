@@ -128,6 +128,7 @@ class FmuRunner:
         return self._get([self._vr_out])[0]
 
     def set_input(self, value: float) -> None:
+        """Set the input (the force u, N) for the next steps."""
         self._set([self._vr_in], [value])
 
     def step(self, t: float, h: float) -> float:
@@ -139,9 +140,11 @@ class FmuRunner:
         return self._get([self._vr_out])[0]
 
     def finish(self) -> None:
+        """Terminate the simulation (the instance can be reset and run again)."""
         self._call("fmiTerminate", self.fmu.terminate)
 
     def close(self) -> None:
+        """Free the instance and remove the extracted FMU."""
         try:
             self.fmu.freeInstance()
         finally:

@@ -121,6 +121,7 @@ class Workers:
 
     @property
     def description(self) -> str:
+        """Where the work runs, in words (for progress lines)."""
         if self.scheduler:
             return f"Dask scheduler {self.scheduler}"
         return "this process" if self.workers == 0 else f"{self.workers} local worker processes"
@@ -162,6 +163,7 @@ class Workers:
         sweep_temporary_folders()
 
     def close(self) -> None:
+        """Shut the local pool down (waiting for running tasks, cancelling the rest) or leave the Dask cluster."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
