@@ -319,6 +319,9 @@ def load_plant(plant: str | Path) -> Plant:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlantError(f"{path}: not a valid TOML file ({exc})") from exc
+    if "sample_time" in data and "linear" not in data:  # a mix-up worth naming: the keys would be "unknown"
+        raise PlantError(f"{path}: is a controller file, not a plant file (its FMU is built by `servofmu "
+                         "controller`, servofmu.control.fmus.build_controller_fmu)")
     return plant_from_dict(data, source=str(path))
 
 
@@ -347,9 +350,6 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
         fail("linear.zeros", "G(s) must be strictly proper (fewer zeros than poles)")
     has_dc, has_gain = "dc_gain" in lin, "gain" in lin
     if has_dc == has_gain:
-    if "sample_time" in data and "linear" not in data:  # a mix-up worth naming: the keys would be "unknown"
-        raise PlantError(f"{path}: is a controller file, not a plant file (its FMU is built by `servofmu "
-                         "controller`, servofmu.control.fmus.build_controller_fmu)")
         fail("linear.dc_gain", "give exactly one of `dc_gain` and `gain`")
     key = "linear.dc_gain" if has_dc else "linear.gain"
     k = _number(lin["dc_gain" if has_dc else "gain"], key, fail)
