@@ -35,9 +35,10 @@ __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data",
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
 # more exact than the 1e-6 the parameters are to reach.  Its forward-difference Jacobian (relative step 1e-5) only
 # steers the steps and scales the intervals: at 1e-9 it is exact to ~1e-4 relative, and a polish step costs half
-# of what it does at 1e-10 (docs/bench-speed.md).  The polish then stops a little earlier on a few plants: the worst
-# of bench-identify's 100 random g2 plants went from 9e-10 to 1.3e-9 (median 2e-10 either way).  A perturbed
-# candidate without steady state is stepped the other way (identifier.polish).
+# of what it does at 1e-10 (docs/bench-speed.md).  The price is a polish that stops a little earlier on a few
+# plants, still far inside 1e-6: worst relative error 1.3e-9 over bench-identify's 100 random g2 plants, median
+# 2e-10 (docs/bench-identify.md).  A perturbed candidate without steady state is stepped the other way
+# (identifier.polish).
 SEARCH_RTOL = 1e-5
 POLISH_RTOL = 1e-10
 JACOBIAN_RTOL = 1e-9
