@@ -148,3 +148,25 @@ def test_a_package_main_needs_no_guard(tmp_path):
     (package / "__main__.py").write_text(SCRIPT.format(call="run()"))
     proc = python("-m", "job", cwd=tmp_path)
     assert proc.returncode == 0 and sorted(eval(proc.stdout.strip())) == [(0, True), (1, True)], proc.stderr
+
+
+def test_the_public_api_is_annotated():
+    """py.typed promises annotations: every parameter and return of the names in servofmu.__all__ (and of their
+    classes' public methods) has one."""
+    import inspect
+
+    import servofmu
+
+    missing = []
+    for name in servofmu.__all__:
+        obj = getattr(servofmu, name)
+        functions = [(name, obj)] if inspect.isfunction(obj) else [
+            (f"{name}.{m}", f) for m, f in vars(obj).items()
+            if inspect.isfunction(f) and (not m.startswith("_") or m == "__init__")] if inspect.isclass(obj) else []
+        for qual, function in functions:
+            signature = inspect.signature(function)
+            missing += [f"{qual}({p})" for p, v in signature.parameters.items()
+                        if v.annotation is inspect.Parameter.empty and p not in ("self", "cls")]
+            if signature.return_annotation is inspect.Signature.empty and not qual.endswith("__init__"):
+                missing.append(f"{qual} -> ?")
+    assert not missing, missing

@@ -42,6 +42,7 @@ from functools import cached_property
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import UserError
 from ..identification.criterion import SineData, output_error_fitness, sine_residual_jacobian, sine_residuals
@@ -348,8 +349,8 @@ def _check_inputs(structure: Plant, data, theta0) -> np.ndarray:
     return theta0
 
 
-def fit_casadi_nls(structure: Plant, data: SineData, theta0=None, options: NlsOptions = NlsOptions(),
-                   progress: Progress | None = None) -> BaselineResult:
+def fit_casadi_nls(structure: Plant, data: SineData, theta0: ArrayLike | None = None,
+                   options: NlsOptions = NlsOptions(), progress: Progress | None = None) -> BaselineResult:
     """CasADi nonlinear least squares on the identifier's output-error residuals, with exact derivatives.
 
     Parameters

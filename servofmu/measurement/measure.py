@@ -21,7 +21,7 @@ import time
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -32,7 +32,8 @@ from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
 from ..simulation.parallel import WorkerResource, Workers, report
 from ..version import __version__
-from .datafile import ExperimentResult, Series, add_experiments, create_measurement, mark_complete, read_data_file
+from .datafile import (DataFile, ExperimentResult, Series, add_experiments, create_measurement, mark_complete,
+                       read_data_file)
 from .excitation import (DEFAULT_AMPLITUDES, MAX_STEPS, ExperimentSpec, Plan, corner_frequency,
                          default_frequencies)
 from .frf import HARMONICS, SteadyStateDetector, harmonics
@@ -379,9 +380,10 @@ def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: f
     return corner_frequency(t, v)
 
 
-def measure(fmu: str | Path, output: str | Path, amplitudes=None, frequencies=None,
+def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | None = None,
+            frequencies: Sequence[float] | None = None,
             options: MeasureOptions | None = None, run: RunOptions | None = None,
-            warn: Callable[[str], None] | None = None, max_steps: float = MAX_STEPS):
+            warn: Callable[[str], None] | None = None, max_steps: float = MAX_STEPS) -> DataFile:
     """Stepped-sine measurement of an FMU into a data file.
 
     For every (amplitude, frequency) the FMU runs in Co-Simulation from rest until its response is periodic; the

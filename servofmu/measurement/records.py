@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -20,7 +21,7 @@ from ..fileio import claim_output, file_sha256, output_mode
 from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
 from ..version import __version__
-from .datafile import Record, RecordAnalysis, Series, read_data_file, write_records
+from .datafile import DataFile, Record, RecordAnalysis, Series, read_data_file, write_records
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
 __all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
@@ -239,9 +240,9 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
                   intersample=intersample)
 
 
-def import_records(paths, output: str | Path, time: str, input: str, output_column: str, kind: str = "velocity",
-                   cutoff: float | None = None, frequency: float | None = None, append: bool = False,
-                   intersample: str = "zoh", run: RunOptions | None = None):
+def import_records(paths: Sequence[str | Path], output: str | Path, time: str, input: str, output_column: str,
+                   kind: str = "velocity", cutoff: float | None = None, frequency: float | None = None,
+                   append: bool = False, intersample: str = "zoh", run: RunOptions | None = None) -> DataFile:
     """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
 
     Parameters

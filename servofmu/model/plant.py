@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
@@ -169,7 +170,7 @@ class Plant:
         """The parameters by name."""
         return dict(zip(self.parameter_names(), self.parameter_vector().tolist()))
 
-    def with_parameters(self, vector) -> "Plant":
+    def with_parameters(self, vector: ArrayLike) -> "Plant":
         """The same structure with the parameters of ``vector`` (order of parameter_names)."""
         vector = np.asarray(vector, dtype=float).ravel()
         if vector.size != len(self.parameter_names()):
