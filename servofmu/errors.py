@@ -10,7 +10,7 @@ import math
 from numbers import Integral, Real
 
 __all__ = ["UserError", "ServofmuWarning", "is_real", "check_int", "check_range", "check_positive",
-           "check_optional_real", "name_problem", "MAX_NAME_LENGTH", "MAX_MAGNITUDE"]
+           "check_optional_real", "name_problem", "MAX_NAME_LENGTH", "MAX_MAGNITUDE", "MAX_INT"]
 
 # No number servofmu reads (a plant's parameter, a stored value) comes near this; anything beyond is a mistake, damage
 # or a foreign file (and its square would overflow).
@@ -51,10 +51,14 @@ def is_real(x) -> bool:
     return isinstance(x, Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def check_int(what: str, value, minimum: int) -> None:
-    """Refuse ``value`` unless it is an integer (not a bool) of at least ``minimum``."""
-    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
-        raise UserError(f"{what} must be an integer >= {minimum}, not {value!r}")
+MAX_INT = 2 ** 63 - 1  # the largest integer HDF5's int64 attributes, numpy's and torch's seeds all hold
+
+
+def check_int(what: str, value, minimum: int, maximum: int = MAX_INT) -> None:
+    """Refuse ``value`` unless it is an integer (not a bool) in [minimum, maximum]."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or not minimum <= value <= maximum:
+        bound = f">= {minimum}" if maximum == MAX_INT else f"in [{minimum}, {maximum}]"
+        raise UserError(f"{what} must be an integer {bound}, not {int(value) if isinstance(value, Integral) else value!r}")
 
 
 def check_range(what: str, value, lo: float, hi: float) -> None:

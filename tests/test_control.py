@@ -69,6 +69,7 @@ def test_controller_fmus_pass_fmpy_validation(tmp_path, version):
 
 @pytest.mark.parametrize("text, fragment", [
     ('sample_time = -0.001\n[velocity]\nkp = 1.0\n', "sample_time"),
+    ('sample_time = 1e-300\n[velocity]\nkp = 1.0\n', "sample_time: must be in [1e-06, 1]"),
     ('sample_time = 0.001\nspeed = 3\n[velocity]\nkp = 1.0\n', "speed: unknown key"),
     ('sample_time = 0.001\n[velocity]\nkp = 1.0\nfilter = "kalman"\n', "velocity.filter"),
     ('sample_time = 0.001\n', "velocity.kp: missing"),

@@ -31,6 +31,7 @@ from .system import COMPONENTS, read_system
 
 __all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
 
+MAX_STEPS = 10_000_000  # communication steps of one run: about 3 h on libcosim at the demo axis's pace
 ENGINES = ("libcosim", "fmpy")
 # (component, variable): what is recorded
 SIGNALS = {"reference": ("reference", "position_reference"), "force": ("controller", "force"),
@@ -51,6 +52,9 @@ class CosimResult:
 
 
 def _steps(stop_time: float, step: float) -> int:
+    if not stop_time / step <= MAX_STEPS:  # (also a stop time that is not a number)
+        raise UserError(f"the stop time {stop_time:g} s is {stop_time / step:.3g} communication steps of {step:g} s, "
+                        f"more than the {MAX_STEPS:.0e} a run may take (hours on either engine)")
     n = int(round(stop_time / step))
     if n < 2 or abs(n * step - stop_time) > 1e-9 * stop_time:
         raise UserError(f"the stop time {stop_time:g} s is not a whole number (≥ 2) of communication steps of "

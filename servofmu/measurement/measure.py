@@ -100,8 +100,8 @@ class MeasureOptions:
             raise UserError(f"max_time must be a positive number of seconds, not {self.max_time:g}")
         if self.noise_snr_db is not None and not math.isfinite(self.noise_snr_db):
             raise UserError(f"noise_snr_db must be a finite number of dB, not {self.noise_snr_db}")
-        if self.seed is not None and self.seed < 0:
-            raise UserError(f"seed must be 0 or positive, not {self.seed}")
+        if self.seed is not None:
+            check_int("seed", self.seed, 0)
         return self
 
 

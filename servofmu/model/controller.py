@@ -50,7 +50,8 @@ class Parameter:
 MAX_WINDOW, MAX_DELAY = 64, 16  # CTRL_MAX_WINDOW, CTRL_MAX_DELAY of controller_law.h
 FILTERS = ("none", "moving-average", "first-order")  # velocity_filter 0, 1, 2
 PARAMETERS = (
-    Parameter("sample_time", "s", "controller sample time Ts", 1e-3, low_open=True),
+    # from the fastest current loops (1 µs) to a slow positioner (1 s): beyond, a run is hours of steps or none
+    Parameter("sample_time", "s", "controller sample time Ts", 1e-3, 1e-6, 1.0),
     Parameter("delay", "1", "samples from a measurement to the force computed from it (1: the next sample)", 1.0,
               1.0, MAX_DELAY, integer=True),
     Parameter("kp_position", "1/s", "position loop gain: velocity demand per position error", 0.0),

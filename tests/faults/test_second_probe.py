@@ -1,0 +1,96 @@
+"""Faults found by a second, independent probe (about 200 commands with bad inputs, signals, races and resource
+limits; single-bit flips through the readers), each reproduced.  A test is named after the probe's item:
+``test_p01_...`` is its item 1.  Every test here failed before servofmu handled the fault (scripts/fault_suite.py
+--against shows it)."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+from harness import assert_one_line, run_here, run_servofmu
+
+
+def miswired(source: Path, target: Path) -> Path:
+    """The axis archive with the force connected to a connector the plant does not have."""
+    with zipfile.ZipFile(source) as src, zipfile.ZipFile(target, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item.filename)
+            if item.filename == "SystemStructure.ssd":
+                data = data.replace(b'endConnector="u"', b'endConnector="uu"')
+            dst.writestr(item, data)
+    return target
+
+
+# ---- 1. silent wrong answers: an SSP connection to a connector that does not exist ---------------------------------
+@pytest.mark.parametrize("engine", ["fmpy", "libcosim"])
+def test_p01_a_connection_to_a_missing_connector_is_refused_on_either_engine(inputs, tmp_path, engine):
+    ssp = miswired(inputs["axis"], tmp_path / "axis.ssp")
+    rc, err = run_here(["cosim", ssp, "--engine", engine, "-o", "rec.h5"], tmp_path)
+    assert_one_line(err, rc, 2, "axis.ssp", "plant.uu")
+    assert not (tmp_path / "rec.h5").exists()
+
+
+# ---- 10. tracebacks: seeds beyond what HDF5 and the generators hold ------------------------------------------------
+@pytest.mark.parametrize("command", ["dataset", "measure", "train"])
+def test_p10_a_huge_seed_is_one_line(inputs, tmp_path, command):
+    seed = str(2 ** 70)
+    argv = {"dataset": ["dataset", "g1", "--like", inputs["data"], "--samples", "20", "--seed", seed, "-o", "out.h5"],
+            "measure": ["measure", inputs["g1_fmu"], "--amplitudes", "2", "--frequencies", "5", "--workers", "0",
+                        "--noise-snr", "40", "--seed", seed, "-o", "out.h5"],
+            "train": ["train", inputs["ds"], "--seed", seed, "-o", "out.h5"]}[command]
+    rc, err = run_here(argv, tmp_path)
+    assert_one_line(err, rc, 2, "seed", str(2 ** 70))
+    assert not (tmp_path / "out.h5").exists()
+
+
+# ---- 11. unbounded work: a controller sampling every 1e-300 s ------------------------------------------------------
+def test_p11_an_absurd_sample_time_is_refused_before_any_work(inputs, tmp_path):
+    text = inputs["controller_toml"].read_text()
+    assert "sample_time = 0.001" in text
+    (tmp_path / "fast.toml").write_text(text.replace("sample_time = 0.001", "sample_time = 1e-300"))
+    rc, err = run_here(["controller", tmp_path / "fast.toml", "--fmi-version", "2", "-o", "c.fmu"], tmp_path)
+    assert_one_line(err, rc, 2, "fast.toml", "sample_time")
+    assert not (tmp_path / "c.fmu").exists()
+
+
+def test_p11_a_run_of_more_steps_than_the_bound_is_refused_up_front(inputs, tmp_path):
+    proc = run_servofmu(["cosim", inputs["axis"], "--stop-time", "1e6", "-o", "rec.h5"], tmp_path, tmp_path)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("cosim of 1e9 steps was not refused: it ran for a minute")
+    assert_one_line(err, proc.returncode, 2, "1e+06 s", "communication steps")
+    assert not (tmp_path / "rec.h5").exists()
+
+
+# ---- 13. the temporary folders of the libraries servofmu calls --------------------------------------------------
+def test_p13_a_stopped_fmpy_cosimulation_leaves_no_folder(inputs, tmp_path):
+    """SIGTERM while FMPy runs the system: FMPy's extracted archive and FMUs go with servofmu's folder."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = run_servofmu(["cosim", inputs["axis"], "--engine", "fmpy", "--stop-time", "600", "-o", "rec.h5"],
+                        tmp_path, tmp)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not any(p.name.startswith("tmp") for p in tmp.rglob("tmp*")):
+        time.sleep(0.05)  # until FMPy has extracted the archive
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert_one_line(err, proc.returncode, 128 + signal.SIGTERM, "terminated")
+    assert list(tmp.iterdir()) == []
+
+
+def test_p13_training_leaves_no_folder(inputs, tmp_path):
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = run_servofmu(["train", inputs["ds"], "-o", "ann.h5"], tmp_path, tmp)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert list(tmp.iterdir()) == []
