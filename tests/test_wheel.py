@@ -58,6 +58,43 @@ def test_the_wheel_ships_every_module_and_c_source_of_the_package(installed):
     assert sources and not [s for s in sources if s not in names]
 
 
+def test_the_wheel_is_typed(installed):
+    wheel, _, _ = installed
+    assert "servofmu/py.typed" in zipfile.ZipFile(wheel).namelist()
+
+
+def long_description(wheel) -> str:
+    with zipfile.ZipFile(wheel) as z:
+        (metadata,) = [n for n in z.namelist() if n.endswith(".dist-info/METADATA")]
+        return z.read(metadata).decode().split("\n\n", 1)[1]
+
+
+def test_the_long_description_points_to_nothing_the_wheel_lacks(installed):
+    """The text an index shows: no links to files of the checkout (they break there), no scripts to run."""
+    wheel, _, _ = installed
+    text = long_description(wheel)
+    assert "pip install" in text and "servofmu demo" in text
+    links = re.findall(r"\]\(([^)]+)\)", text)
+    assert all(re.match(r"https?://", link) for link in links), links
+    assert not re.search(r"\b(scripts|docs|tests)/[\w.-]+", text)
+    assert ".venv" not in text and "make " not in text
+
+
+def test_the_long_description_shows_commands_the_tour_runs(installed):
+    """Its commands are a subset of the README's tour (run by tests/test_docs.py) and its Python example is the
+    one docs/api.md runs, without the print."""
+    wheel, _, _ = installed
+    text = long_description(wheel)
+    readme = (ROOT / "README.md").read_text()
+    tour = readme.split("## A five-minute tour", 1)[1].split("```console", 1)[1].split("```", 1)[0]
+    shown = [line for line in text.splitlines() if line.startswith("$ servofmu ")]
+    assert shown and all(line in tour.splitlines() for line in shown), shown
+    (example,) = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    (api,) = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(), flags=re.S)
+    calls = [line.split("#")[0].strip() for line in example.splitlines()[3:]]
+    assert calls and all(call in api for call in calls), calls
+
+
 def test_installed_wheel_builds_a_named_plant_outside_the_checkout(installed):
     _, bindir, base = installed
     work = base / "build"
