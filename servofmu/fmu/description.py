@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 from .variables import Variable
 
 __all__ = ["model_description_fmi3", "model_description_fmi2", "build_description", "documentation_html",
-           "SOURCE_FILES", "ANNOTATION_TYPE"]
+           "SOURCE_FILES", "ANNOTATION_TYPE", "base_unit"]
 
 # Units used by the plant, as SI base-unit exponents.
 BASE_UNITS = {
@@ -21,7 +21,19 @@ BASE_UNITS = {
     "1/s": {"s": -1},
     "kg": {"kg": 1},
     "rad/s": {"rad": 1, "s": -1},
+    "m/(N.s)": {"kg": -1, "s": 1},  # G(s): velocity per force
 }
+
+
+def base_unit(name: str) -> dict:
+    """SI base-unit exponents of a unit name: BASE_UNITS, or m/(N.s^k) (the numerator constant of G(s),
+    servofmu.model.plant.gain_unit) = kg^-1·s^(2−k)."""
+    if name in BASE_UNITS:
+        return BASE_UNITS[name]
+    if name.startswith("m/(N.s^") and name.endswith(")") and name[7:-1].isdigit():
+        k = int(name[7:-1])
+        return {"kg": -1, "s": 2 - k} if k != 2 else {"kg": -1}
+    raise KeyError(f"unit {name!r} has no SI definition")
 LOG_CATEGORIES = {
     "logStatusError": "errors: bad calls, unknown value references, integrator failures",
     "logSolver": "progress of the Co-Simulation integrator (with debug logging on)",
@@ -39,7 +51,7 @@ def _unit_definitions(parent: ET.Element, variables: list[Variable]) -> None:
     defs = ET.SubElement(parent, "UnitDefinitions")
     for name in used:
         unit = ET.SubElement(defs, "Unit", name=name)
-        ET.SubElement(unit, "BaseUnit", {k: str(e) for k, e in BASE_UNITS[name].items()})
+        ET.SubElement(unit, "BaseUnit", {k: str(e) for k, e in base_unit(name).items()})
 
 
 def _common_root(tag_version: str, info: dict) -> ET.Element:

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
 __all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict", "resolve_plant_path",
-           "example_files", "parameter_info", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
+           "example_files", "parameter_info", "gain_unit", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
 
 FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
 
@@ -33,8 +33,9 @@ _FRICTION_DEFAULTS = {"fv": 0.0, "v_smooth": 1e-3}
 
 # name -> (unit, description) for every parameter a plant can have.
 PARAMETER_INFO = {
-    "dc_gain": ("1", "DC gain of G(s), G(0)"),
-    "gain": ("1", "numerator constant of G(s) (leading coefficient of the numerator)"),
+    "dc_gain": ("m/(N.s)", "DC gain of G(s), G(0) (velocity per force)"),
+    "gain": ("m/(N.s^(1+r))", "numerator constant of G(s) (leading coefficient of the numerator; r = poles − "
+                              "zeros)"),
     "fc_pos": ("N", "Coulomb friction for v > 0"),
     "fc_neg": ("N", "Coulomb friction for v < 0 (magnitude)"),
     "fs_pos": ("N", "static (breakaway) friction for v > 0"),
@@ -246,8 +247,18 @@ def root_names(prefix: str, roots) -> list[str]:
     return names
 
 
-def parameter_info(name: str) -> tuple[str, str]:
-    """(unit, description) of a parameter name."""
+def gain_unit(plant: Plant) -> str:
+    """The unit of ``plant``'s numerator constant K in G(s) = K·Π(s − z)/Π(s − p): G is a velocity per force,
+    m/(N·s), and s a rate, 1/s, so K is m/(N·s^(1+r)) for r = poles − zeros (r = 1: 1/kg, the inverse mass)."""
+    r = len(plant.all_poles()) - len(plant.all_zeros())
+    return "m/(N.s)" if r == 0 else f"m/(N.s^{1 + r})"
+
+
+def parameter_info(name: str, plant: Plant | None = None) -> tuple[str, str]:
+    """(unit, description) of a parameter name; with ``plant``, the unit of ``gain`` for its relative degree
+    (:func:`gain_unit`).  Units are ASCII ("N.s/m" for N·s/m), as an FMU's unit names."""
+    if name == "gain" and plant is not None:
+        return gain_unit(plant), PARAMETER_INFO[name][1]
     if name in PARAMETER_INFO:
         return PARAMETER_INFO[name]
     kind = "pole" if name.startswith("pole") else "zero"

@@ -68,7 +68,8 @@ class SymbolicModel:
         return np.concatenate([self.plant.parameter_vector(), [excitation_amplitude, excitation_frequency]])
 
     def parameter_info(self, name: str) -> tuple[str, str]:
-        return parameter_info(name)
+        """(unit, description) of a parameter of this model (servofmu.model.plant.parameter_info)."""
+        return parameter_info(name, self.plant)
 
     @property
     def nx(self) -> int:
