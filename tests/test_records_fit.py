@@ -230,7 +230,7 @@ def test_residual_tests_tell_a_wrong_friction_structure(records, tmp_path):
         out = tmp_path / f"{getattr(structure, 'stem', structure)}.h5"
         assert run("identify", files["est"], "--structure", structure, "--method", "pso", "-o", out).returncode == 0
         proc = run("validate", out, files["val"], "--json")
-        assert proc.returncode == 0, proc.stderr
+        assert proc.returncode == (0 if structure == "stribeck_servo" else 1), proc.stderr  # 1: the model failed
         verdicts[str(structure)] = json.loads(proc.stdout)["records"][0]["residual_test"]
     assert verdicts["stribeck_servo"]["passed"]
     wrong = verdicts[str(coulomb)]

@@ -14,18 +14,29 @@ exact sine from rest through the stored window).  Per record or experiment:
   probability however smooth the input; MATLAB draws the same bounds per lag (z = 2.58), which a right model
   leaves at some lag of 25 one time in five.  The per-lag count is reported as well.  Residuals below
   ``EXACT`` times the spread of the signal are the simulation's own error (noise-free data): there is no noise
-  to test, and the tests count as passed.
+  to test, and the tests count as passed;
+- for stepped-sine experiments whose file holds noisy signals, the same residual tests against the sine
+  excitation (a right model leaves the noise: white, independent of the sine); noise-free windows have no noise
+  to test.
+
+The verdict: every record and experiment fits at least ``min_fit`` percent (default ``MIN_FIT``, chosen from
+measurements on g1 and g2 in docs/validation.md) and passes the residual tests that apply — whiteness and
+independence from the input for open-loop records and noisy experiments, independence from the reference for
+closed-loop records (the loop feeds the disturbances back: their residuals are not white).  The bounds are joint
+over every lag of every correlation function tested in one validation (Bonferroni), so that a right model passes
+the whole validation with at least 99 % probability.  A data file whose SHA-256 is the one the identification
+recorded is the model's own fitting data: the validation says so (``own_data``), since it proves little.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path
+from ..fileio import atomic_write, claim_output, output_mode, file_sha256
 from ..identification.criterion import POLISH_RTOL, check_structure, fit_percent, record_data, record_errors
 from ..identification.results import Result, read_result
 from ..measurement.datafile import DataFile, ExperimentResult, read_data_file
@@ -36,12 +47,16 @@ from .html import escape, figure, number, page, png_bytes, table
 from .plots import MAX_PANELS, pyplot
 
 __all__ = ["ResidualTest", "RecordValidation", "ExperimentValidation", "Validation", "residual_test", "validate",
-           "validate_files", "validation_json", "validation_text", "validation_html", "validation_figure", "LAGS",
-           "LEVEL", "EXACT"]
+           "validate_files", "validation_json", "validation_text", "validation_html", "validation_figure",
+           "residual_figure", "own_data_warning", "LAGS", "LEVEL", "EXACT", "MIN_FIT"]
 
 LAGS = 25      # lags of the correlation functions (MATLAB's resid default)
 LEVEL = 0.99   # confidence of the bounds
 EXACT = 1e-7   # residuals below this fraction of the signal's spread: the model reproduces noise-free data
+# Minimum fit (%) of every record and experiment.  A perfect model fits noisy data by 100·(1 − 10^(−SNR/20)):
+# 90 % at 20 dB, 80 % at 14 dB; g1 and g2 with their Coulomb friction 3× too low fit their worst experiment of
+# the demo's plan by −290 % and 69.5 % (noise-free), 2.5× too low 72.3 % (g2).  docs/validation.md has the table.
+MIN_FIT = 80.0
 
 
 # ---------------------------------------------------------------------------
@@ -79,6 +94,7 @@ class ResidualTest:
 
     @property
     def passed(self) -> bool:
+        """White and independent of the input."""
         return self.white and self.independent
 
     def outside_per_lag(self) -> tuple[int, int]:
@@ -98,9 +114,14 @@ def _correlation(a: np.ndarray, b: np.ndarray, lags: np.ndarray) -> np.ndarray:
 
 
 def residual_test(e: np.ndarray, u: np.ndarray, y: np.ndarray, lags: int = LAGS,
-                  level: float = LEVEL) -> ResidualTest:
+                  level: float = LEVEL, functions: int = 1) -> ResidualTest:
     """The residual analysis of ``e`` against the input ``u`` (equal lengths, uniform sampling) for a measured
-    output ``y``."""
+    output ``y``.
+
+    The bounds hold with probability ``level`` jointly over the lags of ``functions`` correlation functions
+    (Bonferroni: each lag at 1 − (1 − level)/(lags·functions)); :func:`validate` passes the number of functions
+    it tests over the whole data file.
+    """
     from scipy.stats import norm
 
     e, u = np.asarray(e, dtype=float), np.asarray(u, dtype=float)
@@ -115,7 +136,7 @@ def residual_test(e: np.ndarray, u: np.ndarray, y: np.ndarray, lags: int = LAGS,
     exact = bool(np.sqrt(np.mean(e**2)) <= EXACT * np.std(y))
     return ResidualTest(samples=n, exact=exact, autocorrelation=auto, cross_lags=cross_lags, cross_correlation=cross,
                         auto_sigma=1 / math.sqrt(n), cross_sigma=math.sqrt(cross_var / n),
-                        z=float(norm.ppf(1 - (1 - level) / 2 / max(lags, 1))),
+                        z=float(norm.ppf(1 - (1 - level) / 2 / max(lags, 1) / max(functions, 1))),
                         z_per_lag=float(norm.ppf(1 - (1 - level) / 2)))
 
 
@@ -125,7 +146,8 @@ def residual_test(e: np.ndarray, u: np.ndarray, y: np.ndarray, lags: int = LAGS,
 @dataclass(frozen=True)
 class RecordValidation:
     """The model on one record: ``y`` measured and ``y_model`` simulated (the velocity, or the position with the
-    best constant offset) at the compared samples, the input there, the fit (%) and the residual analysis."""
+    best constant offset) at the compared samples, the input there, the fit (%) and the residual analysis;
+    ``min_fit``: the fit the verdict asks for."""
 
     name: str
     output: str
@@ -137,17 +159,30 @@ class RecordValidation:
     fit: float
     residuals: ResidualTest
     closed_loop: bool = False  # the disturbances reach the outputs through the loop: residuals are not white
+    min_fit: float = MIN_FIT
+
+    @property
+    def fit_passed(self) -> bool:
+        """The fit reaches ``min_fit``."""
+        return bool(self.fit >= self.min_fit)
+
+    @property
+    def residuals_passed(self) -> bool:
+        """The residual tests that apply: independence from the input always, whiteness for open-loop records."""
+        return self.residuals.independent if self.closed_loop else self.residuals.passed
 
     @property
     def passed(self) -> bool:
-        """The residual tests that apply: independence from the input always, whiteness for open-loop records."""
-        return self.residuals.independent if self.closed_loop else self.residuals.passed
+        """The verdict on this record: the fit reaches ``min_fit`` and the residual tests pass."""
+        return self.fit_passed and self.residuals_passed
 
 
 @dataclass(frozen=True)
 class ExperimentValidation:
     """The model on one stepped-sine experiment: the analysed window measured (noisy if the file has noise) and
-    simulated, the fit (%), and the relative error of the first-harmonic response H."""
+    simulated, the excitation ``u`` there, the fit (%), the relative error of the first-harmonic response H, and
+    the residual analysis against the sine when the window is noisy (None without noise: nothing to test);
+    ``min_fit``: the fit the verdict asks for."""
 
     index: int
     amplitude: float
@@ -158,24 +193,75 @@ class ExperimentValidation:
     y_model: np.ndarray
     fit: float
     H_error: float
+    u: np.ndarray | None = None
+    residuals: ResidualTest | None = None
+    min_fit: float = MIN_FIT
+
+    @property
+    def fit_passed(self) -> bool:
+        """The fit reaches ``min_fit``."""
+        return bool(self.fit >= self.min_fit)
+
+    @property
+    def residuals_passed(self) -> bool:
+        """White and independent of the sine (noisy windows); True where there is no noise to test."""
+        return self.residuals is None or self.residuals.passed
+
+    @property
+    def passed(self) -> bool:
+        """The verdict on this experiment: the fit reaches ``min_fit`` and the residual tests that apply pass."""
+        return self.fit_passed and self.residuals_passed
 
 
 @dataclass(frozen=True)
 class Validation:
-    """Everything :func:`validate` found."""
+    """Everything :func:`validate` found: per record and experiment the fit and residual tests, the minimum fit
+    asked for, and whether the data is the data the model was identified from (``own_data``)."""
 
     result: Result
     data_file: DataFile
     records: tuple[RecordValidation, ...]
     experiments: tuple[ExperimentValidation, ...]
+    min_fit: float = MIN_FIT
+    own_data: bool = False
 
     @property
     def passed(self) -> bool:
-        """Every record's residuals within their bounds (stepped-sine experiments have no residual test)."""
-        return all(r.passed for r in self.records)
+        """Every record and experiment fits at least ``min_fit`` % and passes the residual tests that apply."""
+        return all(r.passed for r in self.records) and all(e.passed for e in self.experiments)
+
+    def failures(self) -> list[str]:
+        """One short line per record or experiment that fails, saying why."""
+        out = []
+        for item in (*self.records, *self.experiments):
+            name = (f"record {item.name} ({item.output})" if isinstance(item, RecordValidation) else
+                    f"experiment {item.index} ({item.amplitude:g} N, {item.frequency:g} Hz)")
+            why = ([f"fit {item.fit:.4g} % < {self.min_fit:g} %"] if not item.fit_passed else []) + \
+                  (["residual tests failed"] if not item.residuals_passed else [])
+            if why:
+                out.append(f"{name}: {', '.join(why)}")
+        return out
 
 
-def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float):
+def own_data_warning(v: Validation) -> str | None:
+    """The warning when ``v`` was computed on the data the model was fitted to, else None."""
+    if not v.own_data:
+        return None
+    return (f"{Path(v.data_file.path).name} is the data the model was identified from (the SHA-256 its "
+            "identification recorded): the validation shows the fit, not how the model predicts data it has not "
+            "seen; validate on other runs of the machine.")
+
+
+def _is_own_data(result: Result, data_file: DataFile) -> bool:
+    """Whether the data file's SHA-256 is the one the identification recorded."""
+    recorded = result.provenance.get("data_sha256")
+    path = Path(data_file.path)
+    return bool(recorded) and path.is_file() and file_sha256(path) == recorded
+
+
+def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float,
+                      min_fit: float) -> list[RecordValidation]:
+    """The model driven by every record's input; residuals tested later (:func:`_with_tests`)."""
     out = []
     for rec in record_data(data_file, skip).records:
         response = sim.simulate_record(params[None], rec.time, rec.u, hold=rec.hold, rtol=POLISH_RTOL)
@@ -185,11 +271,12 @@ def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFi
         y = rec.y[rec.fitted]
         out.append(RecordValidation(name=rec.name, output=rec.output, hold=rec.hold, time=rec.time[rec.fitted],
                                     u=rec.u[rec.fitted], y=y, y_model=y + e, fit=fit_percent(y, e),
-                                    residuals=residual_test(e, rec.u[rec.fitted], y)))
+                                    residuals=None, min_fit=min_fit))
     return out
 
 
-def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, controller, skip: float):
+def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, controller, skip: float,
+                          min_fit: float) -> list[RecordValidation]:
     """Closed-loop records replayed in the loop from their reference: the position and the force command, each
     with its residuals tested against the reference (the loop's input)."""
     from ..identification.closed_loop import closed_loop_data
@@ -208,26 +295,40 @@ def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, co
                 raise UserError(f"{data_file.path}: the identified model cannot be simulated in the loop of "
                                 f"record {rec.name}")
             out.append(RecordValidation(name=rec.name, output=output, hold="zoh", time=rec.time[f], u=r, y=y[f],
-                                        y_model=y_model[f], fit=fit_percent(y[f], e),
-                                        residuals=residual_test(e, r, y[f]), closed_loop=True))
+                                        y_model=y_model[f], fit=fit_percent(y[f], e), residuals=None,
+                                        closed_loop=True, min_fit=min_fit))
     return out
 
 
-def _validate_experiment(sim: BatchSimulator, params: np.ndarray, e: ExperimentResult) -> ExperimentValidation:
+def _validate_experiment(sim: BatchSimulator, params: np.ndarray, e: ExperimentResult,
+                         min_fit: float) -> ExperimentValidation:
+    """The model from rest through one experiment's window; residuals tested later when the window is noisy."""
     grid = np.union1d(e.transient.time, e.window.time)
     response = sim.simulate_sine(params[None], grid, e.amplitude, e.frequency, rtol=POLISH_RTOL)
     v_model = np.interp(e.window.time, grid, response.v[0])  # the window's times are grid points
-    y = e.window.v_noisy if e.window.v_noisy is not None else e.window.v
+    noisy = e.window.v_noisy is not None
+    y = e.window.v_noisy if noisy else e.window.v
     h = harmonics(e.window.time, v_model, e.frequency, start=e.window_start, periods=e.window_periods,
                   n_harmonics=1)
     H_data = e.H_noisy if e.H_noisy is not None else e.H
+    u = e.amplitude * np.sin(2 * np.pi * e.frequency * e.window.time) if noisy else None
     return ExperimentValidation(index=e.index, amplitude=e.amplitude, frequency=e.frequency, converged=e.converged,
                                 time=e.window.time, y=y, y_model=v_model, fit=fit_percent(y, v_model - y),
-                                H_error=abs(h.first / e.U1 - H_data) / abs(H_data))
+                                H_error=abs(h.first / e.U1 - H_data) / abs(H_data), u=u, min_fit=min_fit)
 
 
-def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=None) -> Validation:
-    """Simulate an identified model on every record and stepped-sine experiment of a data file.
+def _with_tests(records: list[RecordValidation], experiments: list[ExperimentValidation]):
+    """The residual tests of every record and noisy experiment, with bounds joint over all of them."""
+    functions = sum(1 if r.closed_loop else 2 for r in records) + 2 * sum(e.u is not None for e in experiments)
+    records = [replace(r, residuals=residual_test(r.y_model - r.y, r.u, r.y, functions=functions)) for r in records]
+    experiments = [replace(e, residuals=residual_test(e.y_model - e.y, e.u, e.y, functions=functions))
+                   if e.u is not None else e for e in experiments]
+    return records, experiments
+
+
+def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=None,
+             min_fit: float = MIN_FIT) -> Validation:
+    """Simulate an identified model on every record and stepped-sine experiment of a data file, and judge it.
 
     Parameters
     ----------
@@ -240,76 +341,141 @@ def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=
     controller : ControllerSpec, optional
         The records are closed-loop logs of this controller: they are replayed in the loop from their reference,
         and the position and the force command are compared (as ``identify --closed-loop``).
+    min_fit : float
+        The fit (%) every record and experiment must reach (default ``MIN_FIT``, docs/validation.md).
 
     Returns
     -------
     Validation
-        Per record the fit (%) and the residual analysis; per experiment the fit (%) over the analysed window
-        and the error of the first-harmonic response.
+        Per record the fit (%) and the residual analysis; per experiment the fit (%) over the analysed window,
+        the error of the first-harmonic response and, for noisy data, the residual analysis; the verdict
+        (``passed``) and whether the data is the identification's own (``own_data``).
 
     Raises
     ------
     UserError
         When the result's structure does not match the plant the data was measured on, the file holds nothing
-        to validate on, or the model cannot be simulated on it.
+        to validate on, the model cannot be simulated on it, or ``min_fit`` is not a number below 100.
     """
+    if not (isinstance(min_fit, (int, float)) and math.isfinite(min_fit) and min_fit <= 100):
+        raise UserError(f"minimum fit {min_fit!r}: give a number of percent ≤ 100")
     check_structure(result.structure, data_file, "the result's structure")
     if not data_file.records and not data_file.experiments:
         raise UserError(f"{data_file.path}: holds no records and no experiments to validate on")
     sim = BatchSimulator(result.structure)
     params = result.plant.parameter_vector()
     if controller is not None:
-        records = _validate_closed_loop(result.structure, params, data_file, controller, skip)
+        records = _validate_closed_loop(result.structure, params, data_file, controller, skip, min_fit)
     else:
-        records = _validate_records(sim, params, data_file, skip) if data_file.records else []
-    experiments = [_validate_experiment(sim, params, e) for e in data_file.experiments]
-    return Validation(result=result, data_file=data_file, records=tuple(records), experiments=tuple(experiments))
+        records = _validate_records(sim, params, data_file, skip, min_fit) if data_file.records else []
+    experiments = [_validate_experiment(sim, params, e, min_fit) for e in data_file.experiments]
+    records, experiments = _with_tests(records, experiments)
+    return Validation(result=result, data_file=data_file, records=tuple(records), experiments=tuple(experiments),
+                      min_fit=float(min_fit), own_data=_is_own_data(result, data_file))
 
 
 # ---------------------------------------------------------------------------
 # Output
 # ---------------------------------------------------------------------------
-def validation_json(v: Validation) -> dict:
-    """One object for scripts."""
-    def test(r: ResidualTest) -> dict:
-        auto_out, cross_out = r.outside_per_lag()
-        return {"exact": r.exact, "white": r.white, "independent_of_input": r.independent, "passed": r.passed,
-                "max_autocorrelation_over_bound": float(np.max(np.abs(r.autocorrelation[1:])) / (r.z * r.auto_sigma)),
-                "max_cross_correlation_over_bound": float(np.max(np.abs(r.cross_correlation)) / (r.z * r.cross_sigma)),
-                "lags_outside_per_lag_bounds": {"autocorrelation": auto_out, "cross_correlation": cross_out},
-                "autocorrelation": r.autocorrelation.tolist(), "cross_correlation": r.cross_correlation.tolist(),
-                "autocorrelation_bound": r.z * r.auto_sigma, "cross_correlation_bound": r.z * r.cross_sigma}
+def _test_json(r: ResidualTest | None) -> dict | None:
+    """A residual test as JSON (None stays None: nothing was tested)."""
+    if r is None:
+        return None
+    auto_out, cross_out = r.outside_per_lag()
+    return {"exact": r.exact, "white": r.white, "independent_of_input": r.independent, "passed": r.passed,
+            "max_autocorrelation_over_bound": float(np.max(np.abs(r.autocorrelation[1:])) / (r.z * r.auto_sigma)),
+            "max_cross_correlation_over_bound": float(np.max(np.abs(r.cross_correlation)) / (r.z * r.cross_sigma)),
+            "lags_outside_per_lag_bounds": {"autocorrelation": auto_out, "cross_correlation": cross_out},
+            "autocorrelation": r.autocorrelation.tolist(), "cross_correlation": r.cross_correlation.tolist(),
+            "autocorrelation_bound": r.z * r.auto_sigma, "cross_correlation_bound": r.z * r.cross_sigma}
 
-    return {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path), "passed": v.passed,
+
+def validation_json(v: Validation) -> dict:
+    """One object for scripts: the verdict (``passed``, ``min_fit_percent``, ``failures``), ``own_data`` and
+    ``warnings``, and per record and experiment the fit, the residual test and the verdict."""
+    warning = own_data_warning(v)
+    return {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path),
+            "passed": v.passed, "min_fit_percent": v.min_fit, "failures": v.failures(), "own_data": v.own_data,
+            "warnings": [warning] if warning else [],
             "records": [{"name": r.name, "output": r.output, "intersample": r.hold, "samples": int(r.y.size),
-                         "fit_percent": r.fit, "closed_loop": r.closed_loop, "passed": r.passed,
-                         "residual_test": test(r.residuals)} for r in v.records],
+                         "fit_percent": r.fit, "fit_passed": r.fit_passed, "closed_loop": r.closed_loop,
+                         "passed": r.passed, "residual_test": _test_json(r.residuals)} for r in v.records],
             "experiments": [{"index": e.index, "amplitude": e.amplitude, "frequency": e.frequency,
-                             "converged": e.converged, "fit_percent": e.fit, "H_relative_error": e.H_error}
-                            for e in v.experiments]}
+                             "converged": e.converged, "fit_percent": e.fit, "fit_passed": e.fit_passed,
+                             "H_relative_error": e.H_error, "passed": e.passed,
+                             "residual_test": _test_json(e.residuals)} for e in v.experiments]}
+
+
+def _verdict_line(v: Validation) -> str:
+    """The verdict in one line."""
+    if v.passed:
+        return (f"verdict: passed (every fit ≥ {v.min_fit:g} %, the residual tests that apply within their joint "
+                "99 % bounds)")
+    failures = v.failures()
+    more = f"; and {len(failures) - 3} more" if len(failures) > 3 else ""
+    return f"verdict: FAILED ({len(failures)} of {len(v.records) + len(v.experiments)}: " \
+           + "; ".join(failures[:3]) + more + ")"
 
 
 def validation_text(v: Validation) -> str:
-    """A plain-text table per record and experiment."""
+    """A plain-text table per record and experiment, the verdict, and the warning when the data is the model's
+    own fitting data."""
     lines = [f"model {v.result.structure.name} ({v.result.method}) on {v.data_file.path}"]
+    yes = lambda ok: "yes" if ok else "NO"  # noqa: E731
     if v.records:
-        lines.append(f"{'record':<24}{'output':>10}{'samples':>9}{'fit %':>12}{'white':>7}{'indep.':>8}")
+        lines.append(f"{'record':<24}{'output':>10}{'samples':>9}{'fit %':>12}{'white':>7}{'indep.':>8}"
+                     f"{'verdict':>9}")
         for r in v.records:
-            white = ("yes" if r.residuals.white else "no") if r.closed_loop else ("yes" if r.residuals.white else "NO")
+            white = ("yes" if r.residuals.white else "no") if r.closed_loop else yes(r.residuals.white)
             lines.append(f"{r.name:<24}{r.output:>10}{r.y.size:>9}{r.fit:>12.4f}"
-                         f"{white:>7}{'yes' if r.residuals.independent else 'NO':>8}")
+                         f"{white:>7}{yes(r.residuals.independent):>8}{'passed' if r.passed else 'FAILED':>9}")
         loop = any(r.closed_loop for r in v.records)
         lines.append("residual tests: " + ("cross-correlation with the reference (lags -25..25; in a closed loop "
                                            "the residuals are not white)" if loop else
                                            "autocorrelation (lags 1-25) and cross-correlation with the input (lags "
-                                           "-25..25)") + " within their joint 99 % bounds: "
-                     + ("passed" if v.passed else "FAILED"))
+                                           "-25..25)") + " within their joint 99 % bounds")
     if v.experiments:
-        lines.append(f"{'experiment':<12}{'amplitude N':>12}{'frequency Hz':>14}{'fit %':>12}{'|dH|/|H|':>12}")
+        lines.append(f"{'experiment':<12}{'amplitude N':>12}{'frequency Hz':>14}{'fit %':>12}{'|dH|/|H|':>12}"
+                     f"{'resid.':>8}{'verdict':>9}")
         for e in v.experiments:
+            tested = "-" if e.residuals is None else ("ok" if e.residuals.passed else "NO")
             lines.append(f"{e.index:<12}{e.amplitude:>12g}{e.frequency:>14g}{e.fit:>12.4f}{e.H_error:>12.3e}"
+                         f"{tested:>8}{'passed' if e.passed else 'FAILED':>9}"
                          + ("" if e.converged else "  (no steady state)"))
+        if any(e.residuals is not None for e in v.experiments):
+            lines.append("residual tests (noisy windows): autocorrelation and cross-correlation with the sine within "
+                         "their joint 99 % bounds")
+    lines.append(_verdict_line(v))
+    warning = own_data_warning(v)
+    if warning:
+        lines.append(f"warning: {warning}")
     return "\n".join(lines)
+
+
+def _correlation_panels(ax_auto, ax_cross, r: ResidualTest) -> None:
+    """The residuals' autocorrelation and cross-correlation with the input, with their joint bounds."""
+    lags = np.arange(r.autocorrelation.size)
+    ax_auto.bar(lags[1:], r.autocorrelation[1:], width=0.6)
+    ax_cross.bar(r.cross_lags, r.cross_correlation, width=0.6)
+    for ax, bound, title in ((ax_auto, r.z * r.auto_sigma, "autocorrelation of e"),
+                             (ax_cross, r.z * r.cross_sigma, "cross-correlation of e and u")):
+        ax.axhline(bound, color="r", ls="--", lw=1)
+        ax.axhline(-bound, color="r", ls="--", lw=1)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("lag [samples]")
+
+
+def _item_title(item) -> str:
+    """A record's name (and output) or an experiment's magnitude and frequency."""
+    if isinstance(item, RecordValidation):
+        return f"{item.name} ({item.output})"
+    return f"{item.amplitude:g} N, {item.frequency:g} Hz"
+
+
+def _unit(item) -> str:
+    """The unit of the compared signal."""
+    return "m" if getattr(item, "output", "v") == "position" else "N" if getattr(item, "output", "") == "force" \
+        else "m/s"
 
 
 def validation_figure(v: Validation, which: str) -> bytes | None:
@@ -323,72 +489,113 @@ def validation_figure(v: Validation, which: str) -> bytes | None:
     fig, axes = plt.subplots(len(items), cols, figsize=(12 if cols == 3 else 9, 2.8 * len(items)), squeeze=False,
                              gridspec_kw={"width_ratios": [2, 1, 1]} if cols == 3 else None)
     for row, item in zip(axes, items):
-        unit = "m" if getattr(item, "output", "v") == "position" else "m/s"
+        unit = _unit(item)
         row[0].plot(item.time, item.y, lw=1, label="measured")
         row[0].plot(item.time, item.y_model, "k--", lw=1, label="model")
-        title = item.name if which == "records" else f"{item.amplitude:g} N, {item.frequency:g} Hz"
-        row[0].set_title(f"{title}: fit {item.fit:.3f} %")
-        row[0].set_ylabel(f"{'position' if unit == 'm' else 'v'} [{unit}]")
+        row[0].set_title(f"{_item_title(item)}: fit {item.fit:.3f} %")
+        row[0].set_ylabel({"m": "position [m]", "N": "force [N]"}.get(unit, "v [m/s]"))
         row[0].set_xlabel("time [s]")
         row[0].legend(fontsize=8, loc="upper right")
         if which == "records":
-            r = item.residuals
-            lags = np.arange(r.autocorrelation.size)
-            row[1].bar(lags[1:], r.autocorrelation[1:], width=0.6)
-            row[1].axhline(r.z * r.auto_sigma, color="r", ls="--", lw=1)
-            row[1].axhline(-r.z * r.auto_sigma, color="r", ls="--", lw=1)
-            row[1].set_title("autocorrelation of e", fontsize=9)
-            row[2].bar(r.cross_lags, r.cross_correlation, width=0.6)
-            row[2].axhline(r.z * r.cross_sigma, color="r", ls="--", lw=1)
-            row[2].axhline(-r.z * r.cross_sigma, color="r", ls="--", lw=1)
-            row[2].set_title("cross-correlation of e and u", fontsize=9)
+            _correlation_panels(row[1], row[2], item.residuals)
+        for ax in row:
+            ax.grid(True, alpha=0.4)
+    return png_bytes(fig)
+
+
+def residual_figure(v: Validation) -> bytes | None:
+    """PNG: the residuals e = ŷ − y over time of every record and experiment (at most MAX_PANELS), beside their
+    autocorrelation and cross-correlation with the input and the joint bounds where they are tested."""
+    items = [*v.records, *v.experiments][:MAX_PANELS]
+    if not items:
+        return None
+    plt = pyplot()
+    fig, axes = plt.subplots(len(items), 3, figsize=(12, 2.6 * len(items)), squeeze=False,
+                             gridspec_kw={"width_ratios": [2, 1, 1]})
+    for row, item in zip(axes, items):
+        e = item.y_model - item.y
+        row[0].plot(item.time, e, lw=0.8, color="C3")
+        row[0].axhline(0, color="k", lw=0.5)
+        row[0].set_title(f"residuals, {_item_title(item)}: fit {item.fit:.3f} % "
+                         f"({'passed' if item.passed else 'FAILED'})", fontsize=9)
+        row[0].set_ylabel(f"e = ŷ − y [{_unit(item)}]")
+        row[0].set_xlabel("time [s]")
+        if item.residuals is not None:
+            _correlation_panels(row[1], row[2], item.residuals)
+        else:
             for ax in row[1:]:
-                ax.set_xlabel("lag [samples]")
+                ax.text(0.5, 0.5, "noise-free: nothing to test", ha="center", va="center", fontsize=8,
+                        transform=ax.transAxes)
+                ax.set_xticks([])
+                ax.set_yticks([])
         for ax in row:
             ax.grid(True, alpha=0.4)
     return png_bytes(fig)
 
 
 def validation_html(v: Validation) -> list[str]:
-    """The validation section of an HTML page (tables and figures)."""
-    parts = []
+    """The validation section of an HTML page: the verdict, the warning when the data is the model's own fitting
+    data, tables of records and experiments, the figures of measured against simulated and of the residuals."""
+    verdict = "passed" if v.passed else "failed"
+    parts = [f'<p id="verdict" class="verdict {verdict}"><strong>Verdict: {verdict}.</strong> Every record and '
+             f"experiment must fit at least {escape(format(v.min_fit, 'g'))} % and pass the residual tests that "
+             "apply (docs/validation.md).</p>"]
+    if not v.passed:
+        parts.append('<ul id="failures">' + "".join(f"<li>{escape(f)}</li>" for f in v.failures()) + "</ul>")
+    warning = own_data_warning(v)
+    if warning:
+        parts.append(f'<p id="own-data-warning" class="warning"><strong>Warning:</strong> {escape(warning)}</p>')
     if v.records:
         rows = []
         for r in v.records:
             t = r.residuals
             auto_out, cross_out = t.outside_per_lag()
             rows.append([r.name, r.output, r.hold, str(r.y.size), number(r.fit, ".4f"),
-                         "yes" if t.white else "no", "yes" if t.independent else "no", f"{auto_out} / {cross_out}"])
+                         "—" if r.closed_loop else ("yes" if t.white else "no"), "yes" if t.independent else "no",
+                         f"{auto_out} / {cross_out}", "passed" if r.passed else "failed"])
         parts += [table("validation-records", ["record", "output", "input", "samples", "fit %", "e white",
-                                               "e independent of u", "lags outside per-lag 99 % bounds"], rows,
-                        numeric_from=3),
-                  '<p class="note">Fit: 100·(1 − ‖y − ŷ‖/‖y − mean y‖). Residual tests: autocorrelation (lags 1–25) '
-                  "and cross-correlation with the input (lags −25..25) within their joint 99 % bounds.</p>"]
+                                               "e independent of u", "lags outside per-lag 99 % bounds",
+                                               "verdict"], rows, numeric_from=3),
+                  '<p class="note">Fit: 100·(1 − ‖y − ŷ‖/‖y − mean y‖). Residual tests: autocorrelation (lags 1–25; '
+                  "not for closed-loop records, whose disturbances the loop feeds back) and cross-correlation with "
+                  "the input (lags −25..25) within their joint 99 % bounds.</p>"]
         parts.append(figure("Measured and simulated output of every record, with the residuals' correlations and "
                             "their joint 99 % bounds.", validation_figure(v, "records"), "validation of records"))
     if v.experiments:
         rows = [[str(e.index), number(e.amplitude, "g"), number(e.frequency, "g"), number(e.fit, ".4f"),
-                 number(e.H_error, ".3e")] for e in v.experiments]
+                 number(e.H_error, ".3e"),
+                 "—" if e.residuals is None else ("passed" if e.residuals.passed else "failed"),
+                 "passed" if e.passed else "failed"] for e in v.experiments]
         parts += [table("validation-experiments", ["experiment", "amplitude [N]", "frequency [Hz]", "fit %",
-                                                   "|H_model − H|/|H|"], rows, numeric_from=1),
+                                                   "|H_model − H|/|H|", "residual tests", "verdict"], rows,
+                        numeric_from=1),
+                  '<p class="note">Residual tests of an experiment: on noisy windows only (a right model leaves the '
+                  "noise, white and independent of the sine); a noise-free window has no noise to test.</p>",
                   figure("The analysed window of every experiment, measured and simulated from rest.",
                          validation_figure(v, "experiments"), "validation of experiments")]
+    n = len(v.records) + len(v.experiments)
+    more = f" (the first {MAX_PANELS} of {n})" if n > MAX_PANELS else ""
+    parts.append(figure(f"Residuals e = ŷ − y of every record and experiment{more}, with their autocorrelation and "
+                        "cross-correlation with the input and the joint 99 % bounds where they are tested.",
+                        residual_figure(v), "residuals"))
     return parts
 
 
 def validate_files(result_path: str | Path, data_path: str | Path, output: str | Path | None = None,
-                   skip: float = 0.0, controller: str | Path | None = None) -> Validation:
-    """Validate a result file on a data file (closed-loop records with the controller file ``controller``);
-    write ``output`` (.html page or .png figure) if given."""
+                   skip: float = 0.0, controller: str | Path | None = None, min_fit: float = MIN_FIT,
+                   overwrite: bool = False) -> Validation:
+    """Validate a result file on a data file (closed-loop records with the controller file ``controller``) with
+    the minimum fit ``min_fit`` (%); write ``output`` (.html page or .png figure) if given (an existing one only
+    with ``overwrite``)."""
     if output is not None:
-        output = check_output_path(output)
+        output = claim_output(output, output_mode(overwrite), inputs=(result_path, data_path, controller))
         if output.suffix.lower() not in (".html", ".png"):
             raise UserError(f"{output}: write an .html page or a .png figure")
     law = None
     if controller is not None:
         from ..model.controller import load_controller
         law = load_controller(controller)
-    v = validate(read_result(result_path), read_data_file(data_path), skip, law)
+    v = validate(read_result(result_path), read_data_file(data_path), skip, law, min_fit=min_fit)
     if output is None:
         return v
     if output.suffix.lower() == ".png":
