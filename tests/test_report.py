@@ -1,7 +1,14 @@
-"""`servofmu report`: the HTML page opened in headless Chromium (Debian's chromium and chromium-driver, installed by
-scripts/test.sh), its tables checked against the result and data files read with h5py, its images decoded, no
-console errors; the friction curve against the friction formulas of docs/model.md; refusals of bad input."""
+"""`servofmu report` and `servofmu validate`: the HTML pages opened in headless Chromium (Debian's chromium and
+chromium-driver, installed by scripts/test.sh), their tables checked against the result and data files read with
+h5py, intervals with distinct bounds, measured Bode points drawn as unjoined markers (found in the SVG), residual
+plots, images decoded, no console errors; the friction curve against the friction formulas of docs/model.md;
+refusals of bad input; validate's verdict on a right and a wrong model (exit status 0 and 1)."""
+import base64
+import json
+import re
 import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -12,9 +19,10 @@ from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 
 from servofmu.identification.criterion import POLISH_RTOL, sine_data
-from servofmu.identification.results import write_comparison, write_result
+from servofmu.identification.results import read_result, write_comparison, write_result
 from servofmu.measurement.datafile import read_data_file
-from servofmu.measurement.measure import measure
+from servofmu.measurement.measure import MeasureOptions, measure
+from servofmu.runtime import RunOptions
 from servofmu.model.plant import load_plant
 from servofmu.baselines.compare import run_methods
 from servofmu.fileio import file_sha256
@@ -45,7 +53,7 @@ def g1_result(tmp_path_factory, built_fmu):
     the files record the data file by its name."""
     folder = tmp_path_factory.mktemp("report")
     data = folder / "g1.h5"
-    measure(built_fmu("g1", 3), data, workers=0, **PLAN)
+    measure(built_fmu("g1", 3), data, run=RunOptions(workers=0), **PLAN)
     provenance = {"data_file": "g1.h5", "data_sha256": file_sha256(data), "command": "test",
                   "date": "2024-01-01T00:00:00Z"}
     results = run_methods(load_plant("g1"), sine_data(read_data_file(data)), ["pso", "chen2002"], seed=0,
@@ -85,6 +93,37 @@ def browser():
     profile.cleanup()
 
 
+def interval_bounds(text: str) -> tuple[float, float]:
+    """The bounds a reader reads off an interval cell: "v ± h" or "[lo, hi]"."""
+    if text.startswith("["):
+        lo, hi = text.strip("[]").split(",")
+        return float(lo), float(hi)
+    value, half = text.split(" ± ")
+    return float(value) - float(half), float(value) + float(half)
+
+
+def measured_markers(src: str) -> int:
+    """The number of measured points drawn in an SVG figure (a data: URI): marker elements (<use>) in the groups
+    of the measured series ("measured-…").  Fails when a measured series is drawn as a line (a path with line
+    segments outside the marker's definition) or has no markers."""
+    assert src.startswith("data:image/svg+xml;base64,")
+    root = ET.fromstring(base64.b64decode(src.split(",", 1)[1]))
+    svg = "{http://www.w3.org/2000/svg}"
+    groups = [g for g in root.iter(f"{svg}g") if g.get("id", "").startswith("measured-")]
+    assert groups, "no measured series in the figure"
+    markers = {}
+    for g in groups:
+        defs = {id(p) for d in g.iter(f"{svg}defs") for p in d.iter()}
+        lines = [p for p in g.iter(f"{svg}path") if id(p) not in defs and re.search(r"\bL\b", p.get("d", ""))]
+        assert not lines, f"{g.get('id')}: the measured points are joined by a line"
+        uses = list(g.iter(f"{svg}use"))
+        assert uses, f"{g.get('id')}: no markers"
+        markers[g.get("id")] = len(uses)
+    magnitude = sum(n for k, n in markers.items() if "-magnitude" in k)
+    assert magnitude == sum(n for k, n in markers.items() if "-phase" in k)  # each point in both panels
+    return magnitude
+
+
 def table(driver, table_id):
     """Rows of the table as lists of the cell texts a reader sees (header row first)."""
     return driver.execute_script(
@@ -101,17 +140,33 @@ def test_report_renders_in_chromium(report, browser, g1_result):
         stages = [(n.decode(), fit) for n, fit in zip(f["stages/name"][()], f["stages/fitness"][()])]
         fitness = f.attrs["fitness"]
 
-    # identified parameters, their intervals, the truth and the relative errors
+    # identified parameters, their units, intervals (value ± half-width, bounds distinct), truth, relative errors
     rows = table(browser, "parameters")
-    assert rows[0][:5] == ["parameter", "unit", "identified", "95 % low", "95 % high"]
-    assert rows[0][5:] == ["true", "relative error"]
+    assert rows[0] == ["parameter", "unit", "identified", "95 % interval", "true", "relative error"]
     assert [r[0] for r in rows[1:]] == names == list(TRUTH)
+    assert {r[0]: r[1] for r in rows[1:]} == {"pole1": "rad/s", "dc_gain": "m/(N·s)", "fc_pos": "N", "fc_neg": "N"}
     for r, value, (lo, hi) in zip(rows[1:], theta, intervals):
-        assert np.allclose([float(r[2]), float(r[3]), float(r[4])], [value, lo, hi], rtol=1e-7, atol=0)
+        assert float(r[2]) == pytest.approx(value, rel=1e-7, abs=0)
+        low, high = interval_bounds(r[3])
+        assert low < high, r[3]                                    # distinct as the reader sees them
+        half = (hi - lo) / 2
+        assert low == pytest.approx(lo, abs=0.06 * half) and high == pytest.approx(hi, abs=0.06 * half), (r[3], lo, hi)
         true = TRUTH[r[0]]
-        assert float(r[5]) == true
-        assert float(r[6]) == pytest.approx(abs(value - true) / abs(true), rel=1e-3)
-    assert float(rows[1][6]) == pytest.approx(1 / 11, rel=1e-3)  # pole -10 identified, "true" -11
+        assert float(r[4]) == true
+        assert float(r[5]) == pytest.approx(abs(value - true) / abs(true), rel=1e-3)
+    assert float(rows[1][5]) == pytest.approx(1 / 11, rel=1e-3)  # pole -10 identified, "true" -11
+
+    # G(s) written out: the identified pole and gain, the DC gain with the unit of |H|
+    formula = browser.find_element("css selector", "div.formula").text
+    k = theta[names.index("dc_gain")] * -theta[names.index("pole1")]
+    assert "G(s) =" in formula and f"(s + {-theta[names.index('pole1')]:.8g})" in formula, formula
+    assert f"K = {k:.8g} m/(N·s²)" in formula and "DC gain G(0) = " in formula and "m/(N·s)" in formula, formula
+
+    # the comparators' references named: author, title, year
+    refs = browser.execute_script("return Array.from(document.querySelectorAll('#references li')).map(l => l.innerText)")
+    assert [r.split("]")[0] for r in refs] == ["[31", "[2", "[35"]
+    assert "Chen" in refs[1] and "Frequency-domain identification algorithms" in refs[1] and "2002" in refs[1]
+    assert "Kiran" in refs[0] and "2011" in refs[0] and "Kiran" in refs[2] and "2013" in refs[2]
 
     # the paper's layout, beside its published Table II (g1 is the paper's plant)
     paper = {r[0]: r for r in table(browser, "paper")}
@@ -143,14 +198,19 @@ def test_report_renders_in_chromium(report, browser, g1_result):
     provenance = {r[0]: r[1] for r in table(browser, "provenance")}
     assert provenance["data_sha256"] == file_sha256(g1_result["data"])
 
-    # five figures (one Bode plot per magnitude, all magnitudes against G, friction, PSO), embedded and decoded
+    # five figures (one Bode plot per magnitude, all magnitudes against G: SVG; friction, PSO: PNG), decoded
     images = browser.execute_script(
-        "return Array.from(document.images).map(i => [i.getAttribute('src').slice(0, 22), i.complete, "
-        "i.naturalWidth, i.naturalHeight]);")
+        "return Array.from(document.images).map(i => [i.getAttribute('src'), i.complete, i.naturalWidth, "
+        "i.naturalHeight]);")
     assert len(images) == 5
+    assert [src.split(";")[0] for src, *_ in images] == ["data:image/svg+xml"] * 3 + ["data:image/png"] * 2
     for src, complete, width, height in images:
-        assert src == "data:image/png;base64,"
+        assert src.split(",")[0].endswith(";base64")
         assert complete and width > 0 and height > 0
+    # the measured first harmonics are markers, one per experiment, never joined by a line
+    per_magnitude = len(PLAN["frequencies"])
+    for (src, *_), points in zip(images[:3], [per_magnitude, per_magnitude, per_magnitude * len(PLAN["amplitudes"])]):
+        assert measured_markers(src) == points
     # self-contained: nothing was fetched, and the console stayed clean
     assert browser.execute_script("return performance.getEntriesByType('resource').length") == 0
     errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
@@ -166,10 +226,10 @@ def test_comparison_side_by_side(g1_result, browser, tmp_path):
     with h5py.File(g1_result["compare"], "r") as f:
         theta = {m: f[f"methods/{m}/theta"][()] for m in ("pso", "chen2002")}
     rows = table(browser, "parameters")
-    assert rows[0][2:] == ["identified (pso)", "95 % low (pso)", "95 % high (pso)", "identified (chen2002)",
-                           "95 % low (chen2002)", "95 % high (chen2002)"]
+    assert rows[0][2:] == ["identified (pso)", "95 % interval (pso)", "identified (chen2002)",
+                           "95 % interval (chen2002)"]
     for r, a, b in zip(rows[1:], theta["pso"], theta["chen2002"]):
-        assert float(r[2]) == pytest.approx(a, rel=1e-7) and float(r[5]) == pytest.approx(b, rel=1e-7)
+        assert float(r[2]) == pytest.approx(a, rel=1e-7) and float(r[4]) == pytest.approx(b, rel=1e-7)
     assert abs(theta["chen2002"][0] / theta["pso"][0] - 1) > 1e-6  # two different answers side by side
     # per method one Bode figure per magnitude and one against G; then friction and PSO convergence
     sizes = browser.execute_script("return Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0);")
@@ -228,3 +288,76 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     assert "<table id=\"parameters\">" in (tmp_path / "ok.html").read_text()
     assert_one_line_error(run("report", result, "--truth", "no_such_plant", "-o", out, "--force"), "no_such_plant")
     assert out.read_text() == "an earlier report"  # nothing written by a failed run
+
+
+# ---------------------------------------------------------------------------
+# servofmu validate: the verdict and its page
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def held_out(g1_result, built_fmu):
+    """Another run of g1 with measurement noise (20 dB SNR), and the identified plant with its Coulomb friction 3×
+    too low (the new user's wrong model) as a result file."""
+    folder = g1_result["folder"]
+    noisy = folder / "g1-noisy.h5"
+    measure(built_fmu("g1", 3), noisy, options=MeasureOptions(noise_snr_db=20, seed=1), run=RunOptions(workers=0),
+            **PLAN)
+    right = read_result(g1_result["result"])
+    plant = right.plant
+    low = plant.with_parameters([v / 3 if n in ("fc_pos", "fc_neg") else v
+                                 for n, v in zip(plant.parameter_names(), plant.parameter_vector())])
+    wrong = folder / "g1-wrong.h5"
+    write_result(wrong, replace(right, plant=low, theta=np.array([low.parameters()[n] for n in right.names])))
+    return {"noisy": noisy, "wrong": wrong}
+
+
+def test_validate_passes_the_right_model_and_fails_the_wrong_one(g1_result, held_out):
+    """On held-out noisy data the identified model passes (exit 0); the model with 3× too little friction fails
+    (exit 1, "passed": false) — on noisy data by fit and residual tests, on noise-free data by its fit alone."""
+    proc = run("validate", g1_result["result"], held_out["noisy"], "--json")
+    assert proc.returncode == 0, proc.stderr
+    right = json.loads(proc.stdout)
+    assert right["passed"] and right["min_fit_percent"] == 80 and not right["own_data"] and right["warnings"] == []
+    assert all(e["passed"] and e["residual_test"]["passed"] and e["fit_percent"] > 85 for e in right["experiments"])
+
+    proc = run("validate", held_out["wrong"], held_out["noisy"], "--json")
+    assert proc.returncode == 1, proc.stderr
+    wrong = json.loads(proc.stdout)
+    assert wrong["passed"] is False and wrong["failures"]
+    assert not any(e["residual_test"]["passed"] for e in wrong["experiments"])
+    assert min(e["fit_percent"] for e in wrong["experiments"]) < 80
+
+    proc = run("validate", held_out["wrong"], g1_result["data"])  # noise-free: nothing to test but the fit
+    assert proc.returncode == 1, proc.stderr
+    assert "verdict: FAILED" in proc.stdout and proc.stderr == ""
+    # a lower bar is the user's to set: the residual tests still fail it on noisy data, not on noise-free data
+    assert run("validate", held_out["wrong"], held_out["noisy"], "--min-fit", "-1000").returncode == 1
+    assert run("validate", held_out["wrong"], g1_result["data"], "--min-fit", "-1000").returncode == 0
+
+
+def test_validation_page_in_chromium(g1_result, held_out, browser, tmp_path):
+    """The page of a validation on the identification's own data: verdict, the warning that the data is the
+    fitting data, residual plots decoded; and the page of the wrong model: verdict failed, its failures listed."""
+    page = tmp_path / "own.html"
+    proc = run("validate", g1_result["result"], g1_result["data"], "-o", page)
+    assert proc.returncode == 0, proc.stderr
+    assert "warning: g1.h5 is the data the model was identified from" in proc.stdout
+    browser.get(page.as_uri())
+    assert browser.find_element("id", "verdict").text.startswith("Verdict: passed.")
+    assert "identified from" in browser.find_element("id", "own-data-warning").text
+    rows = table(browser, "validation-experiments")
+    assert len(rows) == 7 and rows[0][-2:] == ["residual tests", "verdict"]
+    assert all(r[-1] == "passed" for r in rows[1:])
+    images = browser.execute_script(
+        "return Array.from(document.images).map(i => [i.alt, i.complete ? i.naturalWidth : 0]);")
+    assert dict(images).get("residuals", 0) > 0, images  # the residual plot, decoded
+    assert all(width > 0 for _, width in images)
+
+    page = tmp_path / "wrong.html"
+    assert run("validate", held_out["wrong"], held_out["noisy"], "-o", page).returncode == 1
+    browser.get(page.as_uri())
+    assert browser.find_element("id", "verdict").text.startswith("Verdict: failed.")
+    assert len(browser.find_elements("css selector", "#failures li")) == len(PLAN["frequencies"]) * 2
+    assert browser.find_elements("id", "own-data-warning") == []
+    images = browser.execute_script("return Array.from(document.images).map(i => [i.alt, i.naturalWidth]);")
+    assert dict(images).get("residuals", 0) > 0
+    assert [e for e in browser.get_log("browser") if e["level"] == "SEVERE"] == []

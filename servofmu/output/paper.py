@@ -4,7 +4,22 @@ Rows follow results.paper_rows: G1 (first order) as pole / constant / DC gain / 
 DC gain / Fc+ / Fc−.  Columns: the paper's target and the four methods it reports.
 """
 
-__all__ = ["COLUMNS", "TABLES"]
+__all__ = ["COLUMNS", "TABLES", "PAPER", "REFERENCES"]
+
+PAPER = ("S. R. Kiran, T. Sai Rama, S. Varadarajan, \"PSO-ANN based hybrid technique for frequency domain "
+         "identification of servo system with friction\", IJAREEIE 2(8), 2013")
+# The paper's references whose methods fill its comparison columns: author, title, venue, year.
+REFERENCES = {
+    "31": "S. R. Kiran, S. Siva Nagaraju, S. Varadarajan, \"A hybrid technique for frequency domain identification "
+          "of servo system with friction force\", International Journal of Engineering Science and Technology "
+          "3(3):2020–2030, 2011 (GA-ANN: the hybrid with a genetic algorithm in place of PSO)",
+    "2": "Y.-Y. Chen, P.-Y. Huang, J.-Y. Yen, \"Frequency-domain identification algorithms for servo systems with "
+         "friction\", IEEE Transactions on Control Systems Technology 10(5):654–665, 2002 (the \"existing "
+         "technique\": describing functions of the friction at two magnitudes; servofmu's chen2002)",
+    "35": "S. R. Kiran, T. Sairama, S. Varadarajan, \"An adaptive hybrid technique for frequency domain "
+          "identification of servo system with friction force\", International Review on Modelling and "
+          "Simulations 6(1):235–245, 2013 (adaptive GA-ANN: crossover and mutation rates adapted to the fitness)",
+}
 
 COLUMNS = ("target", "GA-ANN [31]", "existing technique [2]", "adaptive GA-ANN [35]", "PSO-ANN (paper)")
 

@@ -20,6 +20,8 @@ def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
+    matplotlib.rcParams["svg.fonttype"] = "none"  # SVG text as text: smaller, and searchable
+    matplotlib.rcParams["svg.hashsalt"] = "servofmu"  # the same figure gives the same SVG
     import matplotlib.pyplot as plt
     return plt
 
@@ -68,13 +70,17 @@ def bode_figure(data_file: DataFile, path: str | Path, references: dict | None =
         f, h = np.asarray(f, float), np.asarray(h, complex)
         ax_mag.semilogx(f, 20 * np.log10(np.abs(h)), "k--", lw=1, label=label)
         ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(h))), "k--", lw=1)
-    for label, (f, h, ok) in curves.items():
+    markers = "osD^vP*X"
+    for k, (label, (f, h, ok)) in enumerate(curves.items()):
         mag, phase = 20 * np.log10(np.abs(h)), np.degrees(np.unwrap(np.angle(h)))
-        line, = ax_mag.semilogx(f, mag, "-", lw=1.5, label=label)
-        ax_ph.semilogx(f, phase, "-", lw=1.5, color=line.get_color())
-        for ax, y in ((ax_mag, mag), (ax_ph, phase)):
-            ax.plot(f[ok], y[ok], "o", color=line.get_color())
-            ax.plot(f[~ok], y[~ok], "o", mfc="none", color=line.get_color())
+        color, marker = f"C{k}", markers[k % len(markers)]
+        # measured points are markers only: a line between two frequencies would claim values nobody measured
+        for part, ax, y in (("magnitude", ax_mag, mag), ("phase", ax_ph, phase)):
+            ax.semilogx(f[ok], y[ok], marker, ls="none", color=color, label=label if part == "magnitude" else None,
+                        gid=f"measured-{k}-{part}")
+            if (~ok).any():
+                ax.semilogx(f[~ok], y[~ok], marker, ls="none", mfc="none", color=color,
+                            gid=f"measured-{k}-{part}-unsettled")
     if any((~ok).any() for _, _, ok in curves.values()):
         ax_mag.plot([], [], "o", mfc="none", color="gray", label="no steady state (flagged)")
     ax_mag.set_ylabel("|H| = |V1/U1| [dB re 1 m/(N·s)]")

@@ -30,8 +30,10 @@ from ..model.plant import Plant, load_plant, parameter_info
 from ..runtime import temporary_folder, utc_now
 from ..simulation.batch import BatchSimulator
 from ..version import __version__
-from .html import escape, figure, number, page, png_bytes, table
+from .html import escape, figure, format_interval, number, page, png_bytes, table
 from .paper import COLUMNS as PAPER_COLUMNS
+from .paper import PAPER
+from .paper import REFERENCES as PAPER_REFERENCES
 from .paper import TABLES as PAPER_TABLES
 from .plots import MAX_PANELS, bode_figure, pyplot
 from .validate import Validation, validation_figure, validation_html
@@ -39,7 +41,7 @@ from .validate import validate as validate_model
 
 __all__ = ["make_report", "read_entries", "compute_entries", "report_html",
            "model_sine", "velocity_range", "bode_figures", "records_figure", "friction_figure",
-           "convergence_figure", "Entry"]
+           "convergence_figure", "transfer_function_html", "unit_text", "Entry"]
 
 CURVE_POINTS = 40          # frequencies per magnitude of the identified model's Bode curve
 CURVE_RTOL = 1e-8          # integrator tolerance of that curve (a figure); the tables use the polish's
@@ -115,9 +117,11 @@ def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile)
 # ---------------------------------------------------------------------------
 # Figures (PNG bytes)
 # ---------------------------------------------------------------------------
-def _bode_png(data_file: DataFile, references: dict, title: str) -> bytes:
+def _bode_svg(data_file: DataFile, references: dict, title: str) -> bytes:
+    """A Bode figure (servofmu.output.plots.bode_figure) as SVG: vector lines, and the measured points as
+    marker elements a reader (or a test) can find in the markup."""
     with temporary_folder("figure") as tmp:
-        path = bode_figure(data_file, Path(tmp) / "bode.png", references=references, title=title)
+        path = bode_figure(data_file, Path(tmp) / "bode.svg", references=references, title=title)
         return path.read_bytes()
 
 
@@ -150,16 +154,18 @@ def bode_figures(entry: Entry, data_file: DataFile, data: SineData) -> list[tupl
         H, _, ok = model_sine(plant, np.full(grid.size, m), grid)
         one = replace(fitted, experiments=tuple(e for e in fitted.experiments if e.amplitude == m), records=())
         title = f"{entry.label}: measured and identified response at {m:g} N"
-        png = _bode_png(one, _segments(f"identified model at {m:g} N", grid, H, ok), title)
+        png = _bode_svg(one, _segments(f"identified model at {m:g} N", grid, H, ok), title)
         note = "" if ok.all() else f" The identified model reaches no steady state at {np.sum(~ok)} of the " \
                                    f"{grid.size} frequencies (gaps)."
-        out.append((f"{title}: points are the measured first harmonics H = V1/U1, the dashed line the identified "
-                     f"plant simulated to steady state at {grid.size} frequencies.{note}", png))
+        out.append((f"{title}: markers are the measured first harmonics H = V1/U1 (one per experiment, not "
+                     f"joined), the dashed line the identified plant simulated to steady state at {grid.size} "
+                     f"frequencies.{note}", png))
     wide = np.geomspace(f_lo / 2, f_hi * 2, 200)
     title = f"{entry.label}: every magnitude against the identified G(jω)"
-    png = _bode_png(fitted, {"identified linear G(jω), no friction": (wide, plant.frequency_response(2 * np.pi * wide))},
+    png = _bode_svg(fitted, {"identified linear G(jω), no friction": (wide, plant.frequency_response(2 * np.pi * wide))},
                     title)
-    out.append((f"{title}: the spread between magnitudes is the friction's effect.", png))
+    out.append((f"{title}: markers are the measured first harmonics at each magnitude, the dashed line the "
+                "identified G(jω) without friction; the spread between magnitudes is the friction's effect.", png))
     return out
 
 
@@ -234,34 +240,117 @@ def relative_error(value: float, true: float) -> float:
     return abs(value - true) / abs(true) if true != 0 else float("nan")
 
 
+def unit_text(unit: str) -> str:
+    """A unit as a reader writes it: the ASCII names of servofmu.model.plant (``N.s/m``, ``m/(N.s^2)``) with a
+    middle dot and superscripts."""
+    sup = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
+    out = unit.replace("N.s", "N·s")
+    if "^" in out:
+        head, _, tail = out.partition("^")
+        digits = "".join(c for c in tail if c.isdigit())
+        out = head + digits.translate(sup) + tail[len(digits):]
+    return out
+
+
+def parameter_unit(name: str, structure: Plant) -> str:
+    """The unit of a parameter of ``structure`` for the page (the numerator constant's for its relative degree)."""
+    return unit_text(parameter_info(name, structure)[0])
+
+
 def parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
+    """Each identified parameter, its unit, value and 95 % interval (value ± half-width, to as many digits as
+    make the bounds distinct); with ``truth`` the true value and the relative error."""
     names = list(dict.fromkeys(n for e in entries for n in e.result.names))
     true = truth.parameters() if truth is not None else {}
     head = ["parameter", "unit"]
     for e in entries:
         suffix = f" ({e.label})" if len(entries) > 1 else ""
-        head += [f"identified{suffix}", f"95 % low{suffix}", f"95 % high{suffix}"]
+        head += [f"identified{suffix}", f"95 % interval{suffix}"]
     if truth is not None:
         head.append("true")
         head += [f"relative error{f' ({e.label})' if len(entries) > 1 else ''}" for e in entries]
     rows = []
     for n in names:
-        row = [n, parameter_info(n)[0]]
+        row = [n, parameter_unit(n, entries[0].result.structure)]
         values = []
         for e in entries:
             if n in e.result.names:
                 i = e.result.names.index(n)
                 values.append(e.result.theta[i])
-                row += [number(e.result.theta[i]), number(e.result.intervals[i, 0]), number(e.result.intervals[i, 1])]
+                row += [number(e.result.theta[i]), format_interval(float(e.result.theta[i]),
+                                                                   *map(float, e.result.intervals[i]))]
             else:
                 values.append(None)
-                row += ["—"] * 3
+                row += ["—"] * 2
         if truth is not None:
             t = true.get(n)
             row.append(number(t) if t is not None else "—")
             row += [number(relative_error(v, t), ".3e") if v is not None and t is not None else "—" for v in values]
         rows.append(row)
     return table("parameters", head, rows, numeric_from=2)
+
+
+def _factors(roots: Sequence[complex]) -> list[str]:
+    """The factors of a polynomial with these roots, as HTML: s, (s + a), (s² + b·s + c) for a conjugate pair."""
+    out = []
+    for r in roots:
+        if r.imag < 0:
+            continue  # its conjugate gives the quadratic
+        if r.imag > 0:
+            b, c = -2 * r.real, abs(r) ** 2
+            out.append(f"(s<sup>2</sup> {'+' if b >= 0 else '−'} {abs(b):.8g}·s + {c:.8g})")
+        elif r.real == 0:
+            out.append("s")
+        else:
+            out.append(f"(s {'+' if r.real < 0 else '−'} {abs(r.real):.8g})")
+    return out
+
+
+def _roots_text(roots: Sequence[complex]) -> str:
+    """Roots as text: −10, −2.5 ± 31.52j."""
+    parts = []
+    for r in roots:
+        if r.imag < 0:
+            continue
+        parts.append(f"{r.real:.8g} ± {r.imag:.8g}j" if r.imag > 0 else f"{r.real:.8g}")
+    return ", ".join(parts) or "none"
+
+
+def _polynomial(coefficients: np.ndarray) -> str:
+    """A polynomial in s (highest power first) as HTML."""
+    n = len(coefficients) - 1
+    terms = []
+    for k, c in enumerate(coefficients):
+        power = n - k
+        if c == 0:
+            continue
+        s_part = "" if power == 0 else "s" if power == 1 else f"s<sup>{power}</sup>"
+        magnitude = "" if abs(c) == 1 and power > 0 else f"{abs(c):.8g}" + ("·" if power > 0 else "")
+        sign = "−" if c < 0 else "+"
+        terms.append((sign, magnitude + s_part))
+    if not terms:
+        return "0"
+    text = ("−" if terms[0][0] == "−" else "") + terms[0][1]
+    return text + "".join(f" {sign} {t}" for sign, t in terms[1:])
+
+
+def transfer_function_html(plant: Plant, label: str = "") -> str:
+    """G(s) of ``plant`` written out: factored (K·Π(s − z)/Π(s − p)) and as polynomials, its poles, zeros,
+    numerator constant K and DC gain G(0) with their units."""
+    num, den = plant.transfer_function()
+    k = plant.numerator_gain()
+    zeros, poles = plant.all_zeros(), plant.all_poles()
+    factored_num = " · ".join([f"{k:.8g}", *_factors(zeros)])
+    factored_den = " · ".join(_factors(poles)) or "1"
+    has_integrator = any(p == 0 for p in poles)
+    dc = "∞ (a pole at s = 0)" if has_integrator else f"{float(np.real(plant.frequency_response(np.array([0.0]))[0])):.8g} " \
+                                                      f"{unit_text('m/(N.s)')}"
+    name = f" ({escape(label)})" if label else ""
+    return (f'<div class="formula"><p><strong>G(s){name}</strong> = {factored_num} / {factored_den}'
+            f" = ({_polynomial(num)}) / ({_polynomial(den)})</p>"
+            f"<p>poles: {escape(_roots_text(poles))} rad/s; zeros: {escape(_roots_text(zeros))}"
+            f"{' rad/s' if zeros else ''}; numerator constant K = {k:.8g} {escape(unit_text(parameter_info('gain', plant)[0]))}; "
+            f"DC gain G(0) = {escape(dc)}. G is the velocity v (m/s) per force w = u − F(v) (N).</p></div>")
 
 
 def paper_table(entries: Sequence[Entry], truth: Plant | None) -> str:
@@ -289,8 +378,11 @@ def paper_table(entries: Sequence[Entry], truth: Plant | None) -> str:
         rows.append(row)
     note = ""
     if published is not None:
+        refs = "".join(f"<li>[{escape(key)}] {escape(text)}</li>" for key, text in PAPER_REFERENCES.items())
         note = (f'<p class="note">The paper\'s columns are its published Tables II/III for {escape(structure.name)}; '
-                "its target is the plant the data was measured on.</p>")
+                "its target is the plant the data was measured on. The paper is "
+                f"{escape(PAPER)}; the comparators it cites:</p>"
+                f'<ul id="references" class="note">{refs}</ul>')
     return table("paper", head, rows) + note
 
 
@@ -389,8 +481,12 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
                  "Fitness: RMS of the relative output-error residuals.</p>")
 
     parts += ["<h2>Identified parameters</h2>", parameter_table(entries, truth),
-              '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit. Parameters not '
-              "listed keep the structure file's values.</p>",
+              '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit, written as the '
+              "value ± the half-width (two significant digits; the value to the half-width's last digit, so that "
+              "the bounds differ), or as [low, high] when not centred on the value. Parameters not listed keep the "
+              "structure file's values.</p>",
+              "<h2>The identified G(s)</h2>",
+              *[transfer_function_html(e.result.plant, e.label if len(entries) > 1 else "") for e in entries],
               "<h2>The paper's table layout</h2>", paper_table(entries, truth)]
 
     if data is not None:
