@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 
@@ -112,3 +113,29 @@ def test_closed_loop_commands_of_docs_control_run(tmp_path):
         assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
     assert "lowers the RMS tracking error" in proc.stdout
     assert (tmp_path / "axis-compensation.html").stat().st_size > 0
+
+
+def test_export_doc_python_control_example_runs(tmp_path):
+    """docs/export.md's python-control section as written, in an empty folder: its console block in order, then
+    each Python block as a script; the model read back is g1's (pole −10, DC gain 1, Coulomb friction)."""
+    text = (README.parent / "docs" / "export.md").read_text()
+    section = text.split("### python-control", 1)[1].split("### MATLAB", 1)[0]
+    block = section.split("```console", 1)[1].split("```", 1)[0]
+    commands = [shlex.split(line[2:]) for line in block.splitlines() if line.startswith("$ servofmu ")]
+    assert [c[1] for c in commands] == ["build", "measure", "identify", "export"]
+    for argv in commands:
+        proc = subprocess.run([sys.executable, "-m", "servofmu", *argv[1:]], cwd=tmp_path, capture_output=True,
+                              text=True)
+        assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
+    scripts = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    assert len(scripts) == 2
+    outputs = []
+    for i, script in enumerate(scripts):
+        (tmp_path / f"example{i}.py").write_text(script)
+        proc = subprocess.run([sys.executable, f"example{i}.py"], cwd=tmp_path, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        outputs.append(proc.stdout.split())
+    num, states, model = outputs[0][0], outputs[0][-2], outputs[0][-1]
+    assert float(num.strip("[]")) == pytest.approx(10, rel=1e-5) and states == "1" and model == "coulomb"
+    dc, fc_pos = map(float, outputs[1])
+    assert dc == pytest.approx(1, rel=1e-5) and fc_pos == pytest.approx(0.5, rel=1e-4)
