@@ -1,15 +1,9 @@
-"""The data file's schemas are declared once (servofmu.measurement.datafile.Stored on every field); the
+"""The data file's schemas are declared once (servofmu.measurement.schema.Stored on every field); the
 declarations agree with the units the file records."""
 from dataclasses import fields
 
-from servofmu.measurement.datafile import (
-    ATTRIBUTE,
-    RESULT_UNITS,
-    STORED,
-    ExperimentResult,
-    Record,
-    RecordAnalysis,
-)
+from servofmu.measurement.datafile import RESULT_UNITS, ExperimentResult, Record, RecordAnalysis
+from servofmu.measurement.schema import ATTRIBUTE, STORED
 
 SCHEMAS = (ExperimentResult, RecordAnalysis, Record)
 

@@ -6,7 +6,7 @@ written when the run starts (plan + provenance, no experiments), again after eve
 and a last time to mark it complete; ``--resume`` reads which experiments are stored and runs the others.
 
 What an experiment's or a record's group holds is declared once, on the fields of ExperimentResult,
-RecordAnalysis and Record (:class:`Stored`); the writer, the reader and the checks of the stored numbers all
+RecordAnalysis and Record (servofmu.measurement.schema); the writer, the reader and the checks of the stored numbers all
 follow those declarations.
 """
 from __future__ import annotations
@@ -32,6 +32,19 @@ from ..fileio import (
 )
 from ..model.signals import INTERSAMPLE
 from .excitation import ExperimentSpec, Plan
+from .schema import (
+    BOUNDED,
+    DATASET,
+    FINITE,
+    NESTED,
+    SIGNALS,
+    STORED,
+    check_fields,
+    read_fields,
+    set_attrs,
+    stored,
+    write_fields,
+)
 
 __all__ = ["DataFile", "Series", "ExperimentResult", "RecordAnalysis", "Record", "read_data_file",
            "create_measurement", "add_experiments", "mark_complete", "write_records", "experiment_group_name",
@@ -64,47 +77,6 @@ RESULT_UNITS = {
 # ---------------------------------------------------------------------------
 # What is stored: every field declared once, with how it is stored
 # ---------------------------------------------------------------------------
-ATTRIBUTE, DATASET, SIGNALS, NESTED = "attribute", "dataset", "signals", "nested"
-FINITE, BOUNDED = "finite", "bounded"  # how a number is checked on reading (fileio.check_values)
-STORED = "servofmu.stored"  # the key of a field's Stored in its metadata
-
-
-@dataclass(frozen=True)
-class Stored:
-    """How a field of ExperimentResult, RecordAnalysis or Record is kept in its HDF5 group: the one declaration
-    that the writer, the reader and the checks of a data file follow.
-
-    ``kind``: ATTRIBUTE (an attribute of the group), DATASET (an array in the group, with ``description`` as its
-    attribute if given), SIGNALS (a Series: its signals in a subgroup named after the field, or with ``inline``
-    in the group itself) or NESTED (the dataclass ``nested``, stored in the same group; the bool attribute
-    ``flag`` says whether it is there).  ``dtype``: the value's type, also of a dataset's elements: int (stored
-    as int64), float, complex (complex128), bool, str, or dict (JSON text).  ``check``: FINITE (finite, within
-    ±MAX_MAGNITUDE), BOUNDED (within ±MAX_MAGNITUDE; NaN and inf allowed) or None (not checked); an attribute is
-    a scalar, a dataset one-dimensional.  ``optional``: a file may lack it, and then it reads as the field's
-    default; a None value is not written.  ``choices``: the values a file may hold.  ``since``: the schema version
-    that added it; older files read ``before``.
-    """
-
-    kind: str = ATTRIBUTE
-    dtype: type = float
-    check: str | None = None
-    optional: bool = False
-    description: str | None = None
-    inline: bool = False
-    nested: type | None = None
-    flag: str | None = None
-    choices: tuple | None = None
-    since: int = 1
-    before: object = None
-
-
-def stored(default=MISSING, optional: bool | None = None, **how):
-    """A dataclass field stored as ``how`` says (the arguments of :class:`Stored`); with a ``default``, optional
-    in a file unless ``optional`` says otherwise."""
-    optional = default is not MISSING if optional is None else optional
-    return field(default=default, metadata={STORED: Stored(optional=optional, **how)})
-
-
 @dataclass(frozen=True)
 class Series:
     """Sampled signals (SI units: s, N, m/s, m); optional ones are None."""
@@ -226,54 +198,10 @@ class DataFile:
 # ---------------------------------------------------------------------------
 # Atomic writes
 # ---------------------------------------------------------------------------
-def _set_attrs(obj, values: dict) -> None:
-    for key, value in values.items():
-        if value is None:
-            continue
-        if isinstance(value, (dict, list, tuple)):
-            value = json.dumps(value)
-        obj.attrs[key] = value
-
-
 def _write_series(group: h5py.Group, series: Series) -> None:
     for name, data in series.signals().items():
         unit, description = SIGNAL_INFO[name]
         store_array(group, name, np.asarray(data, dtype=float), unit=unit, description=description)
-
-
-# What a value of each dtype is written as (None: not written); dicts become JSON text in _set_attrs.
-_ENCODE = {int: np.int64, complex: np.complex128, bool: bool, float: None, str: None, dict: None}
-
-
-def _how(f) -> Stored:
-    return f.metadata[STORED]
-
-
-def _write_fields(g: h5py.Group, item, units: dict | None = None, **values) -> None:
-    """Store the dataclass ``item`` in the group ``g`` as its fields declare (``values`` replace some of them):
-    its attributes in the order of the fields (a NESTED field as its flag), then ``units`` as an attribute,
-    then the NESTED dataclasses, then the datasets and signals in the order of the fields."""
-    attrs, nested, arrays = {}, [], []
-    for f in fields(item):
-        how, value = _how(f), values.get(f.name, getattr(item, f.name))
-        if how.kind == ATTRIBUTE:
-            encode = _ENCODE[how.dtype]
-            attrs[f.name] = value if value is None or encode is None else encode(value)
-        elif how.kind == NESTED:
-            attrs[how.flag] = value is not None
-            if value is not None:
-                nested.append(value)
-        else:
-            arrays.append((f.name, how, value))
-    _set_attrs(g, {**attrs, "units": units})
-    for value in nested:
-        _write_fields(g, value)
-    for name, how, value in arrays:
-        if how.kind == DATASET:
-            description = {} if how.description is None else {"description": how.description}
-            store_array(g, name, np.asarray(value, dtype=how.dtype), **description)
-        else:
-            _write_series(g if how.inline else g.create_group(name), value)
 
 
 def _write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict) -> None:
@@ -282,9 +210,9 @@ def _write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict) -
     f.attrs["kind"] = kind
     f.attrs["complete"] = False
     prov = f.create_group("provenance")
-    _set_attrs(prov, provenance)
+    set_attrs(prov, provenance)
     par = prov.create_group("parameters")
-    _set_attrs(par, {k: float(v) for k, v in parameters.items()})
+    set_attrs(par, {k: float(v) for k, v in parameters.items()})
 
 
 def create_measurement(path: str | Path, plan: Plan, provenance: dict, parameters: dict) -> Path:
@@ -329,7 +257,7 @@ def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> No
             name = experiment_group_name(r.index)
             if name in exps:  # a resumed run never recomputes a stored experiment; keep the first
                 continue
-            _write_fields(exps.create_group(name), r, units=RESULT_UNITS)
+            write_fields(exps.create_group(name), r, _write_series, units=RESULT_UNITS)
 
     write_hdf5(path, edit, path)
 
@@ -368,15 +296,17 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
         else:
             prov = f["provenance"]
             appended = json.loads(hdf5_attr(prov, "appended_by", "[]")) + [provenance.get("command", "")]
-            _set_attrs(prov, {"appended_by": appended})
+            set_attrs(prov, {"appended_by": appended})
             version = hdf5_attr(f, "schema_version")
             if version < SCHEMA_VERSION:  # upgrade: say what the old records meant
                 for g in f["records"].values():
-                    _set_attrs(g, {f.name: _how(f).before for f in fields(Record) if _how(f).since > version})
+                    set_attrs(g, {f.name: f.metadata[STORED].before for f in fields(Record)
+                                  if f.metadata[STORED].since > version})
                 f.attrs["schema_version"] = SCHEMA_VERSION
         recs = f["records"]
         for i, r in enumerate(records):
-            _write_fields(recs.create_group(record_group_name(offset + i)), r, units=RESULT_UNITS, index=offset + i)
+            write_fields(recs.create_group(record_group_name(offset + i)), r, _write_series, units=RESULT_UNITS,
+                         index=offset + i)
 
     write_hdf5(path, edit, start_from)
     return path
@@ -402,52 +332,6 @@ def _read_series(g: h5py.Group) -> Series:
     return Series(time=time, **{f.name: get(f.name, f.default is MISSING) for f in fields(Series)[1:]})
 
 
-# How an attribute read back becomes a value of its dtype.
-_DECODE = {int: int, float: float, complex: complex, bool: bool, str: str, dict: json.loads}
-
-
-def _read_fields(cls, g: h5py.Group, version: int):
-    """The dataclass ``cls`` read from the group ``g`` of a file of schema ``version``, as its fields declare."""
-    values = {}
-    for f in fields(cls):
-        how = _how(f)
-        if version < how.since:
-            values[f.name] = how.before
-        elif how.kind == ATTRIBUTE:
-            value = hdf5_attr(g, f.name, None) if how.optional else hdf5_attr(g, f.name)
-            if value is None:
-                value = None if f.default is MISSING else f.default
-            else:
-                value = _DECODE[how.dtype](value)
-            if how.choices is not None and value not in how.choices:
-                raise ValueError(f"{f.name} {value!r}")
-            values[f.name] = value
-        elif how.kind == DATASET:
-            values[f.name] = np.asarray(g[f.name][()])
-        elif how.kind == SIGNALS:
-            values[f.name] = _read_series(g if how.inline else g[f.name])
-        else:
-            values[f.name] = _read_fields(how.nested, g, version) if bool(hdf5_attr(g, how.flag)) else None
-    return cls(**values)
-
-
-def _check_fields(path: Path, where: str, item) -> None:
-    """Check the numbers of the dataclass ``item`` read from the group ``where`` as its fields declare."""
-    for f in fields(item):
-        how, value = _how(f), getattr(item, f.name)
-        if value is None:
-            continue
-        if how.kind == SIGNALS:
-            where_signals = where if how.inline else f"{where}/{f.name}"
-            for name, signal in value.signals().items():
-                check_values(path, f"{where_signals}/{name}", signal, (value.time.size,))
-        elif how.kind == NESTED:
-            _check_fields(path, where, value)
-        elif how.check is not None:
-            check_values(path, f"{where}/{f.name}", value, () if how.kind == ATTRIBUTE else (None,),
-                         finite=how.check == FINITE)
-
-
 def check_stored_data(path: Path, f: h5py.File, plan: Plan | None, experiments, records) -> None:
     """The values a data file holds are what servofmu writes (fileio.check_values): finite numbers within
     bounds, signals of one length, and a plan whose per-experiment datasets match it."""
@@ -460,9 +344,9 @@ def check_stored_data(path: Path, f: h5py.File, plan: Plan | None, experiments, 
                 raise UserError(f"{path}: plan/{name} does not match the plan's {len(plan.amplitudes)} amplitudes × "
                                 f"{len(plan.frequencies)} frequencies (a damaged or foreign file)")
     for e in experiments:
-        _check_fields(path, experiment_group_name(e.index), e)
+        check_fields(path, experiment_group_name(e.index), e)
     for r in records:
-        _check_fields(path, record_group_name(r.index), r)
+        check_fields(path, record_group_name(r.index), r)
 
 
 def read_data_file(path: str | Path) -> DataFile:
@@ -505,9 +389,9 @@ def _read_data(path: Path, f: h5py.File, version: int) -> DataFile:
         if "plan" in f:
             plan = Plan(tuple(float(x) for x in f["plan"].attrs["amplitudes"]),
                         tuple(float(x) for x in f["plan"].attrs["frequencies"]))
-        experiments = tuple(sorted((_read_fields(ExperimentResult, g, version)
+        experiments = tuple(sorted((read_fields(ExperimentResult, g, version, _read_series)
                                     for g in f.get("experiments", {}).values()), key=lambda e: e.index))
-        records = tuple(sorted((_read_fields(Record, g, version) for g in f.get("records", {}).values()),
+        records = tuple(sorted((read_fields(Record, g, version, _read_series) for g in f.get("records", {}).values()),
                                key=lambda r: r.index))
         prov = f["provenance"]
         provenance = {k: hdf5_attr(prov, k) for k in prov.attrs}
