@@ -92,6 +92,22 @@ def test_cosim_without_libcosimpy_runs_on_fmpy_and_says_so(tmp_path):
         "libcosimpy is not installed (its wheels are for Linux x86_64 and Windows): co-simulating on FMPy instead"]
 
 
+def test_an_unsettled_experiment_is_a_warning_of_the_callers_line(tmp_path):
+    """Without a warn callback, measure's warning reaches ``warnings`` (it was lost), attributed to the caller."""
+    import servofmu as sf
+    from servofmu.runtime import RunOptions
+
+    sf.build_fmu(sf.load_plant("g1"), tmp_path / "g1.fmu")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        data = sf.measure(tmp_path / "g1.fmu", tmp_path / "g1.h5", amplitudes=[0.6], frequencies=[5.0],
+                          options=sf.MeasureOptions(max_time=0.6, tolerance=1e-14), run=RunOptions(workers=0))
+    assert [e.converged for e in data.experiments] == [False]
+    (warning,) = [w for w in caught if w.category is ServofmuWarning]
+    assert str(warning.message).startswith("experiment 0 (amplitude 0.6, frequency 5 Hz) reached no steady state")
+    assert warning.filename == __file__
+
+
 def test_warnings_show_as_one_line_each(capsys):
     def library_call():
         warnings.warn("experiment 3 reached no steady state\nsecond line", ServofmuWarning, stacklevel=2)
