@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import hashlib
 import os
 from pathlib import Path
 from typing import Callable, Iterator
 
 from .errors import MAX_MAGNITUDE, UserError
+from .locks import release, sibling, take
 
-__all__ = ["file_sha256", "claim_output", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
+__all__ = ["file_sha256", "claim_output", "output_claims", "holds_outputs", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
            "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "open_hdf5", "read_hdf5",
            "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM",
            "write_failures"]
@@ -112,7 +114,51 @@ def claim_output(path: str | Path, mode: str = "new", inputs=(), can_continue: s
         probe.unlink()
     except OSError as exc:
         raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    _hold(path)
     return path
+
+
+# The outputs claimed inside each open output_claims() block (innermost last): resolved path -> (lock, its fd).
+_claims: list[dict[str, tuple[Path, int]]] = []
+
+
+@contextlib.contextmanager
+def output_claims() -> Iterator[None]:
+    """``with output_claims():`` every output :func:`claim_output` passes inside the block is claimed for this
+    process until the block ends (a lock beside it, servofmu.locks): another run that claims the same output
+    meanwhile is refused, so two runs can never both write one file — both would pass the existence rule when
+    started together.  The command line runs every command in such a block, and so do the library's long runs."""
+    _claims.append({})
+    try:
+        yield
+    finally:
+        for lock, fd in _claims.pop().values():
+            release(fd, lock)
+
+
+def holds_outputs(function: Callable) -> Callable:
+    """Run ``function`` inside :func:`output_claims` (for the library's long runs)."""
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        with output_claims():
+            return function(*args, **kwargs)
+    return wrapper
+
+
+def _hold(path: Path) -> None:
+    """Claim ``path`` for the innermost :func:`output_claims` block (nothing outside one; a path this process
+    holds already stays held)."""
+    key = str(path.resolve())
+    if not _claims or any(key in scope for scope in _claims):
+        return
+    lock = sibling(path, "lock")
+    try:
+        fd = take(lock)
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    if fd is None:
+        raise UserError(f"{path}: another run is writing it now (wait until it ends, or write to another file)")
+    _claims[-1][key] = (lock, fd)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -129,8 +175,9 @@ def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
 
 
 def partial_path(path: Path) -> Path:
-    """Where ``path`` is written before it replaces the target in one rename."""
-    return path.with_name(f".{path.name}.part")
+    """Where ``path`` is written before it replaces the target in one rename (``.NAME.part``; a hashed name for a
+    name too long to take the dot and suffix)."""
+    return sibling(Path(path), "part")
 
 
 def atomic_write(path: str | Path, data: bytes | str) -> Path:

@@ -13,11 +13,13 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Protocol, Sequence
 
 from .errors import UserError
+from .locks import is_abandoned, take
 
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
            "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
@@ -131,11 +133,15 @@ def cache_dir() -> Path:
 # Temporary folders
 # ---------------------------------------------------------------------------
 # Every temporary folder servofmu makes is named servofmu-PID-PURPOSE-XXXXXXXX in the system's temporary
-# directory and registered here: removed when the work is done, when the process exits (also by SIGTERM or
-# Ctrl-C, which the command line turns into exceptions), by a worker's signal handler, and — for a process that
-# was killed with SIGKILL and could not clean up — by the next servofmu command (sweep_temporary_folders).
+# directory, holds its owner's claim (OWNER_LOCK, servofmu.locks) and is registered here: removed when the work is
+# done, when the process exits (also by SIGTERM or Ctrl-C, which the command line turns into exceptions), by a
+# worker's signal handler, and — for a process that was killed with SIGKILL and could not clean up — by the next
+# servofmu command (sweep_temporary_folders), which removes a folder only when nobody holds its claim: a process
+# ID cannot tell that, since another container may share the temporary directory but not the process table.
 TEMPORARY_PREFIX = "servofmu-"
-_folders: set[str] = set()
+OWNER_LOCK = ".owner.lock"
+LOCKLESS_AGE = 3600.0  # s: a folder without a claim (made by an older servofmu) is swept only after this
+_folders: dict[str, int] = {}  # path -> the file descriptor that holds its claim
 
 
 def _temporary_root() -> str | None:
@@ -148,11 +154,15 @@ def make_temporary_folder(purpose: str) -> Path:
     """A new temporary folder, removed at the latest when this process exits (see :func:`temporary_folder`)."""
     root = _temporary_root()
     try:
-        path = tempfile.mkdtemp(prefix=f"{TEMPORARY_PREFIX}{os.getpid()}-{purpose}-", dir=root)
+        # made under a hidden name, claimed, then shown by one rename: a sweep never sees it unclaimed
+        hidden = Path(tempfile.mkdtemp(prefix=f".{TEMPORARY_PREFIX}{os.getpid()}-{purpose}-", dir=root))
+        fd = take(hidden / OWNER_LOCK)
+        path = str(hidden.with_name(hidden.name[1:]))
+        os.rename(hidden, path)
     except OSError as exc:
         raise UserError(f"cannot make a temporary folder in {root or 'the temporary directory'}: "
                         f"{exc.strerror or exc}") from exc
-    _folders.add(path)
+    _folders[path] = fd
     return Path(path)
 
 
@@ -160,7 +170,9 @@ def remove_temporary_folders(*paths: str | Path) -> None:
     """Remove the given temporary folders (default: every one this process made and has not removed yet)."""
     for path in [str(p) for p in paths] if paths else list(_folders):
         shutil.rmtree(path, ignore_errors=True)
-        _folders.discard(path)
+        fd = _folders.pop(path, None)
+        if fd is not None:
+            os.close(fd)  # the claim last: nobody sweeps a folder while its owner still removes it
 
 
 @contextlib.contextmanager
@@ -176,6 +188,20 @@ def temporary_folder(purpose: str) -> Iterator[Path]:
 atexit.register(remove_temporary_folders)
 
 
+def _abandoned(folder: Path) -> bool:
+    """Whether a temporary folder of servofmu's is provably abandoned: its claim is held by nobody, or (made by an
+    older servofmu, without a claim) its process is gone and it has not changed for LOCKLESS_AGE."""
+    lock = folder / OWNER_LOCK
+    if lock.exists():
+        return is_abandoned(lock)
+    pid = folder.name.split("-")[1]
+    try:
+        age = time.time() - folder.stat().st_mtime
+    except OSError:
+        return False
+    return pid.isdigit() and not _alive(int(pid)) and age > LOCKLESS_AGE
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -187,16 +213,16 @@ def _alive(pid: int) -> bool:
 
 
 def sweep_temporary_folders() -> None:
-    """Remove the temporary folders of servofmu processes that no longer run (killed with SIGKILL)."""
+    """Remove the temporary folders of servofmu processes that ended without removing them (killed with
+    SIGKILL)."""
     root = Path(_temporary_root() or tempfile.gettempdir())
     try:
         entries = list(root.iterdir())
     except OSError:
         return
     for entry in entries:
-        parts = entry.name.split("-")
-        if entry.name.startswith(TEMPORARY_PREFIX) and len(parts) > 2 and parts[1].isdigit() \
-                and int(parts[1]) != os.getpid() and not _alive(int(parts[1])) and entry.is_dir():
+        if entry.name.startswith(TEMPORARY_PREFIX) and str(entry) not in _folders and entry.name.count("-") > 2 \
+                and entry.is_dir() and _abandoned(entry):
             shutil.rmtree(entry, ignore_errors=True)
 
 

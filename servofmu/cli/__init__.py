@@ -56,6 +56,7 @@ def _claim_outputs(args) -> None:
 
 
 def _command(run: CommandRun, argv: list[str]) -> None:
+    from ..fileio import output_claims
     from ..runtime import sweep_temporary_folders
 
     parser = build_parser()
@@ -66,8 +67,9 @@ def _command(run: CommandRun, argv: list[str]) -> None:
     run.who = f"servofmu {args.command}"
     args.command_line = shlex.join(["servofmu", *argv])
     sweep_temporary_folders()
-    _claim_outputs(args)
-    args.func(args)
+    with output_claims():  # held until the command ends: no other run may write its outputs meanwhile
+        _claim_outputs(args)
+        args.func(args)
     run.quick_exit = getattr(args, "quick_exit", False)
 
 

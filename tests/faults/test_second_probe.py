@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 import zipfile
 from pathlib import Path
@@ -94,3 +95,55 @@ def test_p13_training_leaves_no_folder(inputs, tmp_path):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert list(tmp.iterdir()) == []
+
+
+# ---- 8. two runs on one output ------------------------------------------------------------------------------------
+def test_p08_a_second_run_on_an_output_another_run_holds_is_refused(inputs, tmp_path):
+    """A run that has claimed its output (checked, not yet written: the moment both of two runs started together
+    are in) holds it until it ends; the other run is refused in one line and the file stays the first run's."""
+    from servofmu.fileio import claim_output, output_claims
+
+    with output_claims():
+        claim_output(tmp_path / "out.h5")
+        proc = run_servofmu(["measure", inputs["g1_fmu"], "--amplitudes", "2", "--frequencies", "5", "--workers", "0",
+                             "-o", "out.h5"], tmp_path, tmp_path)
+        _, err = proc.communicate(timeout=300)
+        assert_one_line(err, proc.returncode, 2, "out.h5", "another run is writing it")
+        assert not (tmp_path / "out.h5").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ---- 9b. temporary folders of live runs in another PID namespace ----------------------------------------------
+def test_p09b_a_live_runs_folder_is_kept_whatever_its_process_id(inputs, tmp_path):
+    """A folder whose process ID this process cannot see (another container sharing the temporary directory)
+    but whose claim a live process holds is not swept; an abandoned one is."""
+    tmp = tmp_path / "tmp"
+    live, dead = tmp / "servofmu-999999-build-aaaaaaaa", tmp / "servofmu-999998-build-bbbbbbbb"
+    for folder in (live, dead):
+        folder.mkdir(parents=True)
+        (folder / "model_eqs.c").write_text("/* in use */\n")
+        (folder / ".owner.lock").touch()
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\n"
+                               f"fd = os.open({str(live / '.owner.lock')!r}, os.O_RDWR)\n"
+                               "fcntl.flock(fd, fcntl.LOCK_EX)\nprint('held', flush=True)\ntime.sleep(120)"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        proc = run_servofmu(["export", "missing.h5", "-o", "out.toml"], tmp_path, tmp)
+        _, err = proc.communicate(timeout=120)
+        assert_one_line(err, proc.returncode, 2, "missing.h5")
+        assert (live / "model_eqs.c").is_file()
+        assert not dead.exists()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+# ---- 12. names the system allows --------------------------------------------------------------------------------
+@pytest.mark.parametrize("length", [250, 255])
+def test_p12_an_output_name_of_up_to_255_bytes_is_written(inputs, tmp_path, length):
+    name = "r" * (length - len(".toml")) + ".toml"
+    rc, err = run_here(["export", inputs["result"], "--format", "toml", "-o", name], tmp_path)
+    assert rc == 0, err
+    assert (tmp_path / name).is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
