@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import OutputExists, claim_output, file_sha256
+from ..fileio import OutputExists, claim_output, file_sha256, holds_outputs
 from ..model.plant import load_plant
 from ..runtime import RunOptions
 from ..simulation.parallel import Workers
@@ -61,6 +61,7 @@ def result_path(output_dir: Path, data_file: str | Path) -> Path:
     return Path(output_dir) / f"{Path(data_file).stem}-result.h5"
 
 
+@holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
 def identify_files(data_files, structure_file, output_dir, ann_file=None, options: IdentifyOptions | None = None,
                    run: RunOptions | None = None) -> list[FileOutcome]:
     """Identify every data file and write one result per file into ``output_dir``.

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, check_int
-from ..fileio import check_values, claim_output, output_mode, read_hdf5, store_array, write_hdf5
+from ..fileio import check_values, claim_output, holds_outputs, output_mode, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
 from ..runtime import RunOptions, check_memory
 from ..simulation.batch import BatchSimulator, SteadyStateOptions
@@ -109,6 +109,7 @@ def _simulate_chunk(simulator, item):
     return feats.H, feats.dc, feats.converged
 
 
+@holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
 def make_training_set(structure: Plant, data: SineData, samples: int, output: str | Path, spread: float = 0.5,
                       seed: int = 0, rtol: float = TRAINING_RTOL, run: RunOptions | None = None) -> TrainingSet:
     """Draw plants around a structure, simulate them under a measurement's plan and write the training set.

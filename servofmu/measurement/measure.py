@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import ServofmuWarning, UserError, check_int
-from ..fileio import claim_output, output_mode
+from ..fileio import claim_output, holds_outputs, output_mode
 from ..runtime import RunOptions, check_memory, utc_now
 from ..simulation.fmpy_runs import EXCITATION, FmuInfo, read_fmu
 from ..simulation.fmu_runner import FmuRunner, FmuRunnerFactory
@@ -380,6 +380,7 @@ def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: f
     return corner_frequency(t, v)
 
 
+@holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
 def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | None = None,
             frequencies: Sequence[float] | None = None,
             options: MeasureOptions | None = None, run: RunOptions | None = None,
