@@ -186,3 +186,22 @@ def test_the_public_api_is_annotated():
             if signature.return_annotation is inspect.Signature.empty and not qual.endswith("__init__"):
                 missing.append(f"{qual} -> ?")
     assert not missing, missing
+
+
+def test_identify_validate_report_export_run_without_torch_or_the_extras(tmp_path):
+    """The commands of a fitted model's life after the measurement, run with torch, dask and python-control made
+    unimportable: none of them needs one (identify without --ann)."""
+    import servofmu as sf
+    from servofmu.runtime import RunOptions
+
+    sf.build_fmu(sf.load_plant("g1"), tmp_path / "g1.fmu")
+    sf.measure(tmp_path / "g1.fmu", tmp_path / "g1.h5", amplitudes=[2.0, 0.6], frequencies=[0.5, 2.0, 10.0],
+               run=RunOptions(workers=0))
+    blocked = ("import runpy, sys\nfor m in ('torch', 'dask', 'distributed', 'control'):\n    sys.modules[m] = None\n"
+               "sys.argv = ['servofmu', *sys.argv[1:]]\nrunpy.run_module('servofmu', run_name='__main__')\n")
+    for argv in (["identify", "g1.h5", "--structure", "g1", "--method", "pso", "-o", "g1-result.h5"],
+                 ["validate", "g1-result.h5", "g1.h5", "-o", "g1-validation.html"],
+                 ["report", "g1-result.h5", "-o", "g1-report.html"],
+                 ["export", "g1-result.h5", "-o", "g1-identified.fmu"]):
+        proc = python("-c", blocked, *argv, cwd=tmp_path)
+        assert proc.returncode == 0, f"{argv[0]}: {proc.stderr}"
