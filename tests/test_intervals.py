@@ -85,3 +85,19 @@ def test_other_levels_scale_with_the_t_quantile(level):
     other = intervals_from_jacobian(THETA, r, X, level=level)
     z = {0.68: 0.49749, 0.99: 1.34015}[level]  # t(0.84, 37) / t(0.975, 37) and t(0.995, 37) / t(0.975, 37), scipy
     np.testing.assert_allclose((other[:, 1] - other[:, 0]) / (base[:, 1] - base[:, 0]), z, rtol=2e-3)
+
+
+def test_parameters_the_data_does_not_determine_get_unbounded_intervals():
+    """A column of zeros (a parameter with no effect) and two equal columns (only their sum is determined): the
+    pseudo-inverse would give them zero variance, i.e. exact values; their intervals must be unbounded, the others'
+    unchanged."""
+    rng = np.random.default_rng(3)
+    jac = rng.normal(size=(200, 2))
+    r = rng.normal(size=200)
+    theta = np.array([1.0, 2.0])
+    determined = intervals_from_jacobian(theta, r, jac)
+    with_dead = intervals_from_jacobian(np.append(theta, 3.0), r, np.column_stack([jac, np.zeros(200)]))
+    np.testing.assert_allclose(with_dead[:2], determined, rtol=1e-3)  # (one degree of freedom less)
+    assert with_dead[2, 0] == -np.inf and with_dead[2, 1] == np.inf
+    twins = intervals_from_jacobian(np.append(theta, 3.0), r, np.column_stack([jac, jac[:, 1]]))
+    assert np.isfinite(twins[0]).all() and np.isinf(twins[1:]).all()

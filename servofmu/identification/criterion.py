@@ -27,10 +27,11 @@ from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
 from .prior import full_vectors
 from .student_t import t_quantile
 
-__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure", "record_errors", "fit_percent",
-           "newey_west_covariance", "sine_residuals", "sine_residual_jacobian", "SineCriterion",
-           "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options", "central_jacobian", "intervals_from_jacobian",
-           "output_error_fitness", "SEARCH_RTOL", "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
+__all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure",
+           "record_errors", "fit_percent", "newey_west_covariance", "sine_residuals", "sine_residual_jacobian",
+           "SineCriterion", "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options",
+           "central_jacobian", "intervals_from_jacobian", "undetermined", "output_error_fitness", "SEARCH_RTOL",
+           "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
 # more exact than the 1e-6 the parameters are to reach.  Its forward-difference Jacobian (relative step 1e-5) only
@@ -145,6 +146,9 @@ def record_data(data: DataFile, skip: float = 0.0) -> RecordData:
     out = []
     for r, fitted in zip(data.records, fitted_samples(data, skip)):
         s = r.series
+        if not np.any(s.u):  # the plant stays at rest: every parameter fits, none is determined
+            raise UserError(f"{data.path}: record {r.name}: its input u is zero throughout: nothing excites the "
+                            "plant, so nothing can be identified from it")
         position = r.kind == "position" and s.position is not None
         out.append(RecordSeries(name=r.name, time=s.time, u=s.u, y=s.position if position else s.v,
                                 output="position" if position else "v", hold=r.intersample, fitted=fitted))
@@ -367,7 +371,23 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
     else:
         cov = newey_west_covariance(r, jac, blocks) * r.size / dof
     half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
+    half[undetermined(jac)] = np.inf
     return np.stack([theta - half, theta + half], axis=1)
+
+
+def undetermined(jac: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """(p,) bool: the parameters the data does not determine — those with a share in a direction of parameter
+    space that leaves the residuals unchanged (a null direction of the column-scaled Jacobian).  Their intervals
+    are unbounded: the pseudo-inverse's zero variance there would claim the opposite of the truth."""
+    scale = np.linalg.norm(jac, axis=0)
+    dead = scale == 0
+    if dead.all():
+        return dead
+    _, sv, vt = np.linalg.svd(jac[:, ~dead] / scale[~dead], full_matrices=False)
+    null = sv <= rtol * sv[0]
+    out = dead.copy()
+    out[~dead] = np.any(np.abs(vt[null]) > 1e-6, axis=0)
+    return out
 
 
 def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice]) -> np.ndarray:

@@ -147,3 +147,20 @@ def test_p12_an_output_name_of_up_to_255_bytes_is_written(inputs, tmp_path, leng
     assert rc == 0, err
     assert (tmp_path / name).is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+# ---- 4. a record that excites nothing ------------------------------------------------------------------------------
+def test_p04_a_record_whose_input_is_zero_throughout_is_refused(inputs, tmp_path):
+    """Nothing excites the plant: every parameter fits and none is determined (it was "identified" with
+    zero-width intervals)."""
+    import numpy as np
+
+    t = np.arange(0, 2, 1e-3)
+    np.savetxt(tmp_path / "rest.csv", np.column_stack([t, 0 * t, 0 * t]), delimiter=",", header="time,u,v",
+               comments="")
+    rc, err = run_here(["import", "rest.csv", "--time", "time", "--input", "u", "--output", "v", "-o", "rest.h5"],
+                       tmp_path)
+    assert rc == 0, err
+    rc, err = run_here(["identify", "rest.h5", "--structure", "g1", "-o", "r.h5"], tmp_path)
+    assert_one_line(err, rc, 2, "rest.h5", "input u is zero throughout")
+    assert not (tmp_path / "r.h5").exists()
