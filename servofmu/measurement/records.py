@@ -129,7 +129,8 @@ def _check_time(path: Path, t: np.ndarray, name: str, where) -> None:
     steps = np.diff(t)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0)) + 1
-        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing ({t[i - 1]!r} then {t[i]!r})")
+        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing ({float(t[i - 1])!r} then "
+                        f"{float(t[i])!r})")
 
 
 # ---------------------------------------------------------------------------
