@@ -352,7 +352,7 @@ class CommandRun:
 
 def run_command(run: CommandRun, work: Callable[[CommandRun], None]) -> int:
     """``work(run)`` with the stop signals turned into exceptions, and its end turned into an exit status: 0, or
-    :data:`EXIT_USER_ERROR` for a UserError or OSError, 130 for Ctrl-C, 128 + n for signal n; ``run.message`` then
+    :data:`EXIT_USER_ERROR` for a UserError, OSError or MemoryError, 130 for Ctrl-C, 128 + n for signal n; ``run.message`` then
     holds the one line to print.  ``work`` may rename ``run.who`` once it knows the command."""
     from .fileio import OutputExists
 
@@ -372,6 +372,10 @@ def run_command(run: CommandRun, work: Callable[[CommandRun], None]) -> int:
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         run.message, run.quick_exit = f"{run.who}: error: {where}{exc.strerror or exc}", False
+        return EXIT_USER_ERROR
+    except MemoryError:  # a limit the up-front estimates (check_memory) did not foresee: the machine's, not a bug
+        run.message, run.quick_exit = (f"{run.who}: error: out of memory (a memory limit of this process or "
+                                       "machine): ask for less work, or run it where more memory is free"), False
         return EXIT_USER_ERROR
     except BaseException as exc:  # a stop signal, or what it caused (a module interrupted while it loaded)
         if not isinstance(exc, KeyboardInterrupt) and not (_stop_signals and isinstance(exc, Exception)):

@@ -181,8 +181,9 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
             arrays[k][...] = v
     todo = np.flatnonzero(arrays["done"] == 0)
     chunks = [todo[i:i + CHUNK] for i in range(0, len(todo), CHUNK)]
-    _write(output, arrays, attrs)
-    done = samples - len(todo)
+    # written first once a chunk is done: a run that fails at its start (a memory limit, Ctrl-C) leaves the file
+    # it was to replace as it was, and a resumed file as it is
+    done = start = samples - len(todo)
     run.report(done, samples)
     workers = Workers(scheduler=run.scheduler, workers=0 if run.scheduler is None else None)
     resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
@@ -200,5 +201,6 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
                 done += len(rows)
                 run.report(done, samples)
         finally:  # what is done is kept, also when the run is interrupted
-            _write(output, arrays, attrs)
+            if done > start:
+                _write(output, arrays, attrs)
     return load_training_set(output)

@@ -13,7 +13,12 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from harness import assert_one_line, run_here, run_servofmu
+from harness import AGAINST, assert_one_line, run_here, run_servofmu
+
+
+def copy_file(source: Path, target: Path) -> Path:
+    target.write_bytes(source.read_bytes())
+    return target
 
 
 def miswired(source: Path, target: Path) -> Path:
@@ -164,3 +169,23 @@ def test_p04_a_record_whose_input_is_zero_throughout_is_refused(inputs, tmp_path
     rc, err = run_here(["identify", "rest.h5", "--structure", "g1", "-o", "r.h5"], tmp_path)
     assert_one_line(err, rc, 2, "rest.h5", "input u is zero throughout")
     assert not (tmp_path / "r.h5").exists()
+
+
+# ---- 6. a replaced training set that fails at its start ---------------------------------------------------------
+@pytest.mark.skipif(bool(AGAINST), reason="makes the run fail in this process")
+def test_p06_a_dataset_that_fails_before_its_first_chunk_leaves_the_old_file(inputs, tmp_path, monkeypatch):
+    """``dataset --force`` wrote an empty training set over the previous one before any plant was simulated: a
+    run that then failed (a memory limit) had lost the old file."""
+    import servofmu.identification.training_set as training_set
+
+    old = copy_file(inputs["ds"], tmp_path / "ds.h5")
+    before = old.read_bytes()
+
+    def out_of_memory(simulator, item):
+        raise MemoryError
+
+    monkeypatch.setattr(training_set, "_simulate_chunk", out_of_memory)
+    rc, err = run_here(["dataset", "g1", "--like", inputs["data"], "--samples", "50", "--force", "-o", "ds.h5"],
+                       tmp_path)
+    assert_one_line(err, rc, 2, "servofmu dataset: error: out of memory")
+    assert old.read_bytes() == before
