@@ -18,10 +18,13 @@ from numpy.typing import ArrayLike
 
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
-__all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict", "resolve_plant_path",
-           "example_files", "parameter_info", "gain_unit", "root_names", "FRICTION_MODELS", "PARAMETER_INFO"]
+__all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict",
+           "resolve_plant_path", "example_files", "parameter_info", "MAX_ORDER", "gain_unit", "root_names",
+           "FRICTION_MODELS", "PARAMETER_INFO"]
 
 FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
+# The highest order of G(s): a servo axis is a mass with a few resonances; beyond, a plant is a mistake.
+MAX_ORDER = 12
 
 # Friction keys per model, in parameter-vector order.
 _FRICTION_KEYS = {
@@ -358,6 +361,9 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     for i, p in enumerate(_expand(poles)):
         if p.real > 0:
             fail("linear.poles", f"pole {p} has a positive real part (unstable plants are not supported)")
+    if len(_expand(poles)) > MAX_ORDER:
+        fail("linear.poles", f"G(s) of order {len(_expand(poles))}: servofmu models axes up to order {MAX_ORDER} "
+             "(a higher order makes every simulation hours long and its identification ill-posed)")
     if len(_expand(zeros)) >= len(_expand(poles)):
         fail("linear.zeros", "G(s) must be strictly proper (fewer zeros than poles)")
     has_dc, has_gain = "dc_gain" in lin, "gain" in lin

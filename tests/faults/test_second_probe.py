@@ -189,3 +189,12 @@ def test_p06_a_dataset_that_fails_before_its_first_chunk_leaves_the_old_file(inp
                        tmp_path)
     assert_one_line(err, rc, 2, "servofmu dataset: error: out of memory")
     assert old.read_bytes() == before
+
+
+def test_p11_a_plant_of_absurd_order_is_refused_naming_the_key(inputs, tmp_path):
+    poles = ", ".join(f"[{-1.0 - k}, 0.0]" for k in range(50))
+    (tmp_path / "p50.toml").write_text(f'name = "p50"\n[linear]\npoles = [{poles}]\nzeros = []\ndc_gain = 1.0\n'
+                                       '[friction]\nmodel = "coulomb"\nfc_pos = 0.5\nfc_neg = 0.4\n')
+    rc, err = run_here(["build", "p50.toml", "-o", "p50.fmu"], tmp_path)
+    assert_one_line(err, rc, 2, "p50.toml", "linear.poles", "order 50")
+    assert not (tmp_path / "p50.fmu").exists()
