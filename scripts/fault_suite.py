@@ -4,12 +4,13 @@ subcommand and kind of fault.
 The table goes between the markers of docs/reliability.md (or is printed with --print).  Exit status 1 when a case
 failed.
 
-With ``--against REV`` it runs instead the tests of the reported groups (tests/faults/test_reported_faults.py) twice
-in one run: against the sources of the earlier revision REV (from git; the inputs still made by this checkout) and
-against this checkout, and writes their outcomes side by side into docs/reliability.md: each test should fail before
-its fix and pass after.
+With ``--against REV`` it runs instead the tests of one probe's reported faults twice in one run: against the sources
+of the earlier revision REV (from git; the inputs still made by this checkout) and against this checkout, and writes
+their outcomes side by side into docs/reliability.md: each test should fail before its fix and pass after.
+``--probe first`` (default: tests/faults/test_reported_faults.py) or ``--probe second``
+(tests/faults/test_second_probe.py) chooses the probe.
 
-Usage: python scripts/fault_suite.py [--print] [--against REV] [pytest options...]
+Usage: python scripts/fault_suite.py [--print] [--against REV [--probe first|second]] [pytest options...]
 """
 from __future__ import annotations
 
@@ -29,7 +30,11 @@ DOC = ROOT / "docs" / "reliability.md"
 BEGIN, END = "<!-- fault-suite counts: begin -->", "<!-- fault-suite counts: end -->"
 BEFORE_BEGIN = "<!-- reported groups before and after: begin -->"
 BEFORE_END = "<!-- reported groups before and after: end -->"
-REPORTED = "tests/faults/test_reported_faults.py"
+SECOND_BEGIN = "<!-- second probe before and after: begin -->"
+SECOND_END = "<!-- second probe before and after: end -->"
+# probe -> (its tests, the markers of its before-and-after table)
+PROBES = {"first": ("tests/faults/test_reported_faults.py", BEFORE_BEGIN, BEFORE_END),
+          "second": ("tests/faults/test_second_probe.py", SECOND_BEGIN, SECOND_END)}
 WRITE_KINDS = {"fsize": "file-size limit", "full": "disk full"}
 
 
@@ -47,6 +52,9 @@ def classify(module: str, name: str) -> tuple[str, str]:
         reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
                                  name[name.index("[") + 1:-1]).groups()
         return reader, f"damaged input: {fault}"
+    if module.endswith("test_second_probe"):
+        item = re.match(r"test_p0?(\d+b?)_", name)
+        return "(second probe)", f"item {item.group(1)}" if item else name
     group = re.match(r"test_(\d)_", name)
     return "(reported groups)", f"group {group.group(1)}" if group else name
 
@@ -75,14 +83,14 @@ def run(extra: list[str]) -> tuple[dict, int]:
     return counts, rc
 
 
-def before_and_after(rev: str, extra: list[str]) -> str:
-    """The reported groups' tests against revision ``rev`` and against this checkout, as a table."""
+def before_and_after(rev: str, tests: str, extra: list[str]) -> str:
+    """A probe's ``tests`` against revision ``rev`` and against this checkout, as a table."""
     with tempfile.TemporaryDirectory(prefix="fault-suite-src-") as src:
         archive = subprocess.run(["git", "archive", rev], cwd=ROOT, capture_output=True, check=True).stdout
         with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
             tar.extractall(src, filter="data")
-        before, _ = pytest_outcomes(REPORTED, extra, {"SERVOFMU_FAULTS_AGAINST": src})
-    after, _ = pytest_outcomes(REPORTED, extra, {})
+        before, _ = pytest_outcomes(tests, extra, {"SERVOFMU_FAULTS_AGAINST": src})
+    after, _ = pytest_outcomes(tests, extra, {})
     lines = [f"| test | before ({rev}) | now |", "|---|---|---|"]
     for key in sorted(after, key=lambda k: k[1]):
         lines.append(f"| `{key[1]}` | {before.get(key, 'not run')} | {after[key]} |")
@@ -115,9 +123,15 @@ def main() -> int:
         i = args.index("--against")
         rev = args[i + 1]
         del args[i:i + 2]
+    probe = "first"
+    if "--probe" in args:
+        i = args.index("--probe")
+        probe = args[i + 1]
+        del args[i:i + 2]
     extra = [a for a in args if a != "--print"]
     if rev is not None:
-        text, rc, markers = before_and_after(rev, extra), 0, (BEFORE_BEGIN, BEFORE_END)
+        tests, *markers = PROBES[probe]
+        text, rc = before_and_after(rev, tests, extra), 0
     else:
         counts, rc = run(extra)
         text, markers = table(counts), (BEGIN, END)
