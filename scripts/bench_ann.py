@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from servofmu.identification.ann import TrainOptions, train_network
+from servofmu.identification.ann_training import TrainOptions, train_network
 from servofmu.identification.ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from servofmu.identification.pso import PsoOptions, minimize_pso
 

@@ -31,7 +31,8 @@ from servofmu.model.plant import load_plant
 from servofmu.baselines.compare import METHODS, max_relative_errors, run_methods
 from servofmu.output.demo import DEMO_PLANS
 from servofmu.output.paper import COLUMNS, TABLES
-from servofmu.output.report import bode_figures, compute_entries, convergence_figure, friction_figure, velocity_range
+from servofmu.output.report_entries import compute_entries, velocity_range
+from servofmu.output.report_figures import bode_figures, convergence_figure, friction_figure
 from servofmu.runtime import RunOptions
 
 ROOT = Path(__file__).resolve().parent.parent

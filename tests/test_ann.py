@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from servofmu.errors import UserError
-from servofmu.identification.ann import FeatureLayout, Network, TrainOptions, load_network, save_network, train_network
+from servofmu.identification.ann import FeatureLayout, Network, load_network, save_network
+from servofmu.identification.ann_training import TrainOptions, train_network
 
 
 def known_map(X):

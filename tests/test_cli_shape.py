@@ -13,10 +13,6 @@ from clitools import assert_one_line_error, run
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "servofmu"
 MAX_FUNCTION, MAX_HANDLER, MAX_MODULE = 80, 20, 500
-# Modules above MAX_MODULE lines that other changes in progress are splitting or shortening: marked, not hidden
-# (each shows as XFAIL with this reason, and as XPASS once it is short enough; then remove it here).
-BEING_SHORTENED = {"servofmu/identification/ann.py", "servofmu/measurement/datafile.py", "servofmu/output/report.py",
-                   "servofmu/output/validate.py", "servofmu/simulation/batch.py"}
 
 
 def subcommands():
@@ -136,13 +132,7 @@ def test_no_function_is_longer_than_80_lines(path):
     assert not long, f"{path.relative_to(ROOT)}: {long}"
 
 
-def module_cases():
-    reason = "above 500 lines; being shortened by a change in progress"
-    return [pytest.param(p, marks=pytest.mark.xfail(reason=reason, strict=False))
-            if str(p.relative_to(ROOT)) in BEING_SHORTENED else p for p in package_modules()]
-
-
-@pytest.mark.parametrize("path", module_cases(), ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("path", package_modules(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_module_is_longer_than_500_lines_unless_its_docstring_says_why(path):
     lines = len(path.read_text().splitlines())
     doc = ast.get_docstring(ast.parse(path.read_text())) or ""

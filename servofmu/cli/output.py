@@ -8,7 +8,8 @@ def cmd_validate(args) -> None:
     """Simulate a result on other data: fit % and residual tests; exit status 1 when the verdict is "failed"."""
     import json
 
-    from ..output.validate import validate_files, validation_json, validation_text
+    from ..output.validate import validation_json, validation_text
+    from ..output.validation_report import validate_files
 
     v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
                        overwrite=args.force, **({} if args.min_fit is None else {"min_fit": args.min_fit}))

@@ -6,7 +6,8 @@ from pathlib import Path
 from ..errors import UserError
 from ..fileio import claim_output, output_mode
 from ..runtime import RunOptions
-from .ann import FeatureLayout, Network, save_network, train_network
+from .ann import FeatureLayout, Network, save_network
+from .ann_training import train_network
 from .features import ann_features, feature_names, to_targets
 from .prior import identified_names
 from .training_set import load_training_set

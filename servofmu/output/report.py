@@ -13,225 +13,31 @@ against the identified linear G(jω), of the friction force against velocity, an
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from ..model.controller import load_controller
 from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
-from ..identification.criterion import POLISH_RTOL, SineData, sine_data, sine_residuals, steady_state_options
-from ..identification.results import Result, find_data_file, paper_rows, read_results
+from ..identification.criterion import POLISH_RTOL, SineData, sine_residuals
+from ..identification.results import find_data_file, paper_rows
 from ..measurement.datafile import DataFile, read_data_file
-from ..model.friction import steady_friction
 from ..model.plant import Plant, load_plant, parameter_info
-from ..runtime import temporary_folder, utc_now
-from ..simulation.batch import BatchSimulator
+from ..runtime import utc_now
 from ..version import __version__
-from .html import escape, figure, format_interval, number, page, png_bytes, table
+from .html import escape, figure, format_interval, number, page, table
 from .paper import COLUMNS as PAPER_COLUMNS
 from .paper import PAPER
 from .paper import REFERENCES as PAPER_REFERENCES
 from .paper import TABLES as PAPER_TABLES
-from .plots import MAX_PANELS, bode_figure, pyplot
-from .validate import Validation, validation_figure, validation_html
+from .validate import Validation
 from .validate import validate as validate_model
+from .report_entries import Entry, compute_entries, loop_controller, read_entries, used_sine_data, velocity_range
+from .report_figures import bode_figures, convergence_figure, friction_figure, records_figure
+from .validation_report import validation_html
 
-__all__ = ["make_report", "read_entries", "compute_entries", "report_html",
-           "model_sine", "velocity_range", "bode_figures", "records_figure", "friction_figure",
-           "convergence_figure", "transfer_function_html", "unit_text", "Entry"]
-
-CURVE_POINTS = 40          # frequencies per magnitude of the identified model's Bode curve
-CURVE_RTOL = 1e-8          # integrator tolerance of that curve (a figure); the tables use the polish's
-FRICTION_POINTS = 2000     # velocities of the friction curve (an even number: v = 0 is not among them)
-
-
-# ---------------------------------------------------------------------------
-# Inputs
-# ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Entry:
-    """One result on the page and what is computed from it against the data.
-
-    sine: the identified model's H and dc at the data's used experiments (None for records);
-    records: the identified model on every record it was fitted to (None for stepped-sine data).
-    """
-
-    label: str
-    result: Result
-    sine: tuple[np.ndarray, np.ndarray] | None = None
-    records: Validation | None = None
-
-
-def read_entries(path: str | Path) -> list[tuple[str, Result]]:
-    """The labelled results of a report source: a result file gives one, a comparison file (`servofmu compare`)
-    one per method, labelled by the method.  Other files are refused (servofmu.identification.results.read_results)."""
-    return list(read_results(path).items())
-
-
-# ---------------------------------------------------------------------------
-# Numbers
-# ---------------------------------------------------------------------------
-def model_sine(plant: Plant, amplitudes, frequencies, rtol: float = CURVE_RTOL):
-    """(H, dc, converged) of ``plant`` in steady state at each (amplitude, frequency) pair; the convergence test
-    as the identifier's (servofmu.identification.criterion.SineCriterion)."""
-    options = steady_state_options(rtol)
-    feats = BatchSimulator(plant).steady_state(plant.parameter_vector(), amplitudes, frequencies, options)
-    return feats.H[0], feats.dc[0], feats.converged[0]
-
-
-def _used_data(data_file: DataFile) -> SineData | None:
-    return sine_data(data_file) if data_file.kind == "measurement" else None
-
-
-def velocity_range(data_file: DataFile) -> float:
-    peaks = [np.max(np.abs(e.window.v)) for e in data_file.experiments if e.window.v.size]
-    peaks += [np.max(np.abs(r.series.v)) for r in data_file.records if r.series.v.size]
-    peak = max(peaks, default=0.0)
-    return 1.1 * peak if np.isfinite(peak) and peak > 0 else 1.0
-
-
-def _loop_of(result: Result):
-    """The controller of a closed-loop identification (its file, as the provenance names it), else None."""
-    path = result.provenance.get("controller_file")
-    return load_controller(path) if path else None
-
-
-def compute_entries(labelled: Sequence[tuple[str, Result]], data_file: DataFile) -> list[Entry]:
-    """Simulate each identified plant against the data: at the used experiments, or along each record."""
-    data = _used_data(data_file)
-    entries = []
-    for label, result in labelled:
-        if data is not None:
-            H, dc, _ = model_sine(result.plant, data.amplitudes, data.frequencies, rtol=POLISH_RTOL)
-            entries.append(Entry(label, result, sine=(H, dc)))
-        else:  # the records replayed as identify fitted them: their holds, outputs, skipped segment and loop
-            entries.append(Entry(label, result,
-                                 records=validate_model(result, data_file, float(result.provenance.get("skip", 0.0)),
-                                                        _loop_of(result))))
-    return entries
-
-
-# ---------------------------------------------------------------------------
-# Figures (PNG bytes)
-# ---------------------------------------------------------------------------
-def _bode_svg(data_file: DataFile, references: dict, title: str) -> bytes:
-    """A Bode figure (servofmu.output.plots.bode_figure) as SVG: vector lines, and the measured points as
-    marker elements a reader (or a test) can find in the markup."""
-    with temporary_folder("figure") as tmp:
-        path = bode_figure(data_file, Path(tmp) / "bode.svg", references=references, title=title)
-        return path.read_bytes()
-
-
-def _fitted_data_file(data_file: DataFile, noisy: bool) -> DataFile:
-    """The data as fitted: the noisy first harmonics when the file has noise."""
-    if not noisy:
-        return data_file
-    return replace(data_file, experiments=tuple(replace(e, H=e.H_noisy) for e in data_file.experiments
-                                              if e.H_noisy is not None))
-
-
-def _segments(label: str, f: np.ndarray, H: np.ndarray, ok: np.ndarray) -> dict:
-    """The runs of consecutive frequencies where ``ok`` as separate curves, so that where the model reaches no
-    steady state the line has a gap (one NaN would spoil the unwrapped phase of the whole curve).  Only the
-    first carries the label: matplotlib leaves labels that start with "_" out of the legend."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
-    runs = [(a, b) for a, b in zip(edges[::2], edges[1::2])]
-    return {(label if i == 0 else f"_{label} {i}"): (f[a:b], H[a:b]) for i, (a, b) in enumerate(runs)}
-
-
-def bode_figures(entry: Entry, data_file: DataFile, data: SineData) -> list[tuple[str, bytes]]:
-    """(caption, PNG): measured against identified response at each magnitude, then all magnitudes against the
-    identified linear G(jω)."""
-    plant = entry.result.plant
-    fitted = _fitted_data_file(data_file, data.noisy)
-    f_lo, f_hi = data.frequencies.min(), data.frequencies.max()
-    grid = np.unique(np.concatenate([np.geomspace(f_lo, f_hi, CURVE_POINTS), data.frequencies]))
-    out = []
-    for m in sorted(set(data.amplitudes.tolist()), reverse=True):
-        H, _, ok = model_sine(plant, np.full(grid.size, m), grid)
-        one = replace(fitted, experiments=tuple(e for e in fitted.experiments if e.amplitude == m), records=())
-        title = f"{entry.label}: measured and identified response at {m:g} N"
-        png = _bode_svg(one, _segments(f"identified model at {m:g} N", grid, H, ok), title)
-        note = "" if ok.all() else f" The identified model reaches no steady state at {np.sum(~ok)} of the " \
-                                   f"{grid.size} frequencies (gaps)."
-        out.append((f"{title}: markers are the measured first harmonics H = V1/U1 (one per experiment, not "
-                     f"joined), the dashed line the identified plant simulated to steady state at {grid.size} "
-                     f"frequencies.{note}", png))
-    wide = np.geomspace(f_lo / 2, f_hi * 2, 200)
-    title = f"{entry.label}: every magnitude against the identified G(jω)"
-    png = _bode_svg(fitted, {"identified linear G(jω), no friction": (wide, plant.frequency_response(2 * np.pi * wide))},
-                    title)
-    out.append((f"{title}: markers are the measured first harmonics at each magnitude, the dashed line the "
-                "identified G(jω) without friction; the spread between magnitudes is the friction's effect.", png))
-    return out
-
-
-def records_figure(entry: Entry) -> tuple[str, bytes]:
-    """Measured against simulated output of every record it was fitted to, with the residual correlations."""
-    n = len(entry.records.records)
-    more = f" (the first {MAX_PANELS} of {n} records)" if n > MAX_PANELS else ""
-    return (f"{entry.label}: measured output and the identified model driven by the measured input{more}, with the "
-            "residuals' correlations and their joint 99 % bounds.", validation_figure(entry.records, "records"))
-
-
-def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float) -> tuple[str, bytes]:
-    """Friction force against velocity at constant velocity: each identified plant, and the true one if known.
-    Left: every velocity the data reached; right: near v = 0, where the Stribeck effect and the smoothing live."""
-    half = np.geomspace(v_max * 1e-4, v_max, FRICTION_POINTS // 2)
-    v = np.concatenate([-half[::-1], half])
-    plants = [e.result.plant for e in entries] + ([truth] if truth is not None else [])
-    stribeck = [p.friction.vs for p in plants if p.friction.vs]
-    v_zoom = min(v_max, 5 * max(stribeck) if stribeck else v_max / 20)
-    curves = [(f"identified ({e.label})", e.result.plant, "--" if truth is not None else "-", f"C{i}", 1.5)
-              for i, e in enumerate(entries)]
-    if truth is not None:
-        curves.insert(0, (f"true ({truth.name})", truth, "-", "0.6", 4))
-    plt = pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
-    for label, plant, style, color, width in curves:
-        force = steady_friction(plant, v)
-        for ax in axes:
-            ax.plot(v, force, style, color=color, lw=width, label=label)
-    axes[1].set_xlim(-v_zoom, v_zoom)
-    for ax, title in zip(axes, ("every velocity the data reached", f"near zero: |v| ≤ {v_zoom:.3g} m/s")):
-        ax.axhline(0, color="k", lw=0.5)
-        ax.axvline(0, color="k", lw=0.5)
-        ax.set_xlabel("velocity v [m/s]")
-        ax.set_title(title, fontsize=10)
-        ax.grid(True, alpha=0.4)
-    axes[0].set_ylabel("friction force F(v) [N]")
-    axes[0].legend(fontsize=8)
-    fig.suptitle("friction against velocity (steady sliding)")
-    png = png_bytes(fig)
-    return ("Friction force against velocity at constant velocity, over the velocities the data reached "
-            f"(|v| ≤ {v_max:.3g} m/s)" + (", identified against true" if truth is not None else "") + ".", png)
-
-
-def convergence_figure(entries: Sequence[Entry]) -> tuple[str, bytes] | None:
-    """The swarm's best fitness per iteration, with each stage's final fitness as a level."""
-    if not any(e.result.history.size for e in entries):
-        return None
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for i, e in enumerate(entries):
-        h = e.result.history
-        if h.size:
-            ax.semilogy(np.arange(h.size), h, "-o", ms=3, color=f"C{i}", label=f"PSO best ({e.label})")
-        for j, stage in enumerate(e.result.stages):
-            if stage.name != "pso" and np.isfinite(stage.fitness) and stage.fitness > 0:
-                ax.axhline(stage.fitness, color=f"C{i}", ls=(":", "-.", "--")[j % 3], lw=1,
-                           label=f"after {stage.name} ({e.label}): {stage.fitness:.3g}")
-    ax.set_xlabel("PSO iteration (0: the initial swarm)")
-    ax.set_ylabel("fitness (RMS relative output error)")
-    ax.set_title("PSO convergence")
-    ax.grid(True, which="both", alpha=0.4)
-    ax.legend(fontsize=8)
-    png = png_bytes(fig)
-    return "Best fitness of the swarm at each iteration; lines mark the fitness after the other stages.", png
-
+__all__ = ["make_report", "report_html", "transfer_function_html", "unit_text"]
 
 # ---------------------------------------------------------------------------
 # HTML
@@ -469,7 +275,7 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
 
     if not entries:
         raise UserError(f"{source}: holds no result to report")
-    data = _used_data(data_file)
+    data = used_sine_data(data_file)
     structure = entries[0].result.structure
     title = title or f"Identification of {structure.name}"
     parts = [f"<h1>{escape(title)}</h1>"]
@@ -535,5 +341,5 @@ def make_report(source: str | Path, output: str | Path, data: str | Path | None 
     validation = None
     if validate is not None:
         other = read_data_file(validate)
-        validation = [(label, validate_model(result, other, controller=_loop_of(result))) for label, result in labelled]
+        validation = [(label, validate_model(result, other, controller=loop_controller(result))) for label, result in labelled]
     return atomic_write(output, report_html(entries, data_file, true_plant, source=source, validation=validation))

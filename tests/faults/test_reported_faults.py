@@ -233,12 +233,12 @@ def test_8_the_fleet_follows_the_same_rule(inputs, tmp_path):
 @pytest.mark.skipif(bool(AGAINST), reason="sees the work start in this process")
 def test_8_an_unwritable_output_is_refused_before_the_work(inputs, tmp_path, argv, monkeypatch):
     import servofmu.identification.identifier as identifier
-    import servofmu.identification.ann as ann
+    import servofmu.identification.train as train
 
     def no_work(*args, **kwargs):
         raise AssertionError("the work started")
     monkeypatch.setattr(identifier.PSOANNIdentifier, "fit", no_work)
-    monkeypatch.setattr(ann, "train_network", no_work)
+    monkeypatch.setattr(train, "train_network", no_work)
     rc, err = run_here([a.format(**{k: str(v) for k, v in inputs.items()}) for a in argv], tmp_path)
     assert_one_line(err, rc, 2, "missing/out.h5", "does not exist")
     assert os.listdir(tmp_path) == []
