@@ -57,7 +57,7 @@ def _claim_outputs(args) -> None:
 
 def _command(run: CommandRun, argv: list[str]) -> None:
     from ..fileio import output_claims
-    from ..runtime import sweep_temporary_folders
+    from ..runtime import show_warnings, sweep_temporary_folders
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -67,7 +67,7 @@ def _command(run: CommandRun, argv: list[str]) -> None:
     run.who = f"servofmu {args.command}"
     args.command_line = shlex.join(["servofmu", *argv])
     sweep_temporary_folders()
-    with output_claims():  # held until the command ends: no other run may write its outputs meanwhile
+    with output_claims(), show_warnings():  # outputs held until the command ends; warnings one line each
         _claim_outputs(args)
         args.func(args)
     run.quick_exit = getattr(args, "quick_exit", False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..runtime import EXIT_USER_ERROR, RunOptions, stop_if_asked
+from ..runtime import EXIT_USER_ERROR, RunOptions, show_warnings, stop_if_asked
 
 __all__ = ["Parser", "DeprecatedAlias", "ProgressBar", "float_list", "add_progress_option", "run_options",
            "output_mode_of"]
@@ -66,8 +66,10 @@ class ProgressBar:
     def __init__(self, args, unit: str, scale: int = 1):
         self._unit, self._scale, self._bar = unit, scale, None
         self.shown = not getattr(args, "json", False) and (getattr(args, "progress", False) or sys.stderr.isatty())
+        self._warnings = show_warnings(self.warn)
 
     def __enter__(self) -> "ProgressBar":
+        self._warnings.__enter__()
         return self
 
     def update(self, done: int, total: int) -> None:
@@ -92,6 +94,7 @@ class ProgressBar:
             self._bar.write(f"warning: {text}", file=sys.stderr)
 
     def __exit__(self, kind, value, traceback) -> None:
+        self._warnings.__exit__(kind, value, traceback)
         if self._bar is not None:
             self._bar.leave = kind is None  # a failed run ends with its one error line, no bar
             self._bar.close()

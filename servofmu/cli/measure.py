@@ -19,7 +19,7 @@ def cmd_measure(args) -> None:
     options = MeasureOptions(**{k: v for k, v in given.items() if v is not None})
     with ProgressBar(args, "experiment", scale=PROGRESS_SCALE) as bar:
         data = measure(args.fmu, args.data, amplitudes=args.amplitudes, frequencies=args.frequencies,
-                       options=options, run=run_options(args, bar), warn=bar.warn, max_steps=args.max_steps)
+                       options=options, run=run_options(args, bar), max_steps=args.max_steps)
     unsettled = sum(not e.converged for e in data.experiments)
     print(f"wrote {args.data}: {len(data.experiments)} experiments, amplitudes "
           f"{', '.join(f'{m:g}' for m in data.plan.amplitudes)} N x frequencies "

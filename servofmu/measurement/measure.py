@@ -484,7 +484,7 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
                     if warn is not None:
                         warn(text)
                     else:
-                        warnings.warn(text, ServofmuWarning, stacklevel=2)
+                        warnings.warn(text, ServofmuWarning, stacklevel=3)  # (past holds_outputs)
                 show()
         except BaseException:
             if existing is None and done == 0:  # nothing measured: leave no empty file to trip over
