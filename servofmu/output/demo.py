@@ -151,7 +151,7 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
            + f"; worst relative error {np.max(np.abs(est.theta_ / true - 1)):.2e}")
     check = validate(result, runs["validate"], controller=controller)
     report("validated on the second run: " + ", ".join(f"{r.output} fit {r.fit:.3f} %" for r in check.records)
-           + ("; residuals independent of the reference" if check.passed else "; residual tests FAILED"))
+           + ("; residuals independent of the reference" if check.passed else "; verdict FAILED"))
     ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references["reversals"],
                        out / "axis-reversals.ssp", overwrite=True)
     (out / "axis-compensation.html").unlink(missing_ok=True)
