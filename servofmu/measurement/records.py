@@ -271,7 +271,7 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
     Returns
     -------
     DataFile
-        The data file read back.
+        The records file as it now is, read back (with the records it held before, after ``append``).
 
     Raises
     ------

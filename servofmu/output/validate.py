@@ -57,8 +57,23 @@ MIN_FIT = 80.0
 # ---------------------------------------------------------------------------
 # Simulating the model on the data
 # ---------------------------------------------------------------------------
+class _Verdict:
+    """The verdict on one record or experiment (``fit``, ``min_fit`` and ``residuals_passed`` are the subclass's):
+    the fit reaches ``min_fit`` and the residual tests that apply pass."""
+
+    @property
+    def fit_passed(self) -> bool:
+        """The fit reaches ``min_fit``."""
+        return bool(self.fit >= self.min_fit)
+
+    @property
+    def passed(self) -> bool:
+        """The verdict: the fit reaches ``min_fit`` and the residual tests pass."""
+        return self.fit_passed and self.residuals_passed
+
+
 @dataclass(frozen=True)
-class RecordValidation:
+class RecordValidation(_Verdict):
     """The model on one record: ``y`` measured and ``y_model`` simulated (the velocity, or the position with the
     best constant offset) at the compared samples, the input there, the fit (%) and the residual analysis;
     ``min_fit``: the fit the verdict asks for."""
@@ -76,23 +91,14 @@ class RecordValidation:
     min_fit: float = MIN_FIT
 
     @property
-    def fit_passed(self) -> bool:
-        """The fit reaches ``min_fit``."""
-        return bool(self.fit >= self.min_fit)
-
-    @property
     def residuals_passed(self) -> bool:
         """The residual tests that apply: independence from the input always, whiteness for open-loop records."""
         return self.residuals.independent if self.closed_loop else self.residuals.passed
 
-    @property
-    def passed(self) -> bool:
-        """The verdict on this record: the fit reaches ``min_fit`` and the residual tests pass."""
-        return self.fit_passed and self.residuals_passed
 
 
 @dataclass(frozen=True)
-class ExperimentValidation:
+class ExperimentValidation(_Verdict):
     """The model on one stepped-sine experiment: the analysed window measured (noisy if the file has noise) and
     simulated, the excitation ``u`` there, the fit (%), the relative error of the first-harmonic response H, and
     the residual analysis against the sine when the window is noisy (None without noise: nothing to test);
@@ -112,19 +118,10 @@ class ExperimentValidation:
     min_fit: float = MIN_FIT
 
     @property
-    def fit_passed(self) -> bool:
-        """The fit reaches ``min_fit``."""
-        return bool(self.fit >= self.min_fit)
-
-    @property
     def residuals_passed(self) -> bool:
         """White and independent of the sine (noisy windows); True where there is no noise to test."""
         return self.residuals is None or self.residuals.passed
 
-    @property
-    def passed(self) -> bool:
-        """The verdict on this experiment: the fit reaches ``min_fit`` and the residual tests that apply pass."""
-        return self.fit_passed and self.residuals_passed
 
 
 @dataclass(frozen=True)
