@@ -1,4 +1,10 @@
-/* FMI 3.0 Model Exchange and Co-Simulation interface of a servofmu plant. */
+/* FMI 3.0 Model Exchange and Co-Simulation interface of a servofmu plant.
+ *
+ * This file and fmi2_api.c mirror each other function for function: both are thin adapters from an FMI
+ * version's types and signatures (fmi3Instance and fmi3Status here, fmi2Component and fmi2Status there; FMI 3.0's
+ * getters take value counts, its event handling has other out-arguments) onto one shared core (core_common.c,
+ * servo_core.c), which holds all of the logic.  Sharing the adapters themselves would need macros over the two
+ * standards' headers, which would hide exactly what each function's signature must be. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>

@@ -183,6 +183,17 @@ static const double R_CC[6][5] = {
      -0.6058818238834054e+01},
 };
 
+/* The state at RODAS4 stage s, x + sum over j < s of a_sj * k_j (k: the stages so far, rows of `stride`
+ * numbers): one definition for this integrator and the batch simulator's, which includes this file. */
+static void rodas_stage_state(const double *x, const double *k, int stride, int s, int n, double *xs) {
+    int i, j;
+    for (i = 0; i < n; ++i) {
+        double acc = x[i];
+        for (j = 0; j < s; ++j) acc += R_A[s][j] * k[j * stride + i];
+        xs[i] = acc;
+    }
+}
+
 /* One step of size h from (t, x); writes the new state and returns the scaled error norm. */
 static double rodas_step(SvInstance *inst, double t, const double *x, double h, double *xnew) {
     enum { N = SV_NX };
@@ -195,11 +206,7 @@ static double rodas_step(SvInstance *inst, double t, const double *x, double h, 
         for (j = 0; j < N; ++j) m[i * N + j] = -jac[j * N + i] + (i == j ? 1.0 / (h * R_GAMMA) : 0.0);
     if (lu_factor(m, piv, N) != 0) return INFINITY;
     for (s = 0; s < 6; ++s) {
-        for (i = 0; i < N; ++i) {
-            double acc = x[i];
-            for (j = 0; j < s; ++j) acc += R_A[s][j] * k[j][i];
-            xs[i] = acc;
-        }
+        rodas_stage_state(x, &k[0][0], N, s, N, xs);
         rhs(inst, t + R_C[s] * h, xs, f);
         for (i = 0; i < N; ++i) {
             double acc = f[i] + h * R_D[s] * ft[i];

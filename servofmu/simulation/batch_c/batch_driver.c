@@ -196,11 +196,7 @@ static double step(Eval *ev, Problem *pb, double tau, const double *y, double h,
     ft[NS] = 0.0; ft[NS + 1] = -pb->omega * v * in0->s; ft[NS + 2] = pb->omega * v * in0->c; ft[NS + 3] = 0.0;
     if (lu_factor(m, piv, NS) != 0) return INFINITY;
     for (st = 0; st < 6; ++st) {
-        for (i = 0; i < NY; ++i) {
-            double acc = y[i];
-            for (j = 0; j < st; ++j) acc += R_A[st][j] * k[j][i];
-            ys[i] = acc;
-        }
+        rodas_stage_state(y, &k[0][0], NY, st, NY, ys);
         /* stage times tau + c*h with c = 0, 0.386, 0.21, 0.63, 1, 1 */
         const Input *stage_in = R_C[st] == 0.0 ? in0 : R_C[st] == 1.0 ? in1 : &in;
         if (stage_in == &in) in = input(pb, tau + R_C[st] * h);
