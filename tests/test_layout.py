@@ -18,6 +18,7 @@ STAGES = [
     {"servofmu.measurement"},
     {"servofmu.identification"},
     {"servofmu.baselines"},
+    {"servofmu.selection"},
     {"servofmu.control"},
     {"servofmu.output"},
     {"servofmu.cli", "servofmu.__main__"},

@@ -1,0 +1,119 @@
+"""The page of a structure selection (`servofmu select … --report select.html`): the ranking, the chosen structure,
+and the best candidates' fits on the validation data side by side (each simulated there as ``validate`` does)."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import atomic_write, claim_output, output_mode
+from ..measurement.datafile import read_data_file
+from ..runtime import RunOptions, utc_now
+from ..selection.run import Selection, select_files
+from ..selection.select import VALIDATION_MARGIN, SelectOptions
+from .html import escape, figure, number, page, png_bytes, table
+from .plots import pyplot
+from .validate import Validation, validate
+
+__all__ = ["select_with_report", "selection_page", "SIDE_BY_SIDE"]
+
+SIDE_BY_SIDE = 4  # candidates drawn beside each other (the best fitted ones)
+ROWS = 3          # records or experiments drawn per candidate
+
+
+def _validations(selection: Selection) -> list[tuple[str, Validation]]:
+    """The best fitted candidates validated on the validation file, as ``validate`` simulates a result (the plant
+    the file may record is not compared: every structure is a candidate)."""
+    data = replace(read_data_file(selection.validation_file), parameters={})
+    controller = None
+    if selection.options.closed_loop is not None:
+        from ..model.controller import load_controller
+
+        controller = load_controller(selection.options.closed_loop)
+    out = []
+    for s in [s for s in selection.scores if s.status == "fitted"][:SIDE_BY_SIDE]:
+        out.append((s.name, validate(s.result, data, selection.options.skip, controller, min_fit=0.0)))
+    return out
+
+
+def _side_by_side(validations: list[tuple[str, Validation]]) -> bytes | None:
+    """PNG: one column per candidate, one row per record or experiment: measured and simulated output."""
+    if not validations:
+        return None
+    rows = max(min(len(v.records) + len(v.experiments), ROWS) for _, v in validations)
+    plt = pyplot()
+    fig, axes = plt.subplots(rows, len(validations), figsize=(3.6 * len(validations), 2.6 * rows), squeeze=False,
+                             sharey="row")
+    for col, (name, v) in enumerate(validations):
+        items = [*v.records, *v.experiments][:rows]
+        for row, item in enumerate(items):
+            ax = axes[row][col]
+            ax.plot(item.time, item.y, lw=0.8, label="measured")
+            ax.plot(item.time, item.y_model, "k--", lw=0.8, label="model")
+            ax.set_title(f"{name}: fit {item.fit:.2f} %", fontsize=9)
+            ax.grid(True, alpha=0.4)
+            if row == len(items) - 1:
+                ax.set_xlabel("time [s]")
+        axes[0][col].legend(fontsize=7, loc="upper right")
+    return png_bytes(fig)
+
+
+def _ranking_rows(selection: Selection) -> list[list[str]]:
+    fitted = [s for s in selection.scores if s.status == "fitted" and math.isfinite(s.bic)]
+    best_bic = min((s.bic for s in fitted), default=math.nan)
+    best_val = min((s.validation_neg2loglik for s in fitted), default=math.nan)
+    rows = []
+    for s in selection.scores:
+        if s.status != "fitted":
+            rows.append([str(s.rank), s.name, "—", "—", "—", "—", "—", "—", f"fit failed: {s.message}"])
+            continue
+        white = "—" if s.white is None else ("yes" if s.white else "no")
+        flags = ", ".join(s.flags) + (f" ({', '.join(s.undetermined)})" if s.undetermined else "")
+        rows.append([str(s.rank), s.name, str(s.parameters), number(s.bic, ".6g"), number(s.bic - best_bic, ".1f"),
+                     number(s.worst_validation_fit, ".3f"), number(s.validation_neg2loglik - best_val, ".1f"), white,
+                     flags or "—"])
+    return rows
+
+
+def selection_page(selection: Selection) -> str:
+    """The HTML page: the chosen structure and its plant file, the ranking table, and the best candidates' fits
+    on the validation data side by side."""
+    chosen = selection.chosen
+    title = f"Structure selection: {chosen.name if chosen else 'no candidate fitted'}"
+    parts = [f"<h1>{escape(title)}</h1>",
+             f"<p>Fitted to {escape(', '.join(Path(p).name for p in selection.data_files))}, ranked on "
+             f"{escape(Path(selection.validation_file).name)} ({escape(selection.kind)} data), every candidate by "
+             "the swarm alone (method pso) from its linear least-squares estimate, then polished.</p>"]
+    if chosen is not None:
+        parts.append(f'<p id="chosen">Chosen: <strong>{escape(chosen.name)}</strong>, {chosen.parameters} '
+                     f"identified parameters. Its plant file:</p><pre>{escape(chosen.result.plant.to_toml())}</pre>")
+    parts += [table("ranking", ["rank", "candidate", "parameters", "BIC", "ΔBIC", "worst validation fit %",
+                                "Δ validation −2 ln L", "residuals white", "flags"], _ranking_rows(selection),
+                    numeric_from=2),
+              f'<p class="note">BIC from the output-error residuals of the fitted data, each signal\'s noise '
+              f"variance estimated from them; flags: validation −2 ln L more than {VALIDATION_MARGIN:g} above the "
+              "best, a parameter whose 95 % interval reaches past zero (undetermined), residual tests failed where "
+              "another candidate passes them. Flagged candidates rank after the others (docs/selection.md).</p>"]
+    image = _side_by_side(_validations(selection))
+    if image is not None:
+        parts.append(figure(f"The best {min(SIDE_BY_SIDE, len(selection.scores))} candidates on the validation "
+                            "data, side by side: measured and simulated output.", image, "candidates side by side"))
+    parts.append(f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>')
+    return page(title, parts)
+
+
+def select_with_report(data_files, validation_file, output, options: SelectOptions | None = None,
+                       run: RunOptions | None = None, plant_output=None, result_output=None,
+                       report=None) -> Selection:
+    """:func:`servofmu.selection.run.select_files`, and with ``report`` the HTML page of the selection
+    (:func:`selection_page`); the page's path is claimed with the other outputs before any work."""
+    run = run or RunOptions()
+    if report is not None:
+        claim_output(report, output_mode(run.overwrite), inputs=(*data_files, validation_file))
+    selection = select_files(data_files, validation_file, output, options, run, plant_output, result_output)
+    if report is not None:
+        atomic_write(report, selection_page(selection))
+        selection = replace(selection, outputs={**selection.outputs, "report": str(report)})
+    return selection

@@ -1,0 +1,140 @@
+"""What a selection fits and validates on: one or more data files of one axis merged into the identifier's data
+(stepped-sine experiments, open-loop records or closed-loop records), checked to be of one kind, and a
+validation file checked to hold the same signals."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..identification.criterion import RecordData, SineCriterion, RecordCriterion, SineData, record_data, sine_data
+from ..measurement.datafile import DataFile, read_data_file
+from .estimate import Series, series_of_experiments, series_of_records
+
+__all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind"]
+
+
+def data_kind(data) -> str:
+    """"sine", "records" or "closed-loop"."""
+    if isinstance(data, SineData):
+        return "sine"
+    return "records" if isinstance(data, RecordData) else "closed-loop"
+
+
+def _one(path, skip: float, controller):
+    """(DataFile, identifier data) of one file."""
+    ds = read_data_file(path)
+    if controller is not None:
+        from ..identification.closed_loop import closed_loop_data
+
+        if ds.kind != "records":
+            raise UserError(f"{path}: --closed-loop needs records (servofmu import or cosim), not stepped-sine data")
+        return ds, closed_loop_data(ds, controller, skip)
+    if ds.kind == "records":
+        return ds, record_data(ds, skip)
+    if skip:
+        raise UserError(f"{path}: skip applies to records, not to stepped-sine experiments")
+    return ds, sine_data(ds)
+
+
+def _unique(records, files):
+    """Records of several files renamed FILE:NAME where two share a name."""
+    names = [r.name for r in records]
+    if len(set(names)) == len(names):
+        return tuple(records)
+    return tuple(replace(r, name=f"{Path(f).stem}:{r.name}") for r, f in zip(records, files))
+
+
+def _merge(parts: list, paths: list[str]):
+    """One identifier data object from those of several files."""
+    kinds = {data_kind(p) for p in parts}
+    if len(kinds) > 1:
+        raise UserError(f"{', '.join(paths)}: mix stepped-sine data and records; select on one kind at a time")
+    first = parts[0]
+    if len(parts) == 1:
+        return first
+    source = ", ".join(paths)
+    if isinstance(first, SineData):
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        return SineData(amplitudes=cat("amplitudes"), frequencies=cat("frequencies"), H=cat("H"), dc=cat("dc"),
+                        noisy=all(p.noisy for p in parts), source=source, skipped=sum(p.skipped for p in parts))
+    records = [r for p in parts for r in p.records]
+    files = [f for p, f in zip(parts, paths) for _ in p.records]
+    return replace(first, records=_unique(records, files), source=source)
+
+
+def load_selection_data(paths, skip: float = 0.0, controller=None):
+    """(data, DataFiles) of the files ``paths`` (one axis, one kind of data), merged as the identifier fits them:
+    SineData, RecordData or closed-loop data (with ``controller``).  The plant a file may record is not checked
+    against the candidates (every structure is tried); files recording different plants are refused."""
+    paths = [str(p) for p in paths]
+    if not paths:
+        raise UserError("no data files to select from")
+    loaded = [_one(p, skip, controller) for p in paths]
+    files = [ds for ds, _ in loaded]
+    recorded = [(ds.path, _plant_values(ds)) for ds in files if _plant_values(ds)]
+    for path, values in recorded[1:]:
+        if values != recorded[0][1]:
+            raise UserError(f"{path}: records another plant than {recorded[0][0]} (its parameters differ); select on "
+                            "data of one axis")
+    return _merge([d for _, d in loaded], paths), files
+
+
+def _plant_values(ds: DataFile) -> dict:
+    """The plant parameters a measurement of a servofmu FMU records (empty for a machine's records)."""
+    return {k: v for k, v in ds.parameters.items() if not k.startswith("excitation")}
+
+
+def _signals(data) -> list[str]:
+    """What the data measures, as words: per record its output, for sine data the velocity's harmonics."""
+    if isinstance(data, SineData):
+        return ["stepped-sine harmonics of v"]
+    if isinstance(data, RecordData):
+        return sorted({f"records of {r.output} driven by u" for r in data.records})
+    return ["closed-loop records (reference, position, force command)"]
+
+
+def check_validation(fit, fit_files: list[DataFile], validation, validation_file: DataFile) -> None:
+    """Refuse a validation file that holds other signals than the fitted data (another kind, another output) or
+    that records another plant than the fitted files do."""
+    path = validation_file.path
+    if data_kind(fit) != data_kind(validation) or _signals(fit) != _signals(validation):
+        raise UserError(f"{path}: holds {', '.join(_signals(validation))}, the fitted data "
+                        f"{', '.join(_signals(fit))}: validate on data of the same signals (the same input and "
+                        "output)")
+    mine = _plant_values(validation_file)
+    theirs = next((_plant_values(f) for f in fit_files if _plant_values(f)), {})
+    if mine and theirs and mine != theirs:
+        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        raise UserError(f"{path}: was measured on another plant than the fitted data ({', '.join(differ[:4])} "
+                        "differ); validate on data of the same axis")
+
+
+def criterion_for(structure, data, threads: int | None = None):
+    """The identifier's criterion of ``structure`` on ``data`` (the same the fit used)."""
+    from ..simulation.batch import BatchSimulator
+
+    if isinstance(data, SineData):
+        return SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
+    if isinstance(data, RecordData):
+        return RecordCriterion(structure, data, BatchSimulator(structure, threads=threads))
+    return data.criterion(structure, threads)
+
+
+def estimation_series(data, files: list[DataFile]) -> list[Series]:
+    """The stretches of data the linear estimate is computed from: the records (velocity, or the position
+    differentiated; in a closed loop the force command against the position's derivative), or the windows of
+    the stepped-sine experiments."""
+    if isinstance(data, SineData):
+        return series_of_experiments([e for f in files for e in f.experiments])
+    if isinstance(data, RecordData):
+        return series_of_records(data.records)
+    out = []
+    for r in data.records:
+        f = r.fitted
+        v = np.gradient(r.position[f], r.time[f])
+        out.append(Series(u=np.asarray(r.command[f], float), v=v, dt=float(np.median(np.diff(r.time))),
+                          periodic=False))
+    return out

@@ -1,0 +1,240 @@
+"""A selection from files to files (`servofmu select DATA.h5 … --validate OTHER.h5 -o SELECT.h5`): the data read
+and checked, the candidates started from their linear estimates and fitted in worker processes or on a Dask
+cluster, ranked, and written: SELECT.h5 (every candidate's result and the ranking, docs/selection.md), the chosen
+structure as a plant file and its result as a RESULT.h5."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError, check_int
+from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
+from ..identification.identifier import swarm_options
+from ..identification.results import write_comparison, write_result
+from ..runtime import RunOptions, temporary_folder, utc_now
+from ..simulation.parallel import Workers
+from .candidates import Candidate, candidate_plant, parse_candidates
+from .data import check_validation, data_kind, estimation_series, load_selection_data
+from .estimate import estimate_linear
+from .select import CandidateJob, CandidateScore, SelectOptions, fit_candidate, rank
+
+__all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
+
+SELECT_FORMAT = "servofmu-selection"
+
+
+@dataclass(frozen=True)
+class Selection:
+    """A selection's outcome: the candidates' scores in rank order (``scores[0]`` is chosen when it was fitted),
+    the files fitted and validated on, the kind of data, the options and the outputs written."""
+
+    scores: tuple[CandidateScore, ...]
+    data_files: tuple[str, ...]
+    validation_file: str
+    kind: str
+    options: SelectOptions
+    outputs: dict
+
+    @property
+    def chosen(self) -> CandidateScore | None:
+        """The first-ranked candidate, None when no fit succeeded."""
+        first = self.scores[0] if self.scores else None
+        return first if first is not None and first.status == "fitted" else None
+
+
+def selection_outputs(output: str | Path, plant_output=None, result_output=None) -> dict[str, Path]:
+    """The files a selection writes: SELECT.h5, the chosen plant file (default SELECT.toml beside it) and the
+    chosen result (default SELECT-result.h5)."""
+    output = Path(output)
+    return {"selection": output, "plant": Path(plant_output or output.with_suffix(".toml")),
+            "result": Path(result_output or output.with_name(output.stem + "-result.h5"))}
+
+
+def _check_options(options: SelectOptions) -> list[Candidate]:
+    check_int("seed", options.seed, 0)
+    swarm_options(options.iterations)
+    if not (isinstance(options.spread, (int, float)) and math.isfinite(options.spread) and options.spread > 0):
+        raise UserError(f"spread must be a positive number, not {options.spread!r}")
+    return parse_candidates(options.candidates, options.orders)
+
+
+def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]:
+    """Each candidate's start plant from the linear estimate of its order and zeros (one estimate per pair); an
+    exception in its place where the data does not give one."""
+    series = estimation_series(data, files)
+    estimates, out = {}, {}
+    for c in candidates:
+        key = (c.order, c.zeros)
+        if key not in estimates:
+            try:
+                estimates[key] = estimate_linear(series, c.order, c.zeros)
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                estimates[key] = UserError(f"no linear estimate of G of order {c.order}: {exc}")
+        est = estimates[key]
+        try:
+            out[c] = est if isinstance(est, Exception) else candidate_plant(c, est)
+        except UserError as exc:
+            out[c] = exc
+    return out
+
+
+@holds_outputs
+def select_files(data_files, validation_file, output, options: SelectOptions | None = None,
+                 run: RunOptions | None = None, plant_output=None, result_output=None) -> Selection:
+    """Fit every candidate structure to ``data_files``, rank them on ``validation_file`` and write the outputs.
+
+    Parameters
+    ----------
+    data_files : list of str or Path
+        Data of one axis: stepped-sine measurements, or records (open-loop, or closed-loop with
+        ``options.closed_loop``), fitted jointly.
+    validation_file : str or Path
+        Data of the same axis and signals that no candidate is fitted to.
+    output : str or Path
+        SELECT.h5: every candidate's result and the ranking (docs/selection.md).
+    options : SelectOptions, optional
+        Candidates, orders, seed, swarm iterations and box, skip, closed loop.
+    run : RunOptions, optional
+        ``workers`` (local processes, default one per core; 0: this process) or ``scheduler`` (Dask),
+        ``overwrite``, ``progress`` (candidates done, candidates), ``command`` (provenance).
+    plant_output, result_output : str or Path, optional
+        The chosen structure's plant file (default SELECT.toml) and result (default SELECT-result.h5).
+
+    Returns
+    -------
+    Selection
+        The ranked scores and the outputs written (the plant file and result only when a candidate was fitted).
+
+    Raises
+    ------
+    UserError
+        For unusable inputs (unreadable files, an unknown candidate, an order outside 1..MAX_ORDER, a validation
+        file of other signals or another plant) or an existing output without ``run.overwrite``; nothing is
+        written then.  A candidate whose fit fails is ranked last, with its reason; the others go on.
+    """
+    options, run = options or SelectOptions(), run or RunOptions()
+    inputs = (*data_files, validation_file, options.closed_loop)
+    outputs = selection_outputs(output, plant_output, result_output)
+    for path in outputs.values():
+        claim_output(path, output_mode(run.overwrite), inputs=inputs)
+    if len({p.resolve() for p in outputs.values()}) < len(outputs):
+        raise UserError(f"{output}: the selection, the plant file and the result must be three different files")
+    candidates = _check_options(options)
+    controller = None
+    if options.closed_loop is not None:
+        from ..model.controller import load_controller
+
+        controller = load_controller(options.closed_loop)
+    data, files = load_selection_data(data_files, options.skip, controller)
+    validation, (vfile,) = load_selection_data([validation_file], options.skip, controller)
+    check_validation(data, files, validation, vfile)
+    starts = _starts(candidates, data, files)
+    provenance = {"data_file": ", ".join(map(str, data_files)),
+                  "data_sha256": ", ".join(file_sha256(p) for p in data_files),
+                  "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
+                  "structure_file": "selection candidate"}
+    in_process = run.scheduler is None and run.workers == 0
+    jobs = [CandidateJob(c, starts[c], data, validation, options, None if in_process else 1, provenance)
+            for c in candidates if not isinstance(starts[c], Exception)]
+    scores = [CandidateScore(c, "failed", message=str(starts[c])) for c in candidates
+              if isinstance(starts[c], Exception)]
+    run.report(len(scores), len(candidates))
+    with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
+        for _, score in pool.imap(fit_candidate, jobs):
+            scores.append(score)
+            run.report(len(scores), len(candidates))
+    selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
+                          validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
+    return _write(selection, outputs)
+
+
+def _key(score: CandidateScore) -> str:
+    """The group of a candidate in SELECT.h5's /methods: its name with '/' as '_' (coulomb_2z)."""
+    return score.name.replace("/", "_")
+
+
+def _write(selection: Selection, outputs: dict[str, Path]) -> Selection:
+    """SELECT.h5 (a comparison file of the fitted candidates' results plus /selection), and for a chosen candidate
+    its plant file and result."""
+    fitted = {_key(s): s.result for s in selection.scores if s.status == "fitted"}
+    written = {"selection": str(outputs["selection"])}
+    with temporary_folder("select") as tmp:
+        base = tmp / "candidates.h5"
+        write_comparison(base, fitted)
+        write_hdf5(outputs["selection"], lambda f: _fill_ranking(f, selection), start_from=base)
+    chosen = selection.chosen
+    if chosen is not None:
+        plant = replace(chosen.result.plant, name="selected")
+        header = (f"# chosen by servofmu select: {chosen.name} (rank 1 of {len(selection.scores)}; BIC "
+                  f"{chosen.bic:.6g}); identified from {', '.join(selection.data_files)}\n")
+        from ..fileio import atomic_write
+
+        atomic_write(outputs["plant"], header + plant.to_toml())
+        write_result(outputs["result"], chosen.result, overwrite=True)  # claimed before any work
+        written.update(plant=str(outputs["plant"]), result=str(outputs["result"]))
+    return replace(selection, outputs=written)
+
+
+def _fill_ranking(f, selection: Selection) -> None:
+    """/selection: the ranking as columns in rank order, and the run's settings as attributes."""
+    g = f.create_group("selection")
+    s = selection.scores
+    chosen = selection.chosen
+    g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
+                    "chosen": chosen.name if chosen else "", "criterion": "bic",
+                    "data_files": json.dumps(list(selection.data_files)),
+                    "validation_file": selection.validation_file,
+                    "options": json.dumps({"candidates": selection.options.candidates,
+                                           "orders": list(selection.options.orders), "seed": selection.options.seed,
+                                           "iterations": selection.options.iterations,
+                                           "spread": selection.options.spread, "skip": selection.options.skip,
+                                           "closed_loop": selection.options.closed_loop})})
+    store_array(g, "name", [x.name for x in s])
+    store_array(g, "group", [_key(x) if x.status == "fitted" else "" for x in s])
+    store_array(g, "status", [x.status for x in s])
+    store_array(g, "message", [x.message for x in s])
+    store_array(g, "flags", [",".join(x.flags) for x in s])
+    store_array(g, "undetermined", [",".join(x.undetermined) for x in s])
+    for column in ("parameters", "samples", "rank"):
+        store_array(g, column, np.array([getattr(x, column) for x in s], dtype=np.int64))
+    for column in ("neg2loglik", "aic", "bic", "validation_neg2loglik", "seconds", "worst_validation_fit"):
+        store_array(g, column, np.array([getattr(x, column) for x in s], dtype=float))
+    store_array(g, "white", np.array([-1 if x.white is None else int(x.white) for x in s], dtype=np.int8))
+    store_array(g, "validation_fit", [json.dumps(x.validation_fit) for x in s])
+
+
+def selection_json(selection: Selection) -> dict:
+    """One object for scripts: the chosen candidate, the outputs, and every candidate's scores in rank order."""
+    return {"chosen": selection.chosen.name if selection.chosen else None, "kind": selection.kind,
+            "outputs": selection.outputs,
+            "candidates": [{"rank": s.rank, "name": s.name, "status": s.status, "message": s.message,
+                            "parameters": s.parameters, "samples": s.samples, "bic": s.bic, "aic": s.aic,
+                            "neg2loglik": s.neg2loglik, "validation_fit_percent": s.validation_fit,
+                            "validation_neg2loglik": s.validation_neg2loglik, "white": s.white,
+                            "undetermined": list(s.undetermined), "flags": list(s.flags), "seconds": s.seconds}
+                           for s in selection.scores]}
+
+
+def selection_text(selection: Selection) -> str:
+    """The ranking as a plain-text table, the chosen candidate and the files written."""
+    lines = [f"{'rank':>4}  {'candidate':<22}{'p':>3}{'BIC':>13}{'ΔBIC':>10}{'val. fit %':>12}{'Δ val.':>9}"
+             f"{'white':>7}  flags"]
+    fitted = [s for s in selection.scores if s.status == "fitted" and math.isfinite(s.bic)]
+    best_bic = min((s.bic for s in fitted), default=math.nan)
+    best_val = min((s.validation_neg2loglik for s in fitted), default=math.nan)
+    for s in selection.scores:
+        if s.status != "fitted":
+            lines.append(f"{s.rank:>4}  {s.name:<22}  fit failed: {s.message}")
+            continue
+        white = "-" if s.white is None else ("yes" if s.white else "no")
+        flags = ", ".join(s.flags) + (f" ({', '.join(s.undetermined)})" if s.undetermined else "")
+        lines.append(f"{s.rank:>4}  {s.name:<22}{s.parameters:>3}{s.bic:>13.6g}{s.bic - best_bic:>10.1f}"
+                     f"{s.worst_validation_fit:>12.3f}{s.validation_neg2loglik - best_val:>9.1f}{white:>7}  {flags}")
+    chosen = selection.chosen
+    lines.append(f"chosen: {chosen.name}" if chosen else "no candidate could be fitted")
+    lines.append("wrote " + ", ".join(selection.outputs.values()))
+    return "\n".join(lines)

@@ -1,0 +1,185 @@
+"""`servofmu select`: candidate names, the linear estimate against scipy, the ranking, a small selection from
+records end to end, and bad input refused in one line with nothing written."""
+import json
+
+import h5py
+import numpy as np
+import pytest
+from scipy import signal
+
+import servofmu as sf
+from servofmu.errors import UserError
+from servofmu.measurement.records import import_records
+from servofmu.runtime import RunOptions
+from servofmu.selection.candidates import Candidate, default_candidates, parse_candidates, supported_load_terms
+from servofmu.selection.estimate import Series, estimate_linear
+from servofmu.selection.select import CandidateScore, rank
+from servofmu.simulation.batch import BatchSimulator
+
+from clitools import assert_one_line_error, run
+
+DT = 0.01
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Candidates
+# ---------------------------------------------------------------------------------------------------------------
+def test_candidate_names_expand_over_the_orders_with_and_without_a_zero():
+    names = [c.name for c in parse_candidates(["coulomb", "lugre/2z"], orders=(1, 3))]
+    assert names == ["coulomb/1", "coulomb/3", "coulomb/3z", "lugre/2z"]
+    laws = 3 * (1 + len(supported_load_terms()))
+    assert len(default_candidates((1, 2, 3))) == laws * 5  # order 1 without a zero, 2 and 3 with and without
+    assert [c.name for c in parse_candidates(None, (2,))][:2] == ["coulomb/2", "coulomb/2z"]
+
+
+@pytest.mark.parametrize("names, orders, fragment", [
+    (["friction"], (1,), "unknown friction law 'friction'"),
+    (["coulomb+fv"], (1,), "viscous friction fv is not told apart"),
+    (["coulomb+bump"], (1,), "unknown load term 'bump'"),
+    (["coulomb/1z"], (1,), "a zero needs G of order 2"),
+    (["coulomb/x"], (1,), "must be a whole number"),
+    (["coulomb"], (0,), "order 0 of G(s)"),
+    (["coulomb/9"], (1,), "order 9 of G(s)"),
+])
+def test_bad_candidates_are_refused(names, orders, fragment):
+    with pytest.raises(UserError, match=None) as info:
+        parse_candidates(names, orders)
+    assert fragment in str(info.value)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The linear estimate against scipy's simulation of a known G
+# ---------------------------------------------------------------------------------------------------------------
+def test_linear_estimate_recovers_a_g_with_a_zero_and_coulomb_friction_from_a_record():
+    """v = G·(u − F) integrated by scipy (an independent reference): G = 60(s + 4)/((s + 2)(s² + 6s + 80)),
+    F = 0.3·[v > 0] − 0.2·[v < 0] fed back through a fine fixed-step loop; the estimate finds G's roots and the
+    Coulomb levels within a few per cent."""
+    num, den = 60 * np.poly([-4.0]), np.poly([-2.0, -3 + 8.5440037j, -3 - 8.5440037j]).real
+    ss = signal.StateSpace(*signal.tf2ss(num, den))
+    fine = 1e-4
+    t = np.arange(0, 20, fine)
+    u = 2 * np.sin(2 * np.pi * 0.7 * t) + 0.8 * np.sin(2 * np.pi * 3.3 * t)
+    d = signal.cont2discrete((ss.A, ss.B, ss.C, ss.D), fine, method="bilinear")
+    x, v = np.zeros(3), np.empty(t.size)
+    for k in range(t.size):
+        v[k] = (d[2] @ x)[0]
+        force = 0.3 if v[k] > 0 else (-0.2 if v[k] < 0 else 0.0)
+        x = d[0] @ x + d[1][:, 0] * (u[k] - force)
+    step = int(DT / fine)
+    est = estimate_linear([Series(u=u[::step], v=v[::step], dt=DT, periodic=False)], order=3, zeros=1)
+    poles = sorted(est.poles, key=lambda p: (p.real, p.imag))
+    assert np.allclose(sorted(np.roots(den), key=lambda p: (p.real, p.imag)), poles, rtol=0.05, atol=0.1)
+    assert abs(est.zeros[0] + 4) < 0.2
+    assert abs(est.gain / 60 - 1) < 0.05
+    assert abs(est.fc_pos - 0.3) < 0.03 and abs(est.fc_neg - 0.2) < 0.03
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The ranking
+# ---------------------------------------------------------------------------------------------------------------
+def _score(name, bic, val, p, white=True, undetermined=(), status="fitted"):
+    law, order = name.split("/")
+    c = Candidate(law, int(order.rstrip("z")), int(order.endswith("z")))
+    return CandidateScore(c, status, parameters=p, bic=bic, validation_neg2loglik=val, white=white,
+                          undetermined=undetermined)
+
+
+def test_ranking_puts_flags_after_clean_candidates_and_failures_last():
+    scores = [_score("coulomb/1", -100.0, -50.0, 4),
+              _score("stribeck/1", -120.0, -52.0, 7, undetermined=("vs",)),   # lower BIC, but vs undetermined
+              _score("coulomb/2", -90.0, -20.0, 5),                           # validation 32 worse: flagged
+              _score("coulomb/3", -99.0, -49.0, 6, white=False),               # residuals not white: flagged
+              _score("lugre/1", float("nan"), float("nan"), 0, status="failed")]
+    ranked = rank(scores)
+    assert [s.name for s in ranked] == ["coulomb/1", "stribeck/1", "coulomb/3", "coulomb/2", "lugre/1"]
+    assert [s.rank for s in ranked] == [1, 2, 3, 4, 5]
+    assert ranked[1].flags == ("undetermined",) and ranked[2].flags == ("residuals",)
+    assert ranked[3].flags == ("validation",) and ranked[4].flags == ("fit failed",)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# End to end on records
+# ---------------------------------------------------------------------------------------------------------------
+def _record(folder, name, plant, seed, output="v", snr_db=40.0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 10, DT)
+    u = np.where(t < 5, 2 * np.sin(2 * np.pi * t) + 0.6 * np.sin(2 * np.pi * 3.1 * t),
+                 0.7 * np.sin(2 * np.pi * 0.6 * t) + 0.3 * np.sin(2 * np.pi * 4.3 * t))
+    response = BatchSimulator(plant).simulate_record(plant.parameter_vector()[None], t, u, rtol=1e-10)
+    y = response.v[0] if output == "v" else response.position[0]
+    y = y + np.std(y) * 10 ** (-snr_db / 20) * rng.standard_normal(y.size)
+    csv = folder / f"{name}.csv"
+    np.savetxt(csv, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    import_records([csv], folder / f"{name}.h5", "t", "u", "y", kind="velocity" if output == "v" else "position")
+    return folder / f"{name}.h5"
+
+
+@pytest.fixture(scope="module")
+def g1_records(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("select")
+    g1 = sf.load_plant("g1")
+    return {"fit": _record(folder, "fit", g1, 1), "val": _record(folder, "val", g1, 2),
+            "position": _record(folder, "pos", g1, 3, output="position"), "folder": folder}
+
+
+def test_select_ranks_g1s_structure_first_and_writes_every_output(g1_records, tmp_path, monkeypatch):
+    """g1 (first order, Coulomb) at 40 dB: coulomb/1 is chosen over the larger candidates; a candidate whose fit
+    raises is reported and ranked last while the others go on; SELECT.h5 holds every fitted candidate's result and
+    the ranking, the plant file and the result file are the chosen one's."""
+    from servofmu.identification.identifier import PSOANNIdentifier
+
+    fit = PSOANNIdentifier.fit
+
+    def failing_for_lugre(self, data):
+        if self.structure.friction.model == "lugre":
+            raise RuntimeError("integrator gave up")
+        return fit(self, data)
+
+    monkeypatch.setattr(PSOANNIdentifier, "fit", failing_for_lugre)
+    out = tmp_path / "select.h5"
+    selection = sf.select_with_report(
+        [g1_records["fit"]], g1_records["val"], out,
+        sf.SelectOptions(candidates=("coulomb/1", "coulomb/2", "stribeck/1", "lugre/1"), iterations=15),
+        RunOptions(workers=0), report=tmp_path / "select.html")
+    names = [s.name for s in selection.scores]
+    assert names[0] == "coulomb/1" and names[-1] == "lugre/1"
+    assert selection.scores[-1].status == "failed" and "integrator gave up" in selection.scores[-1].message
+    chosen = sf.load_plant(tmp_path / "select.toml")
+    truth = sf.load_plant("g1")
+    assert chosen.friction.model == "coulomb" and chosen.order == 1 and not chosen.zeros
+    assert abs(chosen.poles[0].real / truth.poles[0].real - 1) < 0.02
+    assert sf.read_result(tmp_path / "select-result.h5").structure.order == 1
+    with h5py.File(out) as f:
+        ranking = f["selection"]
+        assert [n.decode() for n in ranking["name"][()]] == names
+        assert ranking.attrs["chosen"] == "coulomb/1"
+        assert [s.decode() for s in ranking["status"][()]][-1] == "failed"
+        assert set(f["methods"]) == {"coulomb_1", "coulomb_2", "stribeck_1"}
+        bic = ranking["bic"][()]
+        neg2, n, p = ranking["neg2loglik"][()], ranking["samples"][()], ranking["parameters"][()]
+        assert np.allclose(bic[:3], neg2[:3] + p[:3] * np.log(n[:3]))
+    page = (tmp_path / "select.html").read_text()
+    assert 'id="chosen"' in page and "coulomb/1" in page and "<img" in page
+
+
+@pytest.mark.parametrize("case", ["unknown candidate", "order 0", "validation of other signals"])
+def test_bad_input_is_one_line_and_nothing_is_written(g1_records, tmp_path, case):
+    validation, extra = g1_records["val"], []
+    if case == "unknown candidate":
+        extra, fragment = ["--candidates", "coulomb,sticky"], "unknown friction law 'sticky'"
+    elif case == "order 0":
+        extra, fragment = ["--orders", "0,1"], "order 0 of G(s)"
+    else:  # the position of an encoder where the fitted records measure the velocity
+        validation, fragment = g1_records["position"], "holds records of position"
+    proc = run("select", g1_records["fit"], "--validate", validation, *extra, "--workers", "0",
+               "-o", tmp_path / "s.h5", "--report", tmp_path / "s.html")
+    assert_one_line_error(proc, fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_json_of_a_selection_names_the_chosen_candidate(g1_records, tmp_path):
+    proc = run("select", g1_records["fit"], "--validate", g1_records["val"], "--candidates", "coulomb/1,coulomb/2",
+               "--iterations", "10", "--workers", "0", "--json", "-o", tmp_path / "s.h5")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["chosen"] == "coulomb/1" and [c["rank"] for c in out["candidates"]] == [1, 2]
