@@ -271,3 +271,17 @@ def test_files_of_schema_version_1_are_read_as_foh_and_upgraded_on_append(g1_ide
     upgraded = read_data_file(old)
     assert upgraded.schema_version == 2
     assert [r.intersample for r in upgraded.records] == ["foh", "zoh"]
+
+
+def test_a_measured_signal_that_does_not_vary_has_no_fit_percent():
+    """MATLAB's fit divides by the signal's spread: for a constant signal it is no number, and validate's JSON says
+    so with null (JSON has no NaN or infinity) and its verdict names why."""
+    import json
+
+    from servofmu.identification.criterion import fit_percent
+    from servofmu.output.validate import _json_safe
+
+    assert np.isnan(fit_percent(np.zeros(10), np.ones(10)))
+    assert fit_percent(np.arange(10.0), np.zeros(10)) == 100.0
+    assert json.loads(json.dumps(_json_safe({"fit": float("nan"), "r": [1.0, float("inf")]}), allow_nan=False)) == \
+        {"fit": None, "r": [1.0, None]}

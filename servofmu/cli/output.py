@@ -14,7 +14,7 @@ def cmd_validate(args) -> None:
     v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
                        overwrite=args.force, **({} if args.min_fit is None else {"min_fit": args.min_fit}))
     if args.json:
-        print(json.dumps(validation_json(v), allow_nan=True))
+        print(json.dumps(validation_json(v), allow_nan=False))
     else:
         print(validation_text(v))
         if args.output:

@@ -16,6 +16,7 @@ small model error) do not make the intervals too narrow.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -263,8 +264,11 @@ def record_errors(record: RecordSeries, response) -> np.ndarray:
 
 
 def fit_percent(y: np.ndarray, error: np.ndarray) -> float:
-    """The fit as MATLAB's ``compare`` defines it, 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖), from y and ŷ − y."""
-    return float(100.0 * (1.0 - np.linalg.norm(error) / np.linalg.norm(y - np.mean(y))))
+    """The fit as MATLAB's ``compare`` defines it, 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖), from y and ŷ − y; NaN for a
+    measured signal that does not vary (no fit is defined: compare would say −inf or NaN, which reads as a
+    number)."""
+    spread = np.linalg.norm(y - np.mean(y))
+    return float(100.0 * (1.0 - np.linalg.norm(error) / spread)) if spread > 0 else math.nan
 
 
 class TimeDomainCriterion:

@@ -147,7 +147,9 @@ class Validation:
         for item in (*self.records, *self.experiments):
             name = (f"record {item.name} ({item.output})" if isinstance(item, RecordValidation) else
                     f"experiment {item.index} ({item.amplitude:g} N, {item.frequency:g} Hz)")
-            why = ([f"fit {item.fit:.4g} % < {self.min_fit:g} %"] if not item.fit_passed else []) + \
+            fit = (f"fit {item.fit:.4g} % < {self.min_fit:g} %" if math.isfinite(item.fit) else
+                   "the measured signal does not vary: no fit is defined")
+            why = ([fit] if not item.fit_passed else []) + \
                   (["residual tests failed"] if not item.residuals_passed else [])
             if why:
                 out.append(f"{name}: {', '.join(why)}")
@@ -197,7 +199,7 @@ def _validate_closed_loop(structure, params: np.ndarray, data_file: DataFile, co
     sim = LoopSimulator(structure)
     out = []
     for rec in data.records:
-        loop = sim.simulate_loop(params[None], rec.time, rec.reference, data.controller, rtol=POLISH_RTOL)
+        loop = rec.simulate(sim, params[None], data.controller, rtol=POLISH_RTOL)
         f, r = rec.fitted, rec.reference[rec.fitted]
         for output, y, y_model in (("position", rec.position, loop.position[0]), ("force", rec.command,
                                                                                   loop.command[0])):
@@ -301,20 +303,33 @@ def _test_json(r: ResidualTest | None) -> dict | None:
             "autocorrelation_bound": r.z * r.auto_sigma, "cross_correlation_bound": r.z * r.cross_sigma}
 
 
+def _json_safe(obj):
+    """``obj`` with every NaN or infinite number as None: JSON has no such values (a fit is NaN where the measured
+    signal does not vary, a correlation where the residuals are all zero)."""
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
 def validation_json(v: Validation) -> dict:
     """One object for scripts: the verdict (``passed``, ``min_fit_percent``, ``failures``), ``own_data`` and
     ``warnings``, and per record and experiment the fit, the residual test and the verdict."""
     warning = own_data_warning(v)
-    return {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path),
-            "passed": v.passed, "min_fit_percent": v.min_fit, "failures": v.failures(), "own_data": v.own_data,
-            "warnings": [warning] if warning else [],
-            "records": [{"name": r.name, "output": r.output, "intersample": r.hold, "samples": int(r.y.size),
-                         "fit_percent": r.fit, "fit_passed": r.fit_passed, "closed_loop": r.closed_loop,
-                         "passed": r.passed, "residual_test": _test_json(r.residuals)} for r in v.records],
-            "experiments": [{"index": e.index, "amplitude": e.amplitude, "frequency": e.frequency,
-                             "converged": e.converged, "fit_percent": e.fit, "fit_passed": e.fit_passed,
-                             "H_relative_error": e.H_error, "passed": e.passed,
-                             "residual_test": _test_json(e.residuals)} for e in v.experiments]}
+    out = {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path),
+           "passed": v.passed, "min_fit_percent": v.min_fit, "failures": v.failures(), "own_data": v.own_data,
+           "warnings": [warning] if warning else [],
+           "records": [{"name": r.name, "output": r.output, "intersample": r.hold, "samples": int(r.y.size),
+                        "fit_percent": r.fit, "fit_passed": r.fit_passed, "closed_loop": r.closed_loop,
+                        "passed": r.passed, "residual_test": _test_json(r.residuals)} for r in v.records],
+           "experiments": [{"index": e.index, "amplitude": e.amplitude, "frequency": e.frequency,
+                            "converged": e.converged, "fit_percent": e.fit, "fit_passed": e.fit_passed,
+                            "H_relative_error": e.H_error, "passed": e.passed,
+                            "residual_test": _test_json(e.residuals)} for e in v.experiments]}
+    return _json_safe(out)
 
 
 def _verdict_line(v: Validation) -> str:
