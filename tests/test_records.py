@@ -131,7 +131,7 @@ def good_rows(n=20):
     (lambda r: r, {"cutoff": 10.0}, "cutoff applies to position records only"),
     (lambda r: r, {"frequency": -1.0}, "frequency must be positive"),
     (lambda r: r[:3] + [f"{0.0021 + 0.0001 * i},1,1" for i in range(1, 30)], {"kind": "position"},
-     "needs uniformly sampled time"),
+     "sample 2 \\(t = 0.001 s\\): 10 steps after the previous sample \\(a missing sample"),
 ])
 def test_bad_csv_records_are_one_line_user_errors(tmp_path, edit, kwargs, message):
     path = tmp_path / "bad.csv"

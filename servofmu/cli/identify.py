@@ -57,7 +57,10 @@ def cmd_identify(args) -> None:
     with ProgressBar(args, "iteration") as bar:
         result = identify_to_file(args.data[0], args.structure, args.output, args.ann, identify_options(args),
                                   run_options(args, bar))
-    print(to_json_text(result) if args.json else f"{table_text(result)}\nwrote {args.output}")
+    from ..identification.closed_loop import clock_lines
+
+    print(to_json_text(result) if args.json
+          else "\n".join([table_text(result), *clock_lines(result.provenance), f"wrote {args.output}"]))
 
 
 def cmd_identify_files(args) -> None:

@@ -32,6 +32,11 @@ def record_line(r) -> str:
     import numpy as np
 
     line = f"{r.source}: {len(r.series.time)} samples at {r.sample_rate:.6g} Hz, {r.kind}, input {r.intersample}"
+    if r.time_step is not None:
+        line += (f"; time stamps every {r.time_step:.9g} s, jitter RMS {r.time_jitter / r.time_step:.3g} (max "
+                 f"{r.time_jitter_max / r.time_step:.3g}) of a sample")
+    if r.series.reference is not None:
+        line += "; closed loop (reference" + (", disturbance" if r.series.disturbance is not None else "") + ")"
     if r.analysis is not None:
         a = r.analysis
         line += (f"; sine {a.frequency:.6g} Hz, |U1| {abs(a.U1):.4g} N, H = {abs(a.H):.4g} m/(N.s) "
@@ -43,13 +48,14 @@ def record_line(r) -> str:
 
 def cmd_import(args) -> None:
     """Machine records (CSV or MAT) into a data file."""
-    from ..measurement.records import import_records
+    from ..measurement.records import LoopChannels, import_records
 
     if args.output_variable is None:
         raise UserError("give --output-variable COLUMN: the velocity or position column")
+    loop = LoopChannels(args.reference, args.disturbance, args.input_scale, args.disturbance_scale)
     data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output_variable,
                           kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
-                          intersample=args.intersample, run=run_options(args))
+                          intersample=args.intersample, run=run_options(args), loop=loop)
     for r in data.records[-len(args.files):]:
         print(record_line(r))
     print(f"wrote {args.data}: {len(data.records)} records")
@@ -105,8 +111,17 @@ def register(sub) -> None:
     p.add_argument("files", nargs="+", metavar="FILE", role="input", help="CSV (header row) or MAT files, one "
                                                                           "record each")
     p.add_argument("--time", required=True, help="time column (s)")
-    p.add_argument("--input", required=True, help="input force column (N)")
+    p.add_argument("--input", required=True, help="input force column (N; a drive's total output command, see "
+                                                  "--input-scale)")
+    p.add_argument("--input-scale", type=float, default=1.0, metavar="K",
+                   help="N per unit of the input column, e.g. the force constant in N/V (default 1)")
     _add_output_variable(p, "velocity (m/s) or position (m) column, see --kind", " (required)")
+    p.add_argument("--reference", metavar="COL", help="reference position column (m) of a drive's log: a "
+                                                      "closed-loop record (identify/validate --closed-loop)")
+    p.add_argument("--disturbance", metavar="COL", help="column of a known signal the drive adds to its "
+                                                        "controller's output after the output limit")
+    p.add_argument("--disturbance-scale", type=float, default=1.0, metavar="K",
+                   help="N per unit of the disturbance column (default 1)")
     p.add_argument("--kind", choices=("velocity", "position"), default="velocity",
                    help="what the output column holds (default velocity)")
     p.add_argument("--cutoff", type=float, help="low-pass cut-off (Hz) of the velocity estimate of position "

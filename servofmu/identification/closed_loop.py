@@ -4,7 +4,13 @@ command) and the output-error criterion that simulates candidate plants in the k
 
 The encoder's quantisation and the actuator noise are not reproduced in a fit: they are the measurement's and the
 machine's noise, unknown to the identifier (simulating a quantiser would make the criterion piecewise constant in
-the parameters).
+the parameters).  A known disturbance that the drive injected after its output limit (a record's ``disturbance``)
+is reproduced exactly as recorded.
+
+A log's time stamps come from the drive's clock: they are checked against the controller's sample time
+(servofmu.measurement.clock: no missing sample, no stamp off the grid, a rate error of at most 1e-4) and the loop
+is simulated on the nominal grid t_0 + k·Ts; what the stamps showed is kept per record (``ClosedLoopSeries.clock``)
+and in the result's provenance.
 """
 from __future__ import annotations
 
@@ -13,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import UserError
+from ..measurement.clock import ClockFit, fit_clock
 from ..measurement.datafile import read_data_file
 from ..model.controller import ControllerSpec, load_controller
 from ..model.plant import Plant, load_plant
@@ -22,14 +29,15 @@ from .identifier import identification_provenance
 from .prior import full_vectors
 
 __all__ = ["ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion", "closed_loop_data",
-           "load_closed_loop_inputs"]
+           "load_closed_loop_inputs", "clock_lines"]
 
 
 @dataclass(frozen=True)
 class ClosedLoopSeries:
-    """One closed-loop record as it is fitted: time (s, one sample per controller sample), the reference (m), the
-    measured position (m, the encoder) and the force command (N, applied from each sample on), ``fitted``: the
-    samples that enter the fit."""
+    """One closed-loop record as it is fitted: time (s, the controller's grid t_0 + k·Ts), the reference (m), the
+    measured position (m, the encoder) and the force command (N, applied from each sample on; the total, with the
+    disturbance), ``fitted``: the samples that enter the fit; ``disturbance``: the known force injected after the
+    output limit (N, or None); ``clock``: what the record's own time stamps showed against the controller."""
 
     name: str
     time: np.ndarray
@@ -37,6 +45,15 @@ class ClosedLoopSeries:
     position: np.ndarray
     command: np.ndarray
     fitted: np.ndarray
+    disturbance: np.ndarray | None = None
+    clock: ClockFit | None = None
+
+    def simulate(self, simulator: LoopSimulator, params: np.ndarray, controller: ControllerSpec,
+                 rtol: float = 1e-8):
+        """The loop of every row of ``params`` through this record (servofmu.simulation.closed_loop.LoopResponse):
+        its reference followed and its disturbance injected."""
+        return simulator.simulate_loop(params, self.time, self.reference, controller, rtol=rtol,
+                                       disturbance=self.disturbance)
 
 
 @dataclass(frozen=True)
@@ -57,10 +74,12 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     """The records of a records file as closed-loop data for ``controller``.
 
     Every record needs its reference, the measured position and the force command, sampled once per controller
-    sample.  The controller's encoder quantisation and actuator noise are switched off (see the module
-    docstring); ``skip`` seconds at the start of every record are left out of the fit.
+    sample: its time stamps are mapped to the controller's grid (a UserError names the first stamp beyond the
+    bounds of servofmu.measurement.clock).  The controller's encoder quantisation and actuator noise are switched
+    off (see the module docstring); ``skip`` seconds at the start of every record are left out of the fit.
     """
     out = []
+    ts = controller.sample_time
     for r, fitted in zip(data_file.records, fitted_samples(data_file, skip)):
         s = r.series
         if s.reference is None:
@@ -68,7 +87,11 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
                             "simulates the loop from the recorded reference")
         if s.position is None:
             raise UserError(f"{data_file.path}: record {r.name} has no measured position")
-        out.append(ClosedLoopSeries(r.name, s.time, s.reference, s.position, s.u, fitted))
+        t = s.time
+        clock = fit_clock(t, ts, where=lambda i: f"{data_file.path}: record {r.name}: sample {i + 1} "
+                                                 f"(t = {t[i]:.9g} s)")
+        grid = t[0] + ts * np.arange(t.size)
+        out.append(ClosedLoopSeries(r.name, grid, s.reference, s.position, s.u, fitted, s.disturbance, clock))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
     return ClosedLoopData(tuple(out), law, str(data_file.path))
 
@@ -93,7 +116,7 @@ class ClosedLoopCriterion(TimeDomainCriterion):
         full = full_vectors(self.structure, theta)
         out = []
         for r in self.data.records:
-            loop = self.simulator.simulate_loop(full, r.time, r.reference, self.data.controller, rtol=rtol)
+            loop = r.simulate(self.simulator, full, self.data.controller, rtol=rtol)
             out += [loop.position[:, r.fitted] - r.position[r.fitted], loop.command[:, r.fitted] - r.command[r.fitted]]
         return out
 
@@ -104,5 +127,14 @@ def load_closed_loop_inputs(data_path, structure_path, controller_path, command:
     data_file = read_data_file(data_path)
     check_structure(structure, data_file, f"the structure {structure_path}")
     data = closed_loop_data(data_file, load_controller(controller_path), skip)
+    clocks = {r.name: r.clock.summary() for r in data.records}
     return structure, data, identification_provenance(data_path, structure_path, command, skip=skip,
-                                                      controller_file=str(controller_path))
+                                                      controller_file=str(controller_path), clocks=clocks)
+
+
+def clock_lines(provenance: dict) -> list[str]:
+    """One line per closed-loop record of a result's provenance: its time stamps against the controller's clock
+    (rate error, jitter in samples), as identify prints them."""
+    return [f"{name}: time stamps {c['rate_error']:+.3g} off the controller's clock, jitter RMS "
+            f"{c['jitter_rms_samples']:.3g} (max {c['jitter_max_samples']:.3g}) of a sample; simulated on the "
+            "controller's grid" for name, c in provenance.get("clocks", {}).items()]

@@ -64,6 +64,8 @@ SIGNAL_INFO = {
     "v_noisy": ("m/s", "v plus white Gaussian measurement noise (see noise_sigma)"),
     "position": ("m", "measured position (raw, as recorded)"),
     "reference": ("m", "reference position of the drive's controller (closed-loop records)"),
+    "disturbance": ("N", "known force the drive adds to its controller's output after the output limit (an "
+                         "injected test signal; closed-loop records); u includes it"),
 }
 # The units of the numbers an experiment or a record stores: also written, as is, as each group's "units" attribute.
 RESULT_UNITS = {
@@ -71,6 +73,8 @@ RESULT_UNITS = {
     "distortion": "1", "settling_time": "s", "window_start": "s", "window_periods": "1", "hold_error": "1",
     "last_change": "1", "remaining_error": "1", "noise_sigma": "m/s", "H_noisy": "m/(N.s)", "dc_noisy": "m/s",
     "sample_rate": "Hz", "sine_fraction": "1", "velocity_cutoff": "Hz", "samples_per_period": "1",
+    "time_step": "s", "time_jitter": "s", "time_jitter_max": "s", "input_scale": "N per unit of the column",
+    "disturbance_scale": "N per unit of the column",
 }
 
 
@@ -87,6 +91,7 @@ class Series:
     v_noisy: np.ndarray | None = None
     position: np.ndarray | None = None
     reference: np.ndarray | None = None
+    disturbance: np.ndarray | None = None
 
     def signals(self) -> dict[str, np.ndarray]:
         """The signals present, by name, in the order of the fields."""
@@ -166,6 +171,14 @@ class Record:
     note: str = stored("", dtype=str)
     # the input between samples: held ("zoh") or linear ("foh"); schema version 1 files meant "foh"
     intersample: str = stored("zoh", optional=False, dtype=str, choices=INTERSAMPLE, since=2, before="foh")
+    # the time stamps as logged, measured against their least-squares grid (servofmu.measurement.clock): its step
+    # (s) and the stamps' RMS and largest deviation from it (s); absent in files written before they were stored
+    time_step: float | None = stored(None, check=FINITE)
+    time_jitter: float | None = stored(None, check=FINITE)
+    time_jitter_max: float | None = stored(None, check=FINITE)
+    # the factors that made forces of the logged columns (N per unit of the log, e.g. N/V): u and the disturbance
+    input_scale: float | None = stored(None, check=FINITE)
+    disturbance_scale: float | None = stored(None, check=FINITE)
 
 
 @dataclass(frozen=True)

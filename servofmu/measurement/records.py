@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -21,11 +22,12 @@ from ..fileio import claim_output, file_sha256, output_mode
 from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
 from ..version import __version__
+from .clock import ClockFit, fit_clock
 from .datafile import DataFile, Record, RecordAnalysis, Series, read_data_file, write_records
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
 __all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
-           "KINDS"]
+           "LoopChannels", "KINDS"]
 
 KINDS = ("velocity", "position")
 MIN_SAMPLES = 10
@@ -129,8 +131,8 @@ def _check_time(path: Path, t: np.ndarray, name: str, where) -> None:
     steps = np.diff(t)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0)) + 1
-        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing ({float(t[i - 1])!r} then "
-                        f"{float(t[i])!r})")
+        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing: sample {i + 1} at "
+                        f"{float(t[i])!r} s after {float(t[i - 1])!r} s")
 
 
 # ---------------------------------------------------------------------------
@@ -150,11 +152,6 @@ def velocity_from_position(t: np.ndarray, x: np.ndarray, cutoff: float) -> np.nd
     v = np.gradient(xf, dt, edge_order=2)
     v[2:-2] = (-xf[4:] + 8 * xf[3:-1] - 8 * xf[1:-3] + xf[:-4]) / (12 * dt)
     return v
-
-
-def _is_uniform(t: np.ndarray, tolerance: float = 0.01) -> bool:
-    dt = np.diff(t)
-    return float(np.max(np.abs(dt - np.median(dt)))) <= tolerance * float(np.median(dt))
 
 
 # ---------------------------------------------------------------------------
@@ -203,27 +200,65 @@ def _fraction_at(t, u, frequency) -> float:
 # ---------------------------------------------------------------------------
 # Import
 # ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LoopChannels:
+    """The closed-loop channels of a drive's log and the factors that make forces of its columns.
+
+    ``reference``: the column of the reference position (m) the drive's controller followed; ``disturbance``: the
+    column of a known signal the drive adds to its controller's output after the output limit (an injected test
+    signal: force pulses, a noise burst), so that the input column is the total command; ``input_scale`` and
+    ``disturbance_scale``: N per unit of those columns (a force constant in N/V or N/A; 1 when they are forces).
+    """
+
+    reference: str | None = None
+    disturbance: str | None = None
+    input_scale: float = 1.0
+    disturbance_scale: float = 1.0
+
+    def check(self) -> None:
+        """A UserError naming the option whose value cannot be used."""
+        for option, value in (("--input-scale", self.input_scale), ("--disturbance-scale", self.disturbance_scale)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
+                raise UserError(f"{option} must be a finite number other than 0 (N per unit of the column), "
+                                f"not {value}")
+        if self.disturbance_scale != 1.0 and self.disturbance is None:
+            raise UserError("--disturbance-scale needs --disturbance COLUMN")
+
+
+def _clock(path: Path, t: np.ndarray, required: bool) -> ClockFit | None:
+    """The stamps' grid; a UserError naming the first bad stamp when the record needs a regular clock (position
+    records and closed-loop logs), else None when there is none."""
+    try:
+        return fit_clock(t, where=lambda i: f"{path}: sample {i + 1} (t = {t[i]:.9g} s)")
+    except UserError:
+        if required:
+            raise
+        return None
+
+
 def load_record(path: str | Path, time: str, input: str, output: str, kind: str = "velocity",
                 cutoff: float | None = None, frequency: float | None = None, index: int = 0,
-                intersample: str = "zoh") -> Record:
-    """One record from a CSV or MAT file (columns/variables named ``time``, ``input``, ``output``)."""
-    path = Path(path)
+                intersample: str = "zoh", loop: LoopChannels | None = None) -> Record:
+    """One record from a CSV or MAT file (columns/variables named ``time``, ``input``, ``output``, and those of
+    ``loop``: the reference and the injected disturbance of a drive's log, and the scales of the forces)."""
+    path, loop = Path(path), loop or LoopChannels()
     if kind not in KINDS:
         raise UserError(f"kind must be velocity or position, not {kind!r}")
     if intersample not in INTERSAMPLE:
         raise UserError(f"intersample must be one of {', '.join(INTERSAMPLE)}, not {intersample!r}")
     if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
         raise UserError(f"frequency must be positive, not {frequency:g}")
-    if len({time, input, output}) < 3:
-        raise UserError("the time, input and output columns must be three different columns")
-    cols = read_columns(path, [time, input, output])
-    t, u, y = cols[time], cols[input], cols[output]
+    loop.check()
+    names = [time, input, output] + [c for c in (loop.reference, loop.disturbance) if c is not None]
+    if len(set(names)) < len(names):
+        raise UserError("the time, input and output columns must be three different columns" if len(names) == 3
+                        else "the time, input, output, reference and disturbance columns must be different columns")
+    cols = read_columns(path, names)
+    t, u, y = cols[time], cols[input] * loop.input_scale, cols[output]
+    clock = _clock(path, t, required=kind == "position" or loop.reference is not None)
     fs = 1.0 / float(np.median(np.diff(t)))
     position = None
     if kind == "position":
-        if not _is_uniform(t):
-            raise UserError(f"{path}: the velocity estimate needs uniformly sampled time (steps vary by more "
-                            "than 1 %)")
         cutoff = fs / 10 if cutoff is None else cutoff
         position, v = y, velocity_from_position(t, y, cutoff)
         how = (f"zero-phase 4th-order Butterworth low-pass at {cutoff:g} Hz (forward-backward) of position, "
@@ -234,16 +269,24 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
         v, how = y, "measured"
     analysis, note = analyse_record(t, u, v, frequency)
     columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
-    return Record(index=index, name=path.stem, source=path.name,
-                  source_sha256=file_sha256(path), kind=kind, columns=columns,
-                  series=Series(time=t, u=u, v=v, position=position), sample_rate=fs, velocity_estimate=how,
+    columns.update({role: name for role, name in (("reference", loop.reference), ("disturbance", loop.disturbance))
+                    if name is not None})
+    disturbance = None if loop.disturbance is None else cols[loop.disturbance] * loop.disturbance_scale
+    series = Series(time=t, u=u, v=v, position=position,
+                    reference=None if loop.reference is None else cols[loop.reference], disturbance=disturbance)
+    return Record(index=index, name=path.stem, source=path.name, source_sha256=file_sha256(path), kind=kind,
+                  columns=columns, series=series, sample_rate=fs, velocity_estimate=how,
                   velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note,
-                  intersample=intersample)
+                  intersample=intersample, time_step=clock and clock.step, time_jitter=clock and clock.jitter_rms,
+                  time_jitter_max=clock and clock.jitter_max,
+                  input_scale=None if loop.input_scale == 1.0 else float(loop.input_scale),
+                  disturbance_scale=None if disturbance is None else float(loop.disturbance_scale))
 
 
 def import_records(paths: Sequence[str | Path], output: str | Path, time: str, input: str, output_column: str,
                    kind: str = "velocity", cutoff: float | None = None, frequency: float | None = None,
-                   append: bool = False, intersample: str = "zoh", run: RunOptions | None = None) -> DataFile:
+                   append: bool = False, intersample: str = "zoh", run: RunOptions | None = None,
+                   loop: LoopChannels | None = None) -> DataFile:
     """Import records measured on a machine (CSV or MAT files, one record each) into a data file.
 
     Parameters
@@ -253,7 +296,8 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
     output : str or Path
         The data file (HDF5) to write.
     time, input, output_column : str
-        Names of the time (s), input force (N) and velocity (m/s) or position (m) columns.
+        Names of the time (s), input force (N, or the unit ``loop.input_scale`` converts) and velocity (m/s) or
+        position (m) columns.
     kind : {"velocity", "position"}
         What the output column is; a position gets a zero-phase velocity estimate beside it.
     cutoff : float, optional
@@ -267,26 +311,30 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
         replay of the record (identify, validate) applies it.
     run : RunOptions, optional
         ``overwrite``: replace an existing ``output``; ``command``: the command line, for provenance.
+    loop : LoopChannels, optional
+        A drive's log: its reference and injected-disturbance columns and the force constants of the command and
+        the disturbance; records with a reference are closed-loop records (``identify --closed-loop``).
 
     Returns
     -------
     DataFile
-        The records file as it now is, read back (with the records it held before, after ``append``).
+        The data file read back.
 
     Raises
     ------
     UserError
-        For unreadable files, missing columns, NaN or non-increasing time, an existing output (without
-        ``append`` or ``run.overwrite``), an output that is one of ``paths``.
+        For unreadable files, missing columns, NaN or non-increasing time, time stamps of a position record or a
+        drive's log off a regular grid (servofmu.measurement.clock), a scale that is not a finite non-zero
+        number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``.
     """
-    run = run or RunOptions()
+    run, loop = run or RunOptions(), loop or LoopChannels()
+    loop.check()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")
     offset = len(read_data_file(output).records) if append and output.exists() else 0
     records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
-                           intersample=intersample)
+                           intersample=intersample, loop=loop)
                for i, p in enumerate(paths)]
     provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
                   "created": utc_now(), "sources": [r.source for r in records]}
     write_records(output, records, provenance, append=append, overwrite=run.overwrite)
     return read_data_file(output)
-

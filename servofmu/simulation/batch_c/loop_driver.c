@@ -4,8 +4,10 @@
  * Sample k at t_k = t[k] (uniform, the controller's sample time): the plant's position x(t_k) goes to the law with
  * the reference r[k]; the force applied on [t_k, t_k+1) is the one the law released at sample k − 1 (its command
  * of `delay` samples before, plus actuator noise if any) — the Jacobi exchange of a co-simulation stepped with the
- * sample time, where a command computed at t_k reaches the plant at t_k+1.  Outputs per sample: the position and
- * the velocity at t_k and the command applied on [t_k, t_k+1) (as the drive logs it). */
+ * sample time, where a command computed at t_k reaches the plant at t_k+1.  A known disturbance d[k] (a test signal
+ * the drive injects after its output limit; optional) is added to the force applied on [t_k, t_k+1).  Outputs per
+ * sample: the position and the velocity at t_k and the total command applied on [t_k, t_k+1) (as the drive logs
+ * it: the law's command plus d[k]). */
 #include "batch_driver.c"
 #include "controller_law.h"
 
@@ -13,6 +15,7 @@
 typedef struct {
     long n_samples;
     const double *t, *r, *cp;  /* sample times, reference positions, the controller's CP_COUNT parameters */
+    const double *d;           /* the disturbance added after the output limit (N), or NULL for none */
     double rtol, h_start;
     long max_steps;
 } LoopInput;
@@ -21,7 +24,7 @@ typedef struct {
  * command applied from each sample on. */
 static void loop_task(const void *input, const double *params, int n_plant, double *out) {
     const LoopInput *in = input;
-    const double *t = in->t, *r = in->r, *cp = in->cp;
+    const double *t = in->t, *r = in->r, *cp = in->cp, *d = in->d;
     long n = in->n_samples, k;
     Eval ev;
     Problem pb;
@@ -34,8 +37,8 @@ static void loop_task(const void *input, const double *params, int n_plant, doub
     for (k = 0; k < n; ++k) {
         x[k] = y[NS];
         v[k] = y[0];
-        command[k] = k == 0 ? 0.0 : law.command_out;
-        pb.u0 = k == 0 ? 0.0 : law.applied;
+        command[k] = (k == 0 ? 0.0 : law.command_out) + (d ? d[k] : 0.0);
+        pb.u0 = (k == 0 ? 0.0 : law.applied) + (d ? d[k] : 0.0);
         pb.slope = 0.0;
         ctrl_sample(&law, cp, r[k], y[NS]);
         if (k + 1 < n && integrate(&ev, &pb, y, 0.0, t[k + 1] - t[k], &h) != 0) {
@@ -45,11 +48,12 @@ static void loop_task(const void *input, const double *params, int n_plant, doub
     }
 }
 
-/* out has 3*n_samples doubles per set: position, velocity, command.  cp: the controller's CP_COUNT parameters. */
+/* out has 3*n_samples doubles per set: position, velocity, command.  cp: the controller's CP_COUNT parameters;
+ * d: n_samples disturbance forces, or NULL. */
 int sb_loop(long n_sets, int n_plant, const double *params, const unsigned char *valid, long n_samples,
-            const double *t, const double *r, const double *cp, double rtol, double h_start, long max_steps,
-            int n_threads, double *out) {
-    LoopInput input = {.n_samples = n_samples, .t = t, .r = r, .cp = cp, .rtol = rtol, .h_start = h_start,
+            const double *t, const double *r, const double *d, const double *cp, double rtol, double h_start,
+            long max_steps, int n_threads, double *out) {
+    LoopInput input = {.n_samples = n_samples, .t = t, .r = r, .cp = cp, .d = d, .rtol = rtol, .h_start = h_start,
                        .max_steps = max_steps};
     if (n_plant != SB_NP || n_samples < 2) return -1;
     run_sets(n_sets, n_plant, params, valid, loop_task, &input, 3 * n_samples, n_threads, out);

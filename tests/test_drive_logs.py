@@ -1,0 +1,230 @@
+"""A real drive's logs through the closed-loop path: a log generator written here (numpy and scipy only, not
+servofmu's simulators) — a 1 kHz position/velocity P cascade in volts with a force constant, a pulse train the drive
+injects after its output limit, time stamps from a jittering clock that runs fast — imported from CSV and MAT,
+identified with `identify --closed-loop`, replayed on a second log with `validate --closed-loop`; and the bad logs
+refused in one line."""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from clitools import assert_one_line_error, run
+from scipy.integrate import solve_ivp
+from scipy.io import savemat
+
+import servofmu as sf
+from servofmu.identification.prior import identified_mask
+
+TS = 1e-3
+FORCE_CONSTANT = 35.0  # N/V
+# The drive, in its own units: position P (1/s), velocity P (V per m/s) on the two-sample position difference,
+# one sample of computation delay, ±10 V output limit.
+KP_POSITION, KV_VOLTS, LIMIT_VOLTS = 40.0, 60.0, 10.0
+PULSE_VOLTS = 5.0
+CLOCK_FAST, JITTER = 8e-6, 2e-5  # the stamps' clock rate error and RMS jitter, relative to a sample
+# The axis: mass, viscous damping, Stribeck friction (N, m/s); v_smooth as in the structure file.
+MASS, DAMPING = 25.0, 60.0
+FRICTION = {"fc_pos": 30.0, "fc_neg": 24.0, "fs_pos": 45.0, "fs_neg": 38.0, "vs": 0.01, "v_smooth": 1e-3}
+
+CONTROLLER = f"""name = "volt_drive"
+sample_time = {TS}
+delay = 1
+[position]
+kp = {KP_POSITION}
+[velocity]
+kp = {KV_VOLTS * FORCE_CONSTANT}
+filter = "moving-average"
+window = 2
+[output]
+limit = {LIMIT_VOLTS * FORCE_CONSTANT}
+"""
+# The structure: first-order G = K/(s − p) (a mass 1/K with damping −p/K), Stribeck friction; start values 10-25 %
+# off the truth.
+STRUCTURE = """name = "volt_axis"
+[linear]
+poles = [[-2.0, 0.0]]
+zeros = []
+gain = 0.045
+[friction]
+model = "stribeck"
+fc_pos = 25.0
+fc_neg = 28.0
+fs_pos = 50.0
+fs_neg = 33.0
+vs = 0.012
+v_smooth = 1e-3
+"""
+
+
+def true_parameters() -> dict:
+    return {"pole1": -DAMPING / MASS, "gain": 1.0 / MASS, **{k: v for k, v in FRICTION.items() if k != "v_smooth"}}
+
+
+def friction(v: float) -> float:
+    th = np.tanh(v / FRICTION["v_smooth"])
+    bump = np.exp(-(v / FRICTION["vs"]) ** 2)
+    g_pos = FRICTION["fc_pos"] + (FRICTION["fs_pos"] - FRICTION["fc_pos"]) * bump
+    g_neg = FRICTION["fc_neg"] + (FRICTION["fs_neg"] - FRICTION["fc_neg"]) * bump
+    return g_pos * max(th, 0.0) + g_neg * min(th, 0.0)
+
+
+def drive_log(reference: np.ndarray, pulses: np.ndarray, seed: int, encoder: float = 0.0) -> dict:
+    """The drive's log of one run: the axis integrated by scipy (DOP853, rtol 1e-12) between the samples k·TS,
+    the cascade computed in volts at every sample from the encoder (quantum ``encoder`` m, 0: exact), its output
+    clipped to ±10 V and applied from the next sample on, the pulses (V) added after the limit.  Logged per sample:
+    the drive's time stamp, the reference, the encoder, the total output (V) and the pulse (V)."""
+    n = reference.size
+    state, applied = np.zeros(2), 0.0
+    history = []  # the encoder readings, for the two-sample difference
+    log = {name: np.zeros(n) for name in ("ref", "enc", "out", "pulse")}
+    for k in range(n):
+        y = encoder * np.floor(state[1] / encoder + 0.5) if encoder > 0 else state[1]
+        history.append(y)
+        total = applied + pulses[k]
+        log["ref"][k], log["enc"][k], log["out"][k], log["pulse"][k] = reference[k], y, total, pulses[k]
+        v_hat = (y - history[max(k - 2, 0)]) / (2 * TS)
+        e = KP_POSITION * (reference[k] - y) - v_hat
+        applied = min(max(KV_VOLTS * e, -LIMIT_VOLTS), LIMIT_VOLTS)  # from the next sample on
+        force = FORCE_CONSTANT * total
+
+        def rhs(_, s, force=force):
+            return [(force - DAMPING * s[0] - friction(s[0])) / MASS, s[0]]
+
+        state = solve_ivp(rhs, (0.0, TS), state, method="DOP853", rtol=1e-12, atol=1e-15).y[:, -1]
+    rng = np.random.default_rng(seed)
+    log["stamp"] = 4.2 + np.arange(n) * TS * (1 + CLOCK_FAST) + JITTER * TS * rng.standard_normal(n)
+    return log
+
+
+def reference_and_pulses(duration: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A reference from rest with reversals and a fast move (the output saturates), and ±5 V pulses of 8-15 ms."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, TS)
+    f1, f2 = rng.uniform(0.6, 1.0), rng.uniform(2.0, 3.0)
+    move = 0.03 / (1 + np.exp(-(t - duration / 2) / 0.008))
+    x = 0.015 * (1 - np.cos(2 * np.pi * f1 * t)) + 0.004 * (1 - np.cos(2 * np.pi * f2 * t)) + move - move[0]
+    pulses = np.zeros_like(t)
+    start = int(0.1 / TS)
+    while start < t.size:
+        width = int(rng.integers(8, 16))
+        pulses[start:start + width] = PULSE_VOLTS * rng.choice([-1.0, 1.0])
+        start += int(rng.integers(120, 220))
+    return x, pulses
+
+
+def write_log(path, log: dict) -> None:
+    columns = ("stamp", "ref", "enc", "out", "pulse")
+    if path.suffix == ".mat":
+        savemat(path, {c: log[c] for c in columns})
+    else:
+        np.savetxt(path, np.column_stack([log[c] for c in columns]), delimiter=",", header=",".join(columns),
+                   comments="", fmt="%.17g")
+
+
+IMPORT = ("--time", "stamp", "--reference", "ref", "--input", "out", "--input-scale", FORCE_CONSTANT,
+          "--output-variable", "enc", "--kind", "position", "--disturbance", "pulse", "--disturbance-scale",
+          FORCE_CONSTANT)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Two identification logs (CSV and MAT), a validation log with a 1 µm encoder, the files to run them."""
+    folder = tmp_path_factory.mktemp("drive")
+    (folder / "drive.toml").write_text(CONTROLLER)
+    (folder / "structure.toml").write_text(STRUCTURE)
+    out = {"folder": folder}
+    for name, seed, encoder in (("a.csv", 1, 0.0), ("b.mat", 2, 0.0), ("c.csv", 3, 1e-6)):
+        log = drive_log(*reference_and_pulses(2.0, seed), seed=seed, encoder=encoder)
+        write_log(folder / name, log)
+        out[name] = log
+    return out
+
+
+def test_the_generated_logs_exercise_what_they_claim(logs):
+    """The output limit is reached, the pulses are on, the stamps' clock is fast and jitters."""
+    a = logs["a.csv"]
+    assert np.max(np.abs(a["out"] - a["pulse"])) > LIMIT_VOLTS - 1e-12
+    assert np.count_nonzero(a["pulse"]) > 100
+    step = np.polyfit(np.arange(a["stamp"].size), a["stamp"], 1)[0]
+    assert abs(step / TS - 1 - CLOCK_FAST) < 2e-6
+
+
+def test_drive_logs_are_identified_exactly_and_replay_a_second_log(logs):
+    folder = logs["folder"]
+    proc = run("import", folder / "a.csv", folder / "b.mat", *IMPORT, "-o", folder / "logs.h5")
+    assert proc.returncode == 0, proc.stderr
+    assert "jitter RMS" in proc.stdout and "closed loop (reference, disturbance)" in proc.stdout
+    data = sf.read_data_file(folder / "logs.h5")
+    rec = data.records[0]
+    assert rec.input_scale == FORCE_CONSTANT and rec.columns["disturbance"] == "pulse"
+    np.testing.assert_array_equal(rec.series.disturbance, FORCE_CONSTANT * logs["a.csv"]["pulse"])
+    np.testing.assert_array_equal(rec.series.time, logs["a.csv"]["stamp"])  # stored as logged
+    assert abs(rec.time_step / TS - 1 - CLOCK_FAST) < 2e-6 and 0.5 * JITTER < rec.time_jitter / TS < 2 * JITTER
+
+    proc = run("identify", folder / "logs.h5", "--structure", folder / "structure.toml", "--closed-loop",
+               folder / "drive.toml", "-o", folder / "r.h5")
+    assert proc.returncode == 0, proc.stderr
+    assert "off the controller's clock" in proc.stdout
+    result = sf.read_result(folder / "r.h5")
+    names = [n for n, m in zip(result.plant.parameter_names(), identified_mask(result.plant)) if m]
+    truth = np.array([true_parameters()[n] for n in names])
+    assert np.max(np.abs(result.theta / truth - 1)) < 1e-6, dict(zip(names, result.theta / truth - 1))
+    clock = result.provenance["clocks"]["a"]
+    assert abs(clock["rate_error"] - CLOCK_FAST) < 2e-6
+
+    # the second log, with a 1 µm encoder: the identified model replays it as well as the true plant does
+    assert run("import", folder / "c.csv", *IMPORT, "-o", folder / "val.h5").returncode == 0
+    true_result = folder / "truth.h5"
+    write_truth(result, true_result)
+    fits = {}
+    for name, path in (("identified", folder / "r.h5"), ("truth", true_result)):
+        proc = run("validate", path, folder / "val.h5", "--closed-loop", folder / "drive.toml", "--json")
+        assert proc.returncode in (0, 1), proc.stderr
+        fits[name] = json.loads(proc.stdout)
+    fit = {(r["name"], r["output"]): r["fit_percent"] for r in fits["identified"]["records"]}
+    true_fit = {(r["name"], r["output"]): r["fit_percent"] for r in fits["truth"]["records"]}
+    assert fit[("c", "position")] > 99 and fit[("c", "force")] > 80, fit
+    assert 100 - fit[("c", "force")] <= 1.1 * (100 - true_fit[("c", "force")]), (fit, true_fit)
+    assert true_fit[("c", "force")] < 99.9  # the encoder's quantisation is a replay error of its own
+
+
+def write_truth(result, path) -> None:
+    """A result file holding the true plant (the generator's), for the replay of the same log."""
+    from servofmu.identification.results import write_result
+
+    names = [n for n, m in zip(result.plant.parameter_names(), identified_mask(result.plant)) if m]
+    theta = np.array([true_parameters()[n] for n in names])
+    full = result.plant.parameter_vector().copy()
+    full[identified_mask(result.plant)] = theta
+    from dataclasses import replace
+
+    write_result(path, replace(result, plant=result.plant.with_parameters(full), theta=theta,
+                               intervals=np.stack([theta, theta], axis=1)))
+
+
+def bad_log(path, edit) -> None:
+    log = drive_log(*reference_and_pulses(0.05, 5), seed=5)
+    edit(log)
+    write_log(path, log)
+
+
+@pytest.mark.parametrize("edit, options, fragment", [
+    (lambda log: [log.__setitem__(k, np.delete(log[k], 20)) for k in list(log)], (),
+     r"sample 21 \(t = 4.221\d* s\): 2 steps after the previous sample \(a missing sample"),
+    (lambda log: log["stamp"].__setitem__(30, log["stamp"][29] - 1e-4), (),
+     r"sample 31 at 4.2289\d* s after 4.2290\d* s"),
+    (lambda log: None, ("--reference", "position_ref"), "no column 'position_ref'"),
+    (lambda log: None, ("--disturbance-scale", "nan"), "--disturbance-scale must be a finite number .*, not nan"),
+])
+def test_bad_drive_logs_are_one_line_errors(tmp_path, edit, options, fragment):
+    path = tmp_path / "bad.csv"
+    bad_log(path, edit)
+    args = list(IMPORT)
+    for i in range(0, len(options), 2):
+        args[args.index(options[i]) + 1] = options[i + 1]
+    proc = run("import", path, *args, "-o", tmp_path / "out.h5")
+    assert_one_line_error(proc)
+    assert re.search(fragment, proc.stderr), proc.stderr
+    assert not (tmp_path / "out.h5").exists()
