@@ -21,6 +21,7 @@ BASE_UNITS = {
     "1/s": {"s": -1},
     "kg": {"kg": 1},
     "rad/s": {"rad": 1, "s": -1},
+    "rad": {"rad": 1},
     "m/(N.s)": {"kg": -1, "s": 1},  # G(s): velocity per force
 }
 

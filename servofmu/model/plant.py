@@ -4,7 +4,10 @@ A plant is G(s) (poles, zeros and a gain) plus a friction model.  The plant file
 format is documented in docs/plant-format.md.  Everything numerical downstream
 sees a plant as a *structure* (which roots are real or complex, which gain key,
 which friction model) plus a flat vector of named parameters; this module is
-the only place that maps between the two.
+the only place that maps between the two.  It holds the whole format — the
+dataclasses, the parameter vector, the value rules and the checks of every key
+of every section — so that its rules are written in one place; that is why it
+is longer than 500 lines.
 """
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
 __all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict",
            "resolve_plant_path", "example_files", "parameter_info", "MAX_ORDER", "gain_unit", "root_names",
-           "FRICTION_MODELS", "PARAMETER_INFO"]
+           "FRICTION_MODELS", "PARAMETER_INFO", "Load", "LOAD_KEYS"]
 
 FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
 # The highest order of G(s): a servo axis is a mass with a few resonances; beyond, a plant is a mistake.
@@ -33,6 +36,9 @@ _FRICTION_KEYS = {
     "lugre": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "sigma0", "sigma1", "fv"),  # no tanh: no v_smooth
 }
 _FRICTION_DEFAULTS = {"fv": 0.0, "v_smooth": 1e-3}
+# Keys of the [load] section, in parameter-vector order: a constant force, a linear spring about x0 and a
+# sinusoidal ripple in the position (docs/plant-format.md); only the keys a file gives (or implies) are parameters.
+LOAD_KEYS = ("offset", "stiffness", "x0", "ripple_amplitude", "ripple_period", "ripple_phase")
 
 # name -> (unit, description) for every parameter a plant can have.
 PARAMETER_INFO = {
@@ -48,6 +54,12 @@ PARAMETER_INFO = {
     "sigma1": ("N.s/m", "LuGre bristle damping"),
     "fv": ("N.s/m", "viscous friction coefficient"),
     "v_smooth": ("m/s", "velocity scale of the tanh smoothing of sign(v)"),
+    "offset": ("N", "constant force on the load, adding to u (e.g. gravity m.g.sin(incline))"),
+    "stiffness": ("N/m", "stiffness k of the linear spring force -k.(position - x0) on the load"),
+    "x0": ("m", "position at which the spring force is zero"),
+    "ripple_amplitude": ("N", "amplitude A of the ripple force A.sin(2.pi.position/ripple_period + ripple_phase)"),
+    "ripple_period": ("m", "spatial period of the ripple force"),
+    "ripple_phase": ("rad", "phase of the ripple force at position 0"),
     "excitation_amplitude": ("N", "amplitude of the built-in sine excitation added to u"),
     "excitation_frequency": ("Hz", "frequency of the built-in sine excitation"),
 }
@@ -85,6 +97,46 @@ class Friction:
 
 
 @dataclass(frozen=True)
+class Load:
+    """Forces on the load besides friction (a plant file's ``[load]`` section, docs/plant-format.md), adding to
+    the input u: ``offset`` (N, signed), the spring −``stiffness``·(position − ``x0``) (N/m, m) and the ripple
+    ``ripple_amplitude``·sin(2π·position/``ripple_period`` + ``ripple_phase``) (N, m, rad).  A term the plant
+    does not have is None; an empty Load (the default) adds nothing."""
+
+    offset: float | None = None
+    stiffness: float | None = None
+    x0: float | None = None
+    ripple_amplitude: float | None = None
+    ripple_period: float | None = None
+    ripple_phase: float | None = None
+
+    def keys(self) -> tuple[str, ...]:
+        """The names of the load's parameters, in parameter-vector order (LOAD_KEYS order)."""
+        return tuple(k for k in LOAD_KEYS if getattr(self, k) is not None)
+
+    def values(self) -> dict[str, float]:
+        """The load's parameters by name (units as in the class docstring)."""
+        return {k: float(getattr(self, k)) for k in self.keys()}
+
+    def depends_on_position(self) -> bool:
+        """True when the force depends on the position (a spring or a ripple): the position is then a state
+        that acts back, not only the integral of v."""
+        return self.stiffness is not None or self.ripple_amplitude is not None
+
+    def describe(self) -> str:
+        """The load's force in words and numbers, for the model's description ("" without a load)."""
+        parts = []
+        if self.offset is not None:
+            parts.append(f"constant force {self.offset:.6g} N")
+        if self.stiffness is not None:
+            parts.append(f"spring {self.stiffness:.6g} N/m about x0 = {self.x0:.6g} m")
+        if self.ripple_amplitude is not None:
+            parts.append(f"ripple {self.ripple_amplitude:.6g} N of period {self.ripple_period:.6g} m "
+                         f"(phase {self.ripple_phase:.6g} rad)")
+        return "; ".join(parts)
+
+
+@dataclass(frozen=True)
 class Plant:
     """A servo plant: G(s) = K·∏(s − zᵢ)/∏(s − pᵢ) in the forward path, friction in the feedback path.
 
@@ -100,6 +152,8 @@ class Plant:
         imaginary part.
     friction : Friction
         The friction model and its values.
+    load : Load
+        Forces on the load besides friction (offset, spring, ripple); none by default.
     dc_gain, gain : float, optional
         Exactly one is set: G(0), or the numerator's leading coefficient K.
     source : str
@@ -113,6 +167,7 @@ class Plant:
     dc_gain: float | None = None
     gain: float | None = None
     source: str = field(default="<memory>", compare=False)
+    load: Load = field(default_factory=Load)
 
     # ---- structure -------------------------------------------------------
     @property
@@ -156,10 +211,10 @@ class Plant:
     # ---- parameter vector --------------------------------------------------
     def parameter_names(self) -> list[str]:
         """The names of the parameter vector: poles and zeros (pole1, or pole1_re and pole1_im for a pair), the
-        gain (:attr:`gain_key`), then the friction's (:meth:`Friction.keys`)."""
+        gain (:attr:`gain_key`), then the friction's (:meth:`Friction.keys`), then the load's (:meth:`Load.keys`)."""
         return root_names("pole", self.poles) + root_names("zero", self.zeros) + [self.gain_key] + list(
             self.friction.keys()
-        )
+        ) + list(self.load.keys())
 
     def parameter_vector(self) -> np.ndarray:
         """The parameter values in :meth:`parameter_names` order."""
@@ -168,6 +223,7 @@ class Plant:
             values += [r.real, r.imag] if r.imag != 0 else [r.real]
         values.append(self.dc_gain if self.dc_gain is not None else self.gain)
         values += list(self.friction.values().values())
+        values += list(self.load.values().values())
         return np.array(values, dtype=float)
 
     def parameters(self) -> dict[str, float]:
@@ -187,8 +243,9 @@ class Plant:
         poles, zeros = roots(self.poles), roots(self.zeros)
         k = next(it)
         friction = replace(self.friction, **{key: next(it) for key in self.friction.keys()})
+        load = replace(self.load, **{key: next(it) for key in self.load.keys()})
         gains = {"dc_gain": k, "gain": None} if self.dc_gain is not None else {"dc_gain": None, "gain": k}
-        return replace(self, poles=poles, zeros=zeros, friction=friction, **gains)
+        return replace(self, poles=poles, zeros=zeros, friction=friction, load=load, **gains)
 
     def to_toml(self) -> str:
         """The plant file text that ``load_plant`` reads back to this plant."""
@@ -199,6 +256,8 @@ class Plant:
                  f"zeros = {pairs(self.zeros)}", f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "",
                  "[friction]", f'model = "{self.friction.model}"']
         lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
+        if self.load.keys():
+            lines += ["", "[load]"] + [f"{k} = {v!r}" for k, v in self.load.values().items()]
         return "\n".join(lines) + "\n"
 
 
@@ -238,6 +297,10 @@ def parameter_rules(plant: Plant) -> ParameterRules:
     for key in fr.keys():
         low[index[key]] = 0.0
         low_open[index[key]] = key in ("v_smooth", "vs", "sigma0") or (fr.model == "lugre" and key.startswith("fc_"))
+    for key in ("stiffness", "ripple_amplitude", "ripple_period"):
+        if key in index:
+            low[index[key]] = 0.0
+            low_open[index[key]] = key == "ripple_period"
     at_least = tuple((index[f"fs_{side}"], index[f"fc_{side}"]) for side in ("pos", "neg") if f"fs_{side}" in index)
     return ParameterRules(tuple(low), tuple(high), tuple(low_open), tuple(nonzero), at_least, tuple(not_zero_root))
 
@@ -346,7 +409,7 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     def fail(key: str, why: str):
         raise PlantError(f"{source}: {key}: {why}")
 
-    _check_keys(data, {"name", "linear", "friction"}, "", fail)
+    _check_keys(data, {"name", "linear", "friction", "load"}, "", fail)
     for section in ("linear", "friction"):
         if not isinstance(data.get(section), dict):
             fail(section, "missing section")
@@ -403,8 +466,34 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     if model == "lugre" and (values["fc_pos"] <= 0 or values["fc_neg"] <= 0):
         fail("friction.fc_pos", "LuGre needs positive Coulomb friction on both sides")
 
+    load = _read_load(data["load"], fail) if "load" in data else Load()
     return Plant(name=name, poles=poles, zeros=zeros, friction=Friction(model=model, **values),
-                 dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source)
+                 dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source, load=load)
+
+
+def _read_load(table, fail) -> Load:
+    """The [load] section: each key a finite number; a spring's x0 defaults to 0, a ripple needs its period."""
+    if not isinstance(table, dict):
+        fail("load", "must be a table (a [load] section)")
+    _check_keys(table, set(LOAD_KEYS), "load.", fail)
+    values = {k: _number(table[k], f"load.{k}", fail) for k in LOAD_KEYS if k in table}
+    for key in ("stiffness", "ripple_amplitude"):
+        if values.get(key, 0.0) < 0:
+            fail(f"load.{key}", "must not be negative")
+    if "x0" in values and "stiffness" not in values:
+        fail("load.x0", "is the spring's rest position: give `stiffness` too")
+    if "stiffness" in values:
+        values.setdefault("x0", 0.0)
+    for key in ("ripple_period", "ripple_phase"):
+        if key in values and "ripple_amplitude" not in values:
+            fail(f"load.{key}", "belongs to a ripple: give `ripple_amplitude` too")
+    if "ripple_amplitude" in values:
+        if "ripple_period" not in values:
+            fail("load.ripple_period", "missing (a ripple needs its period)")
+        if values["ripple_period"] <= 0:
+            fail("load.ripple_period", "must be positive")
+        values.setdefault("ripple_phase", 0.0)
+    return Load(**values)
 
 
 def _check_keys(table: dict, allowed: set, prefix: str, fail):

@@ -5,7 +5,8 @@ the batch simulator and the least-squares fits are all generated from the
 expressions built here.
 
 States, in order: the realisation of G(s) (``xi1..xin``), ``position``, and for
-LuGre the bristle deflection ``z``.  G is realised in observable canonical form
+LuGre the bristle deflection ``z``.  G is driven by w = u + excitation − F(v) +
+the load's force (offset, spring and ripple, functions of the position).  G is realised in observable canonical form
 with a constant diagonal scaling: with den(s) = sⁿ + a₍ₙ₋₁₎sⁿ⁻¹ + … + a₀ and
 num(s) = b₍ₙ₋₁₎sⁿ⁻¹ + … + b₀ the unscaled form is
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from .plant import Plant, parameter_info
 
-__all__ = ["SymbolicModel", "build_model", "friction_force", "EXCITATION_PARAMETERS", "OUTPUT_NAMES",
+__all__ = ["SymbolicModel", "build_model", "friction_force", "load_force", "EXCITATION_PARAMETERS", "OUTPUT_NAMES",
            "OUTPUT_INFO", "INPUT_INFO"]
 
 EXCITATION_PARAMETERS = ("excitation_amplitude", "excitation_frequency")
@@ -149,6 +150,21 @@ def friction_force(plant: Plant, par: dict, v, z=None):
     return g("pos") * ca.fmax(th, 0) + g("neg") * ca.fmin(th, 0) + par["fv"] * v, None
 
 
+def load_force(plant: Plant, par: dict, position):
+    """The force on the load besides friction (plant.load), adding to u, as a CasADi expression; None without a
+    load.  ``par`` maps load keys to expressions; terms the plant does not have are left out, so a plant without
+    a load has the equations (and the generated code) it had before loads existed."""
+    load, terms = plant.load, []
+    if load.offset is not None:
+        terms.append(par["offset"])
+    if load.stiffness is not None:
+        terms.append(-par["stiffness"] * (position - par["x0"]))
+    if load.ripple_amplitude is not None:
+        terms.append(par["ripple_amplitude"] * ca.sin(2 * np.pi * position / par["ripple_period"]
+                                                      + par["ripple_phase"]))
+    return sum(terms[1:], terms[0]) if terms else None
+
+
 def build_model(plant: Plant) -> SymbolicModel:
     """The CasADi model of ``plant``'s structure: states, the ODE right-hand side and the outputs (v, position,
     friction_force) as expressions of symbolic parameters (its values are only the start values)."""
@@ -185,6 +201,9 @@ def build_model(plant: Plant) -> SymbolicModel:
     force, dz = friction_force(plant, par, v, z)
     u_total = u + par["excitation_amplitude"] * ca.sin(2 * np.pi * par["excitation_frequency"] * t)
     w = u_total - force
+    external = load_force(plant, par, position)
+    if external is not None:
+        w = w + external
     # den[j] is the coefficient of s^(n-j): a_(n-k) = den[k]; num[j] likewise b_(n-1-j).
     dxi = []
     for k_ in range(1, n + 1):

@@ -75,14 +75,16 @@ def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
     """The right-hand side the driver integrates, from the plant's symbolic model.
 
     ``sb_ode(x, u, p) -> xdot`` and ``sb_jac(x, u, p) -> (dxdot/dx, dxdot/du)`` (dense) for the states without
-    the position, the plant's parameters ``p`` and the model's own excitation removed (the driver puts the sine
-    into u).  Checks what the driver relies on: v is the first state and nothing depends on the position.
+    the position — unless the load's force depends on it (a spring, a ripple), when the position is a state like
+    the others (the driver's position quadrature then integrates the same v beside it) — the plant's parameters
+    ``p`` and the model's own excitation removed (the driver puts the sine into u).  Checks what the driver
+    relies on: v is the first state, and nothing depends on a position it drops.
     """
     import casadi as ca
 
     names = model.parameter_names
     pos = model.state_names.index("position")
-    keep = [i for i in range(model.nx) if i != pos]
+    keep = [i for i in range(model.nx) if i != pos or model.plant.load.depends_on_position()]
     x = ca.vertcat(*[model.x[i] for i in keep])
     n_plant = len(model.plant.parameter_names())
     p = model.p[:n_plant]
@@ -90,7 +92,7 @@ def batch_functions(model: SymbolicModel) -> tuple[ca.Function, ca.Function]:
     xdot = ca.vertcat(*[xdot[i] for i in keep])
     if not ca.is_equal(model.y[0], model.x[0]) or pos == 0:
         raise ModelStructureError(f"{model.plant.name}: the batch simulator needs v as the first state")
-    if ca.jacobian(model.xdot, model.x[pos]).nnz() != 0 or ca.depends_on(xdot, model.t):
+    if (pos not in keep and ca.jacobian(model.xdot, model.x[pos]).nnz() != 0) or ca.depends_on(xdot, model.t):
         raise ModelStructureError(f"{model.plant.name}: the batch simulator needs equations that depend neither on the "
                                   "position nor, apart from the excitation, on time")
     ode = ca.Function("sb_ode", [x, model.u, p], [ca.densify(xdot)], ["x", "u", "p"], ["xdot"])
@@ -113,7 +115,8 @@ def write_batch_sources(model: SymbolicModel, src: Path) -> None:
         cg.add(fn)
     cg.generate(str(src) + os.sep)
     sizes = {k: max(getattr(f, k)() for f in functions) for k in ("sz_arg", "sz_res", "sz_iw", "sz_w")}
-    nominal = [n for i, n in enumerate(state_nominals(model)) if model.state_names[i] != "position"]
+    keep_position = model.plant.load.depends_on_position()
+    nominal = [n for i, n in enumerate(state_nominals(model)) if keep_position or model.state_names[i] != "position"]
     (src / "batch_config.h").write_text(
         f"/* Sizes of the batch simulator of plant {model.plant.name}. */\n"
         f"#define SB_NS {functions[0].size1_in(0)}\n#define SB_NP {functions[0].size1_in(2)}\n"
