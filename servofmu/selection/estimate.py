@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LinearEstimate", "estimate_linear", "series_of_records", "series_of_experiments"]
+__all__ = ["LinearEstimate", "Series", "estimate_linear", "start_estimates", "series_of_records",
+           "series_of_experiments"]
 
 ITERATIONS = 4  # Sanathanan–Koerner reweightings
 HARMONICS = 15  # harmonics of a stepped-sine window used
@@ -130,7 +131,7 @@ def estimate_linear(series: list[Series], order: int, zeros: int, bandwidth: flo
     n, m = order, zeros
     lam = bandwidth or _default_bandwidth(series)
     blocks = [(_harmonic_rows(s, n, lam) if s.periodic else _time_rows(s, n, lam)) for s in series]
-    a = np.zeros(n)
+    a = None  # the first pass unweighted
     for _ in range(ITERATIONS):
         rows, rhs = [], []
         for (v, u, sp, sn), p in blocks:
@@ -138,8 +139,8 @@ def estimate_linear(series: list[Series], order: int, zeros: int, bandwidth: flo
             x = np.vstack([-v[:n], u[:m + 1], sp[:m + 1], sn[:m + 1]]).T
             y = v[n]
             if p is not None:
-                w = 1.0 / np.maximum(np.abs(np.polyval(np.r_[1.0, a[::-1]], p)), 1e-12)
-                x, y = x * w[:, None], y * w
+                w = 1.0 if a is None else 1.0 / np.maximum(np.abs(np.polyval(np.r_[1.0, a[::-1]], p)), 1e-12)
+                x, y = x * np.reshape(w, (-1, 1)), y * w
                 x, y = np.vstack([x.real, x.imag]), np.concatenate([y.real, y.imag])
             rows.append(x)
             rhs.append(y)
@@ -150,7 +151,7 @@ def estimate_linear(series: list[Series], order: int, zeros: int, bandwidth: flo
         if not np.all(np.isfinite(coef)):
             raise ValueError("the data does not determine the linear estimate")
         a_new = coef[:n]
-        if np.allclose(a_new, a, rtol=1e-6):
+        if a is not None and np.allclose(a_new, a, rtol=1e-6):
             break
         a = a_new
         if series and not series[0].periodic:
@@ -180,3 +181,53 @@ def _as_estimate(a, b, c, e, lam, series) -> LinearEstimate:
     v_rms = float(np.sqrt(np.mean(np.concatenate([s.v for s in series]) ** 2)))
     return LinearEstimate(poles=tuple(poles), zeros=tuple(zeros), gain=gain, fc_pos=fc_pos, fc_neg=fc_neg,
                           v_rms=v_rms)
+
+
+def _dc_gain(e: LinearEstimate) -> float:
+    num0 = np.prod([-z for z in e.zeros]).real if e.zeros else 1.0
+    return float(e.gain * num0 / np.prod([-p for p in e.poles]).real)
+
+
+def _plausible(e: LinearEstimate, sign: float) -> bool:
+    """Stable poles none of which nearly at 0 (relative to the fastest), and a DC gain of the first-order
+    estimate's sign: what the swarm's box around it can improve on."""
+    mags = np.abs(e.poles)
+    return bool(np.all(np.real(e.poles) < 0) and np.all(mags >= 1e-3 * mags.max()) and np.isfinite(e.gain)
+                and np.sign(_dc_gain(e)) == sign)
+
+
+def _augmented(base: LinearEstimate, zeros: int) -> LinearEstimate:
+    """``base`` with a real pole five times faster than its fastest (and with ``zeros`` a zero six times faster),
+    the DC gain kept: a higher-order start that responds as the lower-order estimate does."""
+    fast = 5.0 * float(np.max(np.abs(base.poles)))
+    poles, gain = (*base.poles, complex(-fast)), base.gain * fast
+    new_zeros = base.zeros
+    if zeros > len(base.zeros):
+        new_zeros, gain = (*base.zeros, complex(-1.2 * fast)), gain / (1.2 * fast)
+    return LinearEstimate(poles=poles, zeros=new_zeros, gain=gain, fc_pos=base.fc_pos, fc_neg=base.fc_neg,
+                          v_rms=base.v_rms)
+
+
+def start_estimates(series: list[Series], keys) -> dict[tuple[int, int], LinearEstimate]:
+    """The linear estimate for every (order, zeros) of ``keys``: the least-squares one where it is plausible (stable,
+    no pole nearly at 0, the DC gain's sign of the first-order fit), else the estimate of one order less (with the
+    zero where it has one) augmented by a fast pole (and zero).  Raises ValueError when the data determines not
+    even the first-order estimate."""
+    first = estimate_linear(series, 1, 0)
+    sign = np.sign(_dc_gain(first)) or 1.0
+    out = {(1, 0): first}
+    for order, zeros in sorted(set(keys)):
+        if (order, zeros) in out:
+            continue
+        try:
+            direct = estimate_linear(series, order, zeros)
+            if _plausible(direct, sign):
+                out[(order, zeros)] = direct
+                continue
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+        lower = (order - 1, min(zeros, order - 2))
+        if lower not in out:
+            out.update(start_estimates(series, [lower]))
+        out[(order, zeros)] = _augmented(out[lower], zeros)
+    return out

@@ -19,7 +19,7 @@ from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
-from .estimate import estimate_linear
+from .estimate import start_estimates
 from .select import CandidateJob, CandidateScore, SelectOptions, fit_candidate, rank
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
@@ -43,7 +43,7 @@ class Selection:
     def chosen(self) -> CandidateScore | None:
         """The first-ranked candidate, None when no fit succeeded."""
         first = self.scores[0] if self.scores else None
-        return first if first is not None and first.status == "fitted" else None
+        return first if first is not None and first.status == "fitted" and math.isfinite(first.bic) else None
 
 
 def selection_outputs(output: str | Path, plant_output=None, result_output=None) -> dict[str, Path]:
@@ -63,20 +63,17 @@ def _check_options(options: SelectOptions) -> list[Candidate]:
 
 
 def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]:
-    """Each candidate's start plant from the linear estimate of its order and zeros (one estimate per pair); an
-    exception in its place where the data does not give one."""
-    series = estimation_series(data, files)
-    estimates, out = {}, {}
+    """Each candidate's start plant from the linear estimate of its order and zeros; an exception in its place
+    where the data does not give one."""
+    try:
+        estimates = start_estimates(estimation_series(data, files), [(c.order, c.zeros) for c in candidates])
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise UserError(f"{', '.join(str(f.path) for f in files)}: no linear estimate of G ({exc}): does the input "
+                        "excite the axis?") from exc
+    out = {}
     for c in candidates:
-        key = (c.order, c.zeros)
-        if key not in estimates:
-            try:
-                estimates[key] = estimate_linear(series, c.order, c.zeros)
-            except (ValueError, np.linalg.LinAlgError) as exc:
-                estimates[key] = UserError(f"no linear estimate of G of order {c.order}: {exc}")
-        est = estimates[key]
         try:
-            out[c] = est if isinstance(est, Exception) else candidate_plant(c, est)
+            out[c] = candidate_plant(c, estimates[(c.order, c.zeros)])
         except UserError as exc:
             out[c] = exc
     return out

@@ -16,11 +16,12 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
   ``validate`` (identification.residuals: whiteness and independence of the input for open-loop records,
   independence of the reference in a closed loop);
 - by its 95 % intervals: a parameter whose interval is wider than twice its value (the interval reaches past
-  zero) or unbounded is not determined by the data.
+  zero) or unbounded is not determined by the data;
+- by its roots: a zero within CANCELLATION (relative) of a pole cancels it, the pair has no response of its own.
 
 The ranking: candidates whose fit failed come last; before them those with a flag — validation −2·ln L more
-than VALIDATION_MARGIN above the best candidate's, a parameter not determined, or residual tests failed where
-another candidate passes them; each group in the order of BIC.
+than VALIDATION_MARGIN above the best candidate's, a parameter not determined, a pole-zero cancellation, or
+residual tests failed where another candidate passes them; each group in the order of BIC.
 """
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "
 # what one parameter's estimation error costs a right model on new data far less often than that.
 VALIDATION_MARGIN = 10.83
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
+CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 
 
 @dataclass(frozen=True)
@@ -198,6 +200,15 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         undetermined=_undetermined(result), seconds=time.perf_counter() - start)
 
 
+def _cancelling(result: Result | None, within: float = CANCELLATION) -> bool:
+    """Whether a zero of the fitted G lies within ``within`` (relative) of one of its poles: the pair nearly
+    cancels, and adds parameters without a response of its own."""
+    if result is None:
+        return False
+    poles, zeros = result.plant.all_poles(), result.plant.all_zeros()
+    return any(abs(z - p) <= within * abs(p) for z in zeros for p in poles)
+
+
 def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
     """The candidates in rank order with their flags and ranks set (see the module's docstring)."""
     from dataclasses import replace
@@ -215,6 +226,8 @@ def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
             flags.append("validation")
         if s.undetermined:
             flags.append("undetermined")
+        if _cancelling(s.result):
+            flags.append("pole-zero cancellation")
         if any_white and s.white is False:
             flags.append("residuals")
         out.append(replace(s, flags=tuple(flags)))
