@@ -6,7 +6,8 @@ equations) so that CasADi gives their exact derivatives.
 
 Per experiment (amplitude m, frequency f):
 
-- the states without ``position`` (it integrates v and does not act back), divided by the measured velocity
+- the states without ``position`` (it integrates v and does not act back, unless a load's spring or ripple
+  depends on it: then it is a state like the others), divided by the measured velocity
   amplitude a = |H|·m so that they are O(1), are integrated by CVODES over one period in the scaled time
   τ = f·t ∈ [0, 1], with the quadratures q' = (2v·sin 2πτ, 2v·cos 2πτ, v)/a; then S1 = a·(q1 + j·q2) and
   dc = a·q3 (the phasor convention of servofmu.measurement.frf), H = S1/m;
@@ -119,7 +120,9 @@ class PeriodicSteadyState:
         self.n_exp = self.amplitudes.size
         self.names = identified_names(structure)
         model = build_model(structure)
-        keep = [i for i, n in enumerate(model.state_names) if n != "position"]
+        # the position acts back only through a load's spring or ripple; otherwise it is left out
+        with_position = structure.load.depends_on_position()
+        keep = [i for i, n in enumerate(model.state_names) if n != "position" or with_position]
         self.nx, self.n_theta = len(keep), len(self.names)
 
         # Symbols: reduced scaled states, identified parameters, and the experiment's m, f, a.
@@ -130,10 +133,10 @@ class PeriodicSteadyState:
         p_full = ca.vertcat(*[theta[next(it)] if free else float(val) for val, free in zip(nominal, mask)], m, f)
         x_full, j = [], iter(range(self.nx))
         for name in model.state_names:
-            x_full.append(0.0 if name == "position" else a * xs[next(j)])
+            x_full.append(0.0 if name == "position" and not with_position else a * xs[next(j)])
         xdot = ca.substitute(model.xdot, ca.vertcat(model.t, model.x, model.u, model.p),
                              ca.vertcat(tau / f, ca.vertcat(*x_full), 0.0, p_full))
-        if ca.depends_on(model.xdot[keep], model.x[model.state_names.index("position")]):
+        if not with_position and ca.depends_on(model.xdot[keep], model.x[model.state_names.index("position")]):
             raise RuntimeError("the model's dynamics depend on the position state")  # a model change to revisit
         v = a * xs[0]
         ode = xdot[keep] / (a * f)

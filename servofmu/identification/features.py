@@ -2,7 +2,8 @@
 
 - features of one data set: per experiment log|H|, cos∠H, sin∠H and dc/(|H|·m) — scale-free and continuous;
 - targets: each identified parameter in a transformed scale (log of a magnitude where the structure's value is
-  not zero, log of the damping ratio and natural frequency for a complex pair, log(fs − fc) for static friction).
+  not zero, log of the damping ratio and natural frequency for a complex pair, log(fs − fc) for static friction;
+  the load's signed terms — offset, x0, ripple_phase — as they are).
   The swarm searches in these coordinates too: a box in them is relative, and positivity is kept.
 """
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.plant import Plant
-from .prior import identified_mask, identified_names
+from .prior import ADDITIVE_PARAMETERS, additive_scale, identified_mask, identified_names
 
 __all__ = ["feature_names", "ann_features", "to_targets", "from_targets", "target_jacobian", "prior_box"]
 
@@ -45,7 +46,7 @@ def to_targets(structure: Plant, theta: np.ndarray) -> np.ndarray:
                 continue
             elif n.startswith("fs_"):
                 y[:, i] = np.log(out[:, i] - out[:, names.index("fc_" + n[3:])])
-            elif nominal[n] != 0:
+            elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
                 y[:, i] = np.log(np.abs(out[:, i]))
     return y
 
@@ -61,7 +62,7 @@ def from_targets(structure: Plant, y: np.ndarray) -> np.ndarray:
             out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
         elif n.endswith("_im") or n.startswith("fs_"):
             continue
-        elif nominal[n] != 0:
+        elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
             out[:, i] = np.sign(nominal[n]) * np.exp(y[:, i])
     for i, n in enumerate(names):
         if n.startswith("fs_"):
@@ -82,6 +83,11 @@ def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:
     """The prior's box (servofmu.identification.prior) in target coordinates."""
     centre = to_targets(structure, structure.parameter_vector()[None, identified_mask(structure)])[0]
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
-    half = np.array([np.log1p(spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_"))
-                     else spread for n in identified_names(structure)])
+
+    def half_width(n):
+        if n in ADDITIVE_PARAMETERS:
+            return additive_scale(structure, n) * (min(spread, 1.0) if n == "ripple_phase" else spread)
+        return np.log1p(spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_")) else spread
+
+    half = np.array([half_width(n) for n in identified_names(structure)])
     return centre - half, centre + half

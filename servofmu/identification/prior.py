@@ -12,7 +12,12 @@ an independent log-uniform factor in [1/(1+spread), 1+spread]:
 - a complex pair σ ± jω: its natural frequency |σ + jω| and its damping ratio −σ/|σ + jω| (the damping ratio
   capped at 0.95 so that the pair stays complex);
 - the gain: its magnitude;
-- each friction level; a static level is drawn as fc + (fs − fc)·factor so that fs ≥ fc holds.
+- each friction level; a static level is drawn as fc + (fs − fc)·factor so that fs ≥ fc holds;
+- the load's stiffness, ripple amplitude and ripple period (docs/plant-format.md) likewise by a factor; its signed
+  terms — the offset, the spring's rest position x0 and the ripple's phase — by adding a uniform draw in
+  [−spread, spread] times their scale (:func:`additive_scale`): the offset's the larger of its magnitude and the
+  friction level, x0's the larger of its magnitude and the distance over which the spring's force changes by the
+  friction level, the phase's π (at most ±π).
 Real roots are stored in descending order (−1 before −10), so that a parameter vector names one plant only.
 """
 from __future__ import annotations
@@ -23,9 +28,26 @@ from ..errors import UserError
 from ..model.plant import Plant
 
 __all__ = ["identified_names", "identified_mask", "full_vectors", "canonical_order", "sample_identified",
-           "FIXED_PARAMETERS"]
+           "FIXED_PARAMETERS", "ADDITIVE_PARAMETERS", "additive_scale"]
 
 FIXED_PARAMETERS = ("fv", "v_smooth")
+# Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).
+ADDITIVE_PARAMETERS = ("offset", "x0", "ripple_phase")
+
+
+def additive_scale(structure: Plant, name: str) -> float:
+    """The scale of an additive parameter's prior (see the module docstring): N for ``offset``, m for ``x0``,
+    rad for ``ripple_phase``."""
+    nominal = structure.parameters()
+    friction = max(structure.friction.fc_pos, structure.friction.fc_neg, 1e-9)
+    if name == "offset":
+        return max(abs(nominal["offset"]), friction)
+    if name == "x0":
+        stiffness = nominal["stiffness"]
+        return max(abs(nominal["x0"]), friction / stiffness if stiffness > 0 else 0.0, 1e-9)
+    if name == "ripple_phase":
+        return float(np.pi)
+    raise UserError(f"{name} is not an additive parameter ({', '.join(ADDITIVE_PARAMETERS)})")
 
 
 def identified_names(structure: Plant) -> list[str]:
@@ -79,6 +101,9 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
             out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
         elif name.startswith(("fs_pos", "fs_neg")):
             continue  # after its Coulomb level
+        elif name in ADDITIVE_PARAMETERS:
+            half = spread if name != "ripple_phase" else min(spread, 1.0)
+            out[:, i] = nominal[name] + additive_scale(structure, name) * rng.uniform(-half, half, size=n)
         else:
             out[:, i] = nominal[name] * factor()
     for side in ("pos", "neg"):
