@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.plant import Plant
-from .prior import ADDITIVE_PARAMETERS, additive_scale, identified_mask, identified_names
+from .prior import ADDITIVE_PARAMETERS, additive_scale, identified_mask, identified_names, log_width
 
 __all__ = ["feature_names", "ann_features", "to_targets", "from_targets", "target_jacobian", "prior_box"]
 
@@ -87,7 +87,7 @@ def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:
     def half_width(n):
         if n in ADDITIVE_PARAMETERS:
             return additive_scale(structure, n) * (min(spread, 1.0) if n == "ripple_phase" else spread)
-        return np.log1p(spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_")) else spread
+        return log_width(n, spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_")) else spread
 
     half = np.array([half_width(n) for n in identified_names(structure)])
     return centre - half, centre + half

@@ -4,7 +4,9 @@ Identified: the poles, the zeros, the gain (`dc_gain` or `gain`) and the frictio
 and `fs_pos`, `fs_neg`, `vs`, `sigma0`, `sigma1` where the model has them).  Fixed at the structure's values:
 `v_smooth` (a modelling choice, not a property of the machine) and `fv`: viscous friction adds a constant to
 1/G(jω), which a G with free poles and zeros absorbs exactly — G/(1 + fv·G) has as many poles and zeros as G —
-so fv cannot be told apart from G by any input-output data and is taken from the structure file.
+so fv cannot be told apart from G by any input-output data and is taken from the structure file.  A spring's rest
+position x0 is fixed too when the load also has an offset: k·(x0 − x) = k·x0 − k·x, and the constant k·x0 is an
+offset.
 
 The prior (docs/identification.md): around the structure's nominal plant, every identified quantity is scaled by
 an independent log-uniform factor in [1/(1+spread), 1+spread]:
@@ -13,7 +15,10 @@ an independent log-uniform factor in [1/(1+spread), 1+spread]:
   capped at 0.95 so that the pair stays complex);
 - the gain: its magnitude;
 - each friction level; a static level is drawn as fc + (fs − fc)·factor so that fs ≥ fc holds;
-- the load's stiffness, ripple amplitude and ripple period (docs/plant-format.md) likewise by a factor; its signed
+- the load's stiffness, ripple amplitude and ripple period (docs/plant-format.md) likewise by a factor — the
+  period's only within [1/(1+spread/20), 1+spread/20] (PERIOD_SHARE): the output error is many-valleyed in the
+  period (a relative error of period/travel slips the ripple by a whole period over the travel), and a ripple's
+  pitch is known from the motor's geometry to far better than the other parameters; its signed
   terms — the offset, the spring's rest position x0 and the ripple's phase — by adding a uniform draw in
   [−spread, spread] times their scale (:func:`additive_scale`): the offset's the larger of its magnitude and the
   friction level, x0's the larger of its magnitude and the distance over which the spring's force changes by the
@@ -28,11 +33,19 @@ from ..errors import UserError
 from ..model.plant import Plant
 
 __all__ = ["identified_names", "identified_mask", "full_vectors", "canonical_order", "sample_identified",
-           "FIXED_PARAMETERS", "ADDITIVE_PARAMETERS", "additive_scale"]
+           "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale", "PERIOD_SHARE", "log_width"]
 
 FIXED_PARAMETERS = ("fv", "v_smooth")
 # Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).
 ADDITIVE_PARAMETERS = ("offset", "x0", "ripple_phase")
+# The share of the spread the ripple's period is drawn and searched within (see the module docstring).
+PERIOD_SHARE = 0.05
+
+
+def log_width(name: str, spread: float) -> float:
+    """Half-width of the log-uniform factor of a parameter drawn by a factor: log(1 + spread), the ripple
+    period's log(1 + PERIOD_SHARE·spread)."""
+    return float(np.log1p(spread * (PERIOD_SHARE if name == "ripple_period" else 1.0)))
 
 
 def additive_scale(structure: Plant, name: str) -> float:
@@ -50,14 +63,23 @@ def additive_scale(structure: Plant, name: str) -> float:
     raise UserError(f"{name} is not an additive parameter ({', '.join(ADDITIVE_PARAMETERS)})")
 
 
+def fixed_names(structure: Plant) -> tuple[str, ...]:
+    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth, and a spring's x0 when
+    the load also has an offset (the spring's force k·(x0 − x) holds the constant k·x0, which the offset is)."""
+    names = structure.parameter_names()
+    return FIXED_PARAMETERS + (("x0",) if "offset" in names else ())
+
+
 def identified_names(structure: Plant) -> list[str]:
-    """The names of the parameters a fit identifies: all of the structure's but the fixed ones (fv, v_smooth)."""
-    return [n for n in structure.parameter_names() if n not in FIXED_PARAMETERS]
+    """The names of the parameters a fit identifies: all of the structure's but the fixed ones (fixed_names)."""
+    fixed = fixed_names(structure)
+    return [n for n in structure.parameter_names() if n not in fixed]
 
 
 def identified_mask(structure: Plant) -> np.ndarray:
     """Boolean mask over ``structure.parameter_names()``: True for the identified parameters."""
-    return np.array([n not in FIXED_PARAMETERS for n in structure.parameter_names()])
+    fixed = fixed_names(structure)
+    return np.array([n not in fixed for n in structure.parameter_names()])
 
 
 def full_vectors(structure: Plant, theta: np.ndarray) -> np.ndarray:
@@ -87,8 +109,8 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     log_f = np.log1p(spread)
 
-    def factor():
-        return np.exp(rng.uniform(-log_f, log_f, size=n))
+    def factor(width=log_f):
+        return np.exp(rng.uniform(-width, width, size=n))
 
     out = np.empty((n, len(names)))
     for i, name in enumerate(names):
@@ -105,7 +127,7 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
             half = spread if name != "ripple_phase" else min(spread, 1.0)
             out[:, i] = nominal[name] + additive_scale(structure, name) * rng.uniform(-half, half, size=n)
         else:
-            out[:, i] = nominal[name] * factor()
+            out[:, i] = nominal[name] * factor(log_width(name, spread))
     for side in ("pos", "neg"):
         if f"fs_{side}" in names:
             fc = out[:, names.index(f"fc_{side}")]
