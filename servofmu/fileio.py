@@ -3,7 +3,9 @@ their format and schema version in one way.
 
 Every HDF5 file servofmu writes carries the root attributes ``format`` (what kind of file) and
 ``schema_version`` (an integer).  A reader accepts its own version and older ones it knows how to read,
-and refuses newer ones (written by a later servofmu) and foreign files, naming the file.
+and refuses newer ones (written by a later servofmu) and foreign files, naming the file.  It also carries
+``content_sha256``, a digest of everything in it (servofmu.integrity), which the one reader, :func:`read_hdf5`,
+checks — from the input's bytes read once, in a first pass that cannot hang — before it reads the file.
 """
 from __future__ import annotations
 
@@ -16,16 +18,18 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from .errors import MAX_MAGNITUDE, UserError
+from .integrity import DIGEST_ATTRIBUTE, InspectionFailed, content_digest, inspect_image
 from .locks import release, sibling, take
 
 __all__ = ["file_sha256", "claim_output", "output_claims", "holds_outputs", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
-           "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "open_hdf5", "read_hdf5",
+           "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "read_hdf5",
+           "read_image",
            "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM",
            "write_failures"]
 
-# Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers, which hold the
-# attributes, carry checksums, so a flipped bit in an attribute is found on reading, as Fletcher-32 finds one in
-# an array (store_array).
+# Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers carry checksums, as
+# Fletcher-32 covers the arrays (store_array).  What neither covers (text attributes live in a global heap without
+# one) the file's digest does (servofmu.integrity).
 HDF5_LIBVER = ("v110", "latest")
 
 # What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
@@ -240,8 +244,10 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
     fill it, then write it with :func:`atomic_write`.
 
     The file is built in memory: HDF5 never writes to the disk itself, so a write that fails (disk full, size
-    limit) is a plain OSError of atomic_write, not an error inside the HDF5 library."""
+    limit) is a plain OSError of atomic_write, not an error inside the HDF5 library.  The file gets the root
+    attribute ``content_sha256`` (servofmu.integrity), the digest :func:`read_hdf5` checks."""
     import h5py
+    import numpy as np
 
     path = Path(path)
     image = None
@@ -255,6 +261,8 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
             h5py.File.in_memory(libver=HDF5_LIBVER)
         with f:
             edit(f)
+            # last: the digest of everything written (fixed-length text: in the root's checksummed header)
+            f.attrs[DIGEST_ATTRIBUTE] = np.bytes_(content_digest(f))
             f.flush()
             image = f.id.get_file_image()
     except OSError as exc:
@@ -302,21 +310,6 @@ def hdf5_attr(obj, key: str, default=...):
     return value
 
 
-def open_hdf5(path: str | Path, what: str):
-    """The HDF5 file ``path`` open for reading (an h5py.File, a context manager); a missing or unreadable file is
-    a UserError naming it and saying it should be a ``what``."""
-    import h5py
-
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: no such {what}")
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise UserError(f"{path}: not a readable {what} (not an HDF5 file, or a damaged one: "
-                        f"{read_error_reason(exc)})") from exc
-
-
 def read_error_reason(exc: BaseException) -> str:
     """What went wrong reading an HDF5 file, in a few words: a failed checksum says so."""
     text = (str(exc).strip("'\"").splitlines() or [type(exc).__name__])[0]
@@ -327,19 +320,48 @@ def read_error_reason(exc: BaseException) -> str:
     return text.split("(")[-1].rstrip(")") if "(" in text else text
 
 
-def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schema_version: int, read: Callable):
-    """Read a servofmu HDF5 file: open it, check its format and version (:func:`check_format`), and return
-    ``read(f, version)``.  Whatever goes wrong inside ``read`` (a missing or malformed item, a failed checksum) is
-    one UserError naming the file: ``FILE: damaged WHAT (reason)``."""
+def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schema_version: int, read: Callable,
+              with_sha256: bool = False):
+    """Read a servofmu HDF5 file: its bytes once, then a first pass over them that cannot hang and checks the
+    digest (servofmu.integrity.inspect_image), then its format and version (:func:`check_format`); returns
+    ``read(f, version)``, with ``f`` the file opened on those same bytes in memory — and, with ``with_sha256``,
+    ``(that, SHA-256 of the bytes read)``: the hash provenance records is that of the bytes parsed, even if the
+    file is replaced meanwhile.  Whatever goes wrong (a missing or malformed item, a failed checksum or digest, a
+    file the HDF5 library cannot finish reading) is one UserError naming the file: ``FILE: damaged WHAT
+    (reason)``."""
+    import h5py
+
     path = Path(path)
-    with open_hdf5(path, what) as f:
-        try:
+    image = read_image(path, what)
+    try:
+        inspect_image(image)
+    except InspectionFailed as exc:
+        if exc.kind == "open":
+            raise UserError(f"{path}: not a readable {what} (not an HDF5 file, or a damaged one: {exc.reason})") \
+                from None
+        raise UserError(f"{path}: damaged {what} ({exc.reason})") from None
+    try:
+        with h5py.File.in_memory(image) as f:
             _, version = check_format(f, path, formats, schema_version, what)
-            return read(f, version)
-        except UserError:
-            raise
-        except READ_ERRORS as exc:
-            raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
+            value = read(f, version)
+    except UserError:
+        raise
+    except (*READ_ERRORS, OverflowError) as exc:  # (OverflowError: a huge stored number made an int)
+        raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
+    return (value, hashlib.sha256(image).hexdigest()) if with_sha256 else value
+
+
+def read_image(path: str | Path, what: str) -> bytes:
+    """The bytes of the input ``path``, read once; a missing or unreadable file is a UserError naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such {what}")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    except MemoryError:
+        raise UserError(f"{path}: too large to read into memory") from None
 
 
 def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True):

@@ -128,7 +128,7 @@ def load_closed_loop_inputs(data_path, structure_path, controller_path, command:
     check_structure(structure, data_file, f"the structure {structure_path}")
     data = closed_loop_data(data_file, load_controller(controller_path), skip)
     clocks = {r.name: r.clock.summary() for r in data.records}
-    return structure, data, identification_provenance(data_path, structure_path, command, skip=skip,
+    return structure, data, identification_provenance(data_file, structure_path, command, skip=skip,
                                                       controller_file=str(controller_path), clocks=clocks)
 
 

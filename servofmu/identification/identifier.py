@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, check_int
-from ..fileio import file_sha256
-from ..measurement.datafile import read_data_file
+from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant
 from ..runtime import Progress
 from ..simulation.batch import BatchSimulator
@@ -381,15 +380,15 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
         if list(ann.layout.parameter_names) != identified_names(structure):
             raise UserError(f"{ann_path} estimates {', '.join(ann.layout.parameter_names)}; the structure "
                             f"{structure_path} has {', '.join(identified_names(structure))}")
-    return structure, data, ann, identification_provenance(data_path, structure_path, command, ann_path, skip)
+    return structure, data, ann, identification_provenance(ds, structure_path, command, ann_path, skip)
 
 
-def identification_provenance(data_path, structure_path, command: str, ann_path=None, skip: float = 0.0,
+def identification_provenance(data: DataFile, structure_path, command: str, ann_path=None, skip: float = 0.0,
                               **extra) -> dict:
-    """What a result records of its inputs: the data file and its SHA-256, the structure, the network, the
-    command, the skipped seconds and ``extra`` entries."""
-    sha = file_sha256(data_path)
-    provenance = {"data_file": str(data_path), "data_sha256": sha, "structure_file": str(structure_path),
+    """What a result records of its inputs: the data file read (its path, and the SHA-256 of the very bytes that
+    were read and identified from), the structure, the network, the command, the skipped seconds and ``extra``
+    entries."""
+    provenance = {"data_file": str(data.path), "data_sha256": data.sha256, "structure_file": str(structure_path),
                   "ann_file": str(ann_path) if ann_path else "", "command": command, **extra}
     if skip:
         provenance["skip"] = skip

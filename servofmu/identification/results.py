@@ -1,6 +1,7 @@
 """Identification results: RESULT.h5 (layout in docs/hdf5.md), the `--json` object and the paper's tables."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import tomllib
 from dataclasses import dataclass
@@ -10,15 +11,16 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import (check_values, claim_output, file_sha256, hdf5_attr, output_mode, read_hdf5, store_array,
-                      write_hdf5)
+from ..fileio import check_values, claim_output, hdf5_attr, output_mode, read_hdf5, store_array, write_hdf5
+from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
 from ..version import __version__
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
-           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json", "find_data_file"]
+           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json", "find_data_file",
+           "read_identified_data"]
 
 FORMAT = "servofmu-result"
 COMPARE_FORMAT = "servofmu-comparison"
@@ -58,6 +60,7 @@ class Result:
     history: np.ndarray
     provenance: dict
     fit_percent: dict | None = None  # records: record name -> fit (%), as MATLAB's compare defines it
+    sha256: str = ""  # of the bytes of the file it was read from ("" for one not read from a file)
 
 
 def result_from_estimator(est, method: str, provenance: dict) -> Result:
@@ -258,7 +261,8 @@ def read_results(path: str | Path) -> dict[str, Result]:
             return {result.method: result}
         return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
 
-    return read_hdf5(path, "result file", (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, read)
+    results, sha256 = read_hdf5(path, "result file", (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, read, with_sha256=True)
+    return {m: dataclasses.replace(r, sha256=sha256) for m, r in results.items()}
 
 
 def read_result(path: str | Path) -> Result:
@@ -287,11 +291,8 @@ def read_result(path: str | Path) -> Result:
 
 def find_data_file(results: Sequence[Result], source: Path, data: str | Path | None) -> Path:
     """The data file the results were identified from: ``data`` if given, else the path their provenance
-    records (as given, then beside the result file).  Its SHA-256 must be the one the provenance records."""
+    records (as given, then beside the result file).  :func:`read_identified_data` also reads and checks it."""
     recorded = {r.provenance.get("data_file", "") for r in results}
-    hashes = {r.provenance.get("data_sha256", "") for r in results}
-    if len(hashes) > 1:
-        raise UserError(f"{source}: its results were identified from different data files")
     if data is None:
         name = next(iter(recorded))
         candidates = [Path(name), source.parent / name, source.parent / Path(name).name] if name else []
@@ -304,7 +305,18 @@ def find_data_file(results: Sequence[Result], source: Path, data: str | Path | N
     if not data.is_file():
         raise UserError(f"{data}: no such file")
     expected = next(iter(hashes))
-    if expected and file_sha256(data) != expected:
-        raise UserError(f"{data}: is not the data file {source} was identified from (its SHA-256 differs from the "
+    if expected and read.sha256 != expected:
+        raise UserError(f"{path}: is not the data file {source} was identified from (its SHA-256 differs from the "
                         "one recorded in the result)")
+    return read
     return data
+
+
+def read_identified_data(results: Sequence[Result], source: Path, data: str | Path | None) -> DataFile:
+    """The data file the results were identified from (:func:`find_data_file`), read; the SHA-256 of the bytes
+    read must be the one their provenance records."""
+    hashes = {r.provenance.get("data_sha256", "") for r in results}
+    if len(hashes) > 1:
+        raise UserError(f"{source}: its results were identified from different data files")
+    path = find_data_file(results, source, data)
+    read = read_data_file(path)

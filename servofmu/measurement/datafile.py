@@ -12,7 +12,7 @@ follow those declarations.
 from __future__ import annotations
 
 import json
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Iterable
 
@@ -194,6 +194,7 @@ class DataFile:
     records: tuple[Record, ...]
     provenance: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
+    sha256: str = ""  # of the bytes read (the file as it was parsed; provenance records this)
 
     def missing(self) -> tuple[ExperimentSpec, ...]:
         """The experiments of the plan not stored yet (what ``--resume`` runs)."""
@@ -388,7 +389,9 @@ def read_data_file(path: str | Path) -> DataFile:
     ('measurement', 6)
     """
     path = Path(path)
-    return read_hdf5(path, "data file", FORMAT, SCHEMA_VERSION, lambda f, version: _read_data(path, f, version))
+    data, sha256 = read_hdf5(path, "data file", FORMAT, SCHEMA_VERSION,
+                             lambda f, version: _read_data(path, f, version), with_sha256=True)
+    return replace(data, sha256=sha256)
 
 
 def _read_data(path: Path, f: h5py.File, version: int) -> DataFile:

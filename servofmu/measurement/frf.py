@@ -21,12 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import MAX_MAGNITUDE, UserError
 
 __all__ = ["Harmonics", "harmonics", "distortion", "trapezoid_weights", "window_samples", "period_phasor",
-           "SteadyStateDetector", "estimate_frequency", "RecordSettling", "settle_noisy", "HARMONICS"]
+           "SteadyStateDetector", "estimate_frequency", "RecordSettling", "settle_noisy", "HARMONICS",
+           "checked_samples"]
 
 HARMONICS = 10  # highest harmonic kept for the distortion (S_2..S_10)
+SEARCH_SAMPLES = 2 ** 17  # samples the frequency search of a record fits at most (estimate_frequency)
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,35 @@ def distortion(phasors: np.ndarray) -> float:
     s1 = abs(phasors[0])
     rest = float(np.sqrt(np.sum(np.abs(phasors[1:]) ** 2)))
     return rest / s1 if s1 > 0 else math.nan
+
+
+def checked_samples(t, s, frequency: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` and ``s`` as float arrays of one length, the times finite and every value within ±MAX_MAGNITUDE
+    (NaN values pass: they give NaN results, which the callers flag), and ``frequency`` (when given) positive and
+    within it: the analysis's sums and period counts then stay finite (a time or value of 1e308 made a period
+    count of inf or a sum of squares beyond the floats, an OverflowError).  A violation is a UserError."""
+    t, s = np.asarray(t, dtype=float), np.asarray(s, dtype=float)
+    if t.ndim != 1 or t.shape != s.shape or t.size < 2:
+        raise UserError(f"the samples must be two vectors of one length, at least 2 (times {t.shape}, values "
+                        f"{s.shape})")
+    with np.errstate(invalid="ignore"):
+        if not np.all(np.abs(t) <= MAX_MAGNITUDE):
+            raise UserError(f"the samples' times hold NaN, Inf or a value beyond ±{MAX_MAGNITUDE:g}")
+        if np.any(np.abs(s) > MAX_MAGNITUDE):
+            raise UserError(f"the samples' values hold Inf or a value beyond ±{MAX_MAGNITUDE:g}")
+    if frequency is not None and not 0 < frequency <= MAX_MAGNITUDE:
+        raise UserError(f"frequency must be positive and at most {MAX_MAGNITUDE:g} Hz, not {frequency}")
+    return t, s
+
+
+def _whole_periods(t: np.ndarray, start: float, frequency: float) -> int:
+    """Whole periods of ``frequency`` from ``start`` to t[-1]; more than one per sample is refused (each period
+    is analysed from its samples)."""
+    periods = int(math.floor((t[-1] - start) * frequency * (1 + 1e-12)))
+    if periods > t.size:
+        raise UserError(f"{periods} periods of {frequency:g} Hz in {t.size} samples: fewer than one sample per "
+                        "period")
+    return periods
 
 
 def _unit_phase(frequency: float, k: int, t: np.ndarray, start: float) -> np.ndarray:
@@ -89,15 +120,14 @@ def harmonics(t, s, frequency: float, start: float | None = None, periods: int |
 
     Default window: from t[0], as many whole periods as the samples cover.  Samples need not be uniform.
     """
-    t = np.asarray(t, dtype=float)
-    s = np.asarray(s, dtype=float)
-    if not frequency > 0:
-        raise UserError(f"frequency must be positive, not {frequency}")
+    t, s = checked_samples(t, s, frequency)
     period = 1.0 / frequency
     if start is None:
         start = float(t[0])
+    if not abs(start) <= MAX_MAGNITUDE:
+        raise UserError(f"window start {start} is not a finite time")
     if periods is None:
-        periods = int(math.floor((t[-1] - start) * frequency * (1 + 1e-12)))
+        periods = _whole_periods(t, start, frequency)
     if periods < 1:
         raise UserError(f"the samples cover less than one period of {frequency:g} Hz")
     stop = start + periods * period
@@ -116,6 +146,8 @@ def harmonics(t, s, frequency: float, start: float | None = None, periods: int |
 
 def period_phasor(t: np.ndarray, s: np.ndarray, frequency: float) -> tuple[complex, float]:
     """(S_1, DC) of the samples of one period (t[0] .. t[-1] = t[0] + T)."""
+    if not (abs(t[0]) <= MAX_MAGNITUDE and abs(t[-1]) <= MAX_MAGNITUDE):  # (per period: the values unchecked)
+        raise UserError(f"the period [{t[0]}, {t[-1]}] s is not a finite time")
     w = trapezoid_weights(t)
     length = t[-1] - t[0]
     return (complex(1j * 2.0 / length * np.dot(w * s, _unit_phase(frequency, 1, t, t[0]))),
@@ -190,36 +222,46 @@ def estimate_frequency(t: np.ndarray, u: np.ndarray) -> tuple[float, float]:
     The frequency is that of the least-squares sine fit (sine, cosine and constant): an FFT peak refined by
     golden-section search.
     """
-    t = np.asarray(t, float)
-    u = np.asarray(u, float) - np.mean(u)
+    t, u = checked_samples(t, u)
+    u = u - np.mean(u)
     duration = t[-1] - t[0]
     dt = float(np.median(np.diff(t)))
     n = len(t)
     grid = np.linspace(t[0], t[-1], n)
     ug = np.interp(grid, t, u)
-    spectrum = np.abs(np.fft.rfft(ug, 8 * n))
-    freqs = np.fft.rfftfreq(8 * n, d=duration / (n - 1))
+    # padded 8x for a fine peak on ordinary records; a long one (a 16 kHz log of minutes) has bins fine enough
+    n_fft = 8 * n if n <= SEARCH_SAMPLES else n
+    spectrum = np.abs(np.fft.rfft(ug, n_fft))
+    freqs = np.fft.rfftfreq(n_fft, d=duration / (n - 1))
     spectrum[freqs < 1.0 / duration] = 0  # below one period over the record
     i = int(np.argmax(spectrum))
-    w = trapezoid_weights(t)
+    # The search fits every sample of an ordinary record; a long record is thinned evenly to SEARCH_SAMPLES, kept
+    # at eight samples a period or more (no aliasing): the fit's frequency then differs by far less than its
+    # noise, and the search takes a fixed time however long the record.
+    stride = max(1, min(n // SEARCH_SAMPLES, int(1.0 / (8 * dt * max(freqs[i], 1e-300)))))
+    tt, u_search = t[::stride], u[::stride]
+    w = trapezoid_weights(tt)
 
     def power(f):  # the part of u a sine of frequency f (any phase, plus a constant) explains
-        basis = np.column_stack([np.sin(2 * np.pi * f * (t - t[0])), np.cos(2 * np.pi * f * (t - t[0])),
-                                 np.ones_like(t)])
-        coef = np.linalg.lstsq(basis * np.sqrt(w)[:, None], u * np.sqrt(w), rcond=None)[0]
+        basis = np.column_stack([np.sin(2 * np.pi * f * (tt - tt[0])), np.cos(2 * np.pi * f * (tt - tt[0])),
+                                 np.ones_like(tt)])
+        coef = np.linalg.lstsq(basis * np.sqrt(w)[:, None], u_search * np.sqrt(w), rcond=None)[0]
         return float(np.dot(w, (basis @ coef) ** 2))
 
     lo, hi = max(freqs[max(i - 1, 0)], 0.5 / duration), freqs[min(i + 1, len(freqs) - 1)]
     g = (math.sqrt(5) - 1) / 2
     a, b = lo, hi
     c, d = b - g * (b - a), a + g * (b - a)
+    pc, pd = power(c), power(d)  # one new evaluation per step: the other point's is kept
     for _ in range(60):
-        if power(c) > power(d):
-            b, d = d, c
+        if pc > pd:
+            b, d, pd = d, c, pc
             c = b - g * (b - a)
+            pc = power(c)
         else:
-            a, c = c, d
+            a, c, pc = c, d, pd
             d = a + g * (b - a)
+            pd = power(d)
     f = (a + b) / 2
     if not 0 < f < 0.5 / dt:
         return f, 0.0
@@ -245,8 +287,9 @@ def settle_noisy(t: np.ndarray, s: np.ndarray, frequency: float, start: float) -
     """First whole period from which the per-period first harmonic of ``s`` stays within a band around the
     mean of the last half of the record: the band is 4 standard deviations of the last half (noise) or
     1e-3 relative, whichever is larger.  Converged when at least half of the periods are steady."""
+    t, s = checked_samples(t, s, frequency)
     period = 1.0 / frequency
-    n = int(math.floor((t[-1] - start) * frequency * (1 + 1e-12)))
+    n = _whole_periods(t, start, frequency)
     values = []
     for p in range(n):
         tw, sw = window_samples(t, s, start + p * period, start + (p + 1) * period)

@@ -76,7 +76,7 @@ def export_provenance(result: Result, result_file: str | Path | None = None, com
     prov.update({renamed.get(str(k), str(k)): str(v) for k, v in result.provenance.items() if v not in (None, "")})
     if result_file is not None:
         prov["result_file"] = Path(result_file).name
-        prov["result_sha256"] = file_sha256(result_file)
+        prov["result_sha256"] = result.sha256 or file_sha256(result_file)  # the bytes read, when read from it
     prov.update({"export_command": command or "(library call)", "export_date": utc_now(),
                  "package_version": __version__})
     return prov
@@ -346,7 +346,7 @@ def remeasure(result: Result, data_file: str | Path, fmu_path: str | Path, measu
     if ds.kind != "measurement" or not ds.plan:
         raise UserError(f"{data_file}: is a {ds.kind} file; the round trip needs stepped-sine measurements")
     claimed = result.provenance.get("data_sha256")
-    if claimed and claimed != file_sha256(data_file):
+    if claimed and claimed != ds.sha256:
         raise UserError(f"{data_file}: is not the data file the result was identified from "
                         f"({result.provenance.get('data_file', 'SHA-256 ' + claimed[:12])})")
     data = sine_data(ds)

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
 from ..identification.criterion import POLISH_RTOL, SineData, sine_residuals
-from ..identification.results import find_data_file, paper_rows
+from ..identification.results import paper_rows, read_identified_data
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant, parameter_info
 from ..runtime import utc_now
@@ -336,7 +336,7 @@ def make_report(source: str | Path, output: str | Path, data: str | Path | None 
     source = Path(source)
     labelled = read_entries(source)
     true_plant = load_plant(truth) if truth is not None else None
-    data_file = read_data_file(find_data_file([r for _, r in labelled], source, data))
+    data_file = read_identified_data([r for _, r in labelled], source, data)
     entries = compute_entries(labelled, data_file)
     validation = None
     if validate is not None:

@@ -36,7 +36,6 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import file_sha256
 from ..identification.criterion import POLISH_RTOL, check_structure, fit_percent, record_data, record_errors
 from ..identification.residuals import EXACT, LAGS, LEVEL, ResidualTest, residual_test
 from ..identification.results import Result
@@ -168,8 +167,7 @@ def own_data_warning(v: Validation) -> str | None:
 def _is_own_data(result: Result, data_file: DataFile) -> bool:
     """Whether the data file's SHA-256 is the one the identification recorded."""
     recorded = result.provenance.get("data_sha256")
-    path = Path(data_file.path)
-    return bool(recorded) and path.is_file() and file_sha256(path) == recorded
+    return bool(recorded) and data_file.sha256 == recorded
 
 
 def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float,

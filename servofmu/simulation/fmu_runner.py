@@ -3,6 +3,8 @@ through FMPy (FMI 2.0 and 3.0 Co-Simulation).  What measure, records and co-simu
 from __future__ import annotations
 
 import weakref
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,10 +43,14 @@ class FmuRunner:
         self._dir = make_temporary_folder("fmu")
         self._cleanup = weakref.finalize(self, remove_temporary_folders, self._dir)
         archive = Path(self._dir) / "model.fmu"
-        with write_failures(f"the extracted copy of {name} in {self._dir}", FmuError):
-            archive.write_bytes(data)
-            unzipdir = extract(str(archive), unzipdir=str(Path(self._dir) / "unzipped"))
-        md = read_model_description(unzipdir, validate=False)
+        try:
+            with write_failures(f"the extracted copy of {name} in {self._dir}", FmuError):
+                archive.write_bytes(data)
+                unzipdir = extract(str(archive), unzipdir=str(Path(self._dir) / "unzipped"))
+            md = read_model_description(unzipdir, validate=False)
+        except (zipfile.BadZipFile, zlib.error, EOFError, ValueError) as exc:  # a damaged member: bad CRC, bad data
+            raise FmuError(f"{name}: not a readable FMU (a damaged archive: {str(exc) or type(exc).__name__})") \
+                from exc
         self.fmi3 = md.fmiVersion.startswith("3")
         self.variables = {v.name: v for v in md.modelVariables}
         self.vr = {n: v.valueReference for n, v in self.variables.items()}
