@@ -18,15 +18,17 @@ def cmd_controller(args) -> None:
 
 def cmd_system(args) -> None:
     """Plant FMU, controller FMU and a reference as an SSP archive."""
-    from ..control.fmus import read_reference_csv
+    from ..control.fmus import read_disturbance_csv, read_reference_csv
     from ..control.system import controller_from_fmu, write_system
 
     changes = {k: v for k, v in (("force_noise", args.force_noise), ("noise_seed", args.seed),
                                  ("encoder_resolution", args.encoder)) if v is not None}
     controller = controller_from_fmu(args.controller_fmu).with_values(**changes)
+    disturbance = read_disturbance_csv(args.disturbance) if args.disturbance else None
     path = write_system(args.plant_fmu, args.controller_fmu, read_reference_csv(args.reference), args.output,
-                        controller=controller, overwrite=args.force)
-    print(f"wrote {path} (SSP: reference, controller and plant; controller parameters in resources/controller.ssv)")
+                        controller=controller, overwrite=args.force, disturbance=disturbance)
+    print(f"wrote {path} (SSP: reference, {'disturbance, ' if disturbance else ''}controller and plant; controller "
+          "parameters in resources/controller.ssv)")
 
 
 def cmd_cosim(args) -> None:
@@ -77,6 +79,9 @@ def register(sub) -> None:
                    help="controller FMU from `servofmu controller`")
     p.add_argument("--reference", required=True, metavar="REF.csv", role="input",
                    help="reference trajectory: CSV with columns time (s) and position (m)")
+    p.add_argument("--disturbance", metavar="DIST.csv", role="input",
+                   help="a known disturbance the drive adds after its output limit: CSV with columns time (s) and "
+                        "force (N, applied from each time on; 0 at the first two samples)")
     p.add_argument("--encoder", type=float, metavar="M", help="encoder resolution (m; default the controller's)")
     p.add_argument("--force-noise", type=float, metavar="N", help="actuator noise, standard deviation (N)")
     p.add_argument("--seed", type=int, help="seed of the actuator noise")

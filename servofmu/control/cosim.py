@@ -8,8 +8,10 @@ which is the drive's one-sample computation delay.  Both start with every connec
 starts at 0); they agree to rounding.
 
 The records file holds one record per run, sampled at the communication points t_0 … t_N−1: ``time``; ``u`` the
-force command applied from t_k on (zero-order hold, as the drive logs it); ``position`` the encoder reading the
-controller used at t_k; ``v`` the plant's velocity; ``reference`` the reference position.
+force command applied from t_k on (zero-order hold, as the drive logs it: the total, with a disturbance);
+``position`` the encoder reading the controller used at t_k; ``v`` the plant's velocity; ``reference`` the
+reference position; with a disturbance source, ``disturbance`` the force it added from t_k on — the record of a
+drive's log with an injected test signal (servofmu import --disturbance).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from ..fileio import claim_output, file_sha256, output_mode
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..version import __version__
-from .system import COMPONENTS, read_system
+from .system import DISTURBANCE, read_system
 
 __all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
 
@@ -37,15 +39,24 @@ ENGINES = ("libcosim", "fmpy")
 SIGNALS = {"reference": ("reference", "position_reference"), "force": ("controller", "force"),
            "force_command": ("controller", "force_command"), "position_measured": ("controller", "position_measured"),
            "position": ("plant", "position"), "v": ("plant", "v")}
+# recorded when the system has a disturbance source: what it outputs at t_k the controller applies from t_k+1 on
+DISTURBANCE_SIGNAL = {"disturbance": (DISTURBANCE, "force_disturbance")}
+
+
+def _signals(components) -> dict:
+    """What is recorded of a system with these components."""
+    return {**SIGNALS, **(DISTURBANCE_SIGNAL if DISTURBANCE in components else {})}
 
 
 @dataclass(frozen=True)
 class CosimResult:
-    """Every signal of SIGNALS at the communication points (arrays of one length, ``time`` first)."""
+    """Every signal of SIGNALS (and DISTURBANCE_SIGNAL with a disturbance source) at the communication points
+    (arrays of one length, ``time`` first), and the system's components."""
 
     engine: str
     time: np.ndarray
     signals: dict
+    components: tuple = ("reference", "controller", "plant")
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -62,7 +73,7 @@ def _steps(stop_time: float, step: float) -> int:
     return n
 
 
-def _run_libcosim(folder: Path, ssp: Path, n: int, step: float) -> dict:
+def _run_libcosim(folder: Path, ssp: Path, n: int, step: float, signals: dict) -> dict:
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
@@ -75,12 +86,12 @@ def _run_libcosim(folder: Path, ssp: Path, n: int, step: float) -> dict:
         raise UserError(f"{ssp}: libcosim cannot load the system") from exc
     index = {info.name.decode(): info.index for info in execution.slave_infos()}
     refs = {}
-    for name, (component, variable) in SIGNALS.items():
+    for name, (component, variable) in signals.items():
         variables = {v.name.decode(): v.reference for v in execution.slave_variables(index[component])}
         refs[name] = (index[component], variables[variable])
     observer = CosimObserver.create_last_value()
     execution.add_observer(observer)
-    out = {name: np.zeros(n + 1) for name in SIGNALS}
+    out = {name: np.zeros(n + 1) for name in signals}
     for k in range(1, n + 1):
         if not execution.step():
             raise UserError(f"{ssp}: libcosim failed at step {k} (t = {k * step:g} s)")
@@ -89,7 +100,7 @@ def _run_libcosim(folder: Path, ssp: Path, n: int, step: float) -> dict:
     return out
 
 
-def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict) -> dict:
+def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict, signals: dict) -> dict:
     from fmpy.ssp.simulation import simulate_ssp
 
     # FMPy applies one parameter set, named by component path, to the components it instantiates
@@ -103,8 +114,8 @@ def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict) ->
                               parameter_set=parameter_set)
     finally:
         tempfile.tempdir = tempdir
-    out = {name: np.zeros(n + 1) for name in SIGNALS}
-    for name, (component, variable) in SIGNALS.items():
+    out = {name: np.zeros(n + 1) for name in signals}
+    for name, (component, variable) in signals.items():
         # FMPy labels a row with the start of the step whose outputs it holds
         out[name][1:] = np.asarray(result[f"{component}.{variable}"])[:n]
     return out
@@ -146,16 +157,18 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
         stop = system.stop_time if stop_time is None else float(stop_time)
         n = _steps(stop, system.step_size)
         try:
+            signals = _signals(system.components)
             if engine == "libcosim":
-                out = _run_libcosim(Path(tmp), ssp, n, system.step_size)
+                out = _run_libcosim(Path(tmp), ssp, n, system.step_size, signals)
             else:
-                out = _run_fmpy(Path(tmp), ssp, n, system.step_size, system.controller)
+                out = _run_fmpy(Path(tmp), ssp, n, system.step_size, system.controller, signals)
         except UserError:
             raise
         except Exception as exc:  # an engine's own error: the first line names it
             raise UserError(f"{ssp}: {engine} failed: {(str(exc).splitlines() or [type(exc).__name__])[0]}") \
                 from exc
-    return CosimResult(engine=engine, time=np.arange(n + 1) * system.step_size, signals=out)
+    return CosimResult(engine=engine, time=np.arange(n + 1) * system.step_size, signals=out,
+                       components=system.components)
 
 
 def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path, append: bool = False,
@@ -166,19 +179,23 @@ def write_cosim_records(result: CosimResult, ssp: str | Path, output: str | Path
     run = run or RunOptions()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=(ssp,), can_continue="append")
     t = result.time[:-1]
+    disturbance = None
+    columns = {"time": "communication points", "u": "controller.force_command",
+               "position": "controller.position_measured", "v": "plant.v", "reference": "reference.position_reference"}
+    if "disturbance" in result.signals:
+        # the source's output at t_k-1 is what the controller applies from t_k on; nothing before t_1
+        disturbance = np.concatenate([[0.0], result["disturbance"][:-2]])
+        columns["disturbance"] = "disturbance.force_disturbance (one sample later)"
     series = Series(time=t, u=result["force_command"][:-1], v=result["v"][:-1],
-                    position=result["position_measured"][1:], reference=result["reference"][:-1])
+                    position=result["position_measured"][1:], reference=result["reference"][:-1],
+                    disturbance=disturbance)
     existing = len(read_data_file(output).records) if append and output.exists() else 0
     record = Record(index=existing, name=f"{Path(ssp).stem}-{result.engine}-{existing}", source=Path(ssp).name,
-                    source_sha256=file_sha256(ssp), kind="position",
-                    columns={"time": "communication points", "u": "controller.force_command",
-                             "position": "controller.position_measured", "v": "plant.v",
-                             "reference": "reference.position_reference"},
-                    series=series, sample_rate=1.0 / float(t[1] - t[0]),
+                    source_sha256=file_sha256(ssp), kind="position", columns=columns, series=series, sample_rate=1.0 / float(t[1] - t[0]),
                     velocity_estimate="the plant FMU's output v", velocity_cutoff=None, analysis=None,
                     note=f"co-simulated on {result.engine}", intersample="zoh")
     provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
                   "created": utc_now(),
-                  "sources": [Path(ssp).name], "engine": result.engine, "components": list(COMPONENTS)}
+                  "sources": [Path(ssp).name], "engine": result.engine, "components": list(result.components)}
     write_records(output, [record], provenance, append=append, overwrite=run.overwrite)
     return read_data_file(output)

@@ -1,8 +1,10 @@
 """The drive's controller and a reference trajectory as Co-Simulation FMUs (FMI 2.0 and 3.0).
 
-Both are sampled components (fmu/c/sampled_core.c behind the plant's FMI wrappers): the controller runs its law
-(simulation/batch_c/controller_law.h, shared with the loop simulator) at every sample time and holds its force command in between; the reference source
-interpolates a table.  Value references: 0 time, 1… inputs, 100… outputs, 1000… parameters.
+All are sampled components (fmu/c/sampled_core.c behind the plant's FMI wrappers): the controller runs its law
+(simulation/batch_c/controller_law.h, shared with the loop simulator) at every sample time and holds its force
+command in between; a source (the reference, a known disturbance) interpolates a table at the times of the sample
+grid computed from the step index (control/c/source_component.c), so that every engine computes the same values.
+Value references: 0 time, 1… inputs, 100… outputs, 1000… parameters.
 """
 from __future__ import annotations
 
@@ -21,25 +23,31 @@ from ..model.plant import Plant, load_plant
 from ..simulation.closed_loop import CONTROLLER_LAW
 from ..version import __version__
 
-__all__ = ["CONTROLLER_INPUTS", "CONTROLLER_OUTPUTS", "REFERENCE_OUTPUT", "build_controller_fmu",
-           "controller_fmu_from_file", "friction_source", "build_reference_fmu", "controller_variables",
-           "read_reference_csv"]
+__all__ = ["CONTROLLER_INPUTS", "CONTROLLER_OUTPUTS", "REFERENCE_OUTPUT", "DISTURBANCE_OUTPUT",
+           "build_controller_fmu", "controller_fmu_from_file", "friction_source", "build_reference_fmu",
+           "build_disturbance_fmu", "controller_variables", "read_reference_csv", "read_disturbance_csv"]
 
 C_DIR = Path(__file__).resolve().parent / "c"
 VR_TIME, VR_IN0, VR_OUT0, VR_P0 = 0, 1, 100, 1000
 CONTROLLER_INPUTS = (("position_reference", "m", "reference position r"),
-                     ("position", "m", "position of the axis x (the encoder reads it)"))
-CONTROLLER_OUTPUTS = (("force", "N", "force applied to the plant: the delayed command plus the actuator noise"),
-                      ("force_command", "N", "the drive's force command applied from this time on (as logged)"),
+                     ("position", "m", "position of the axis x (the encoder reads it)"),
+                   ("force_disturbance", "N", "known force added after the output limit (a test signal the drive "
+                                              "injects), applied from the next sample on"))
+CONTROLLER_OUTPUTS = (("force", "N", "force applied to the plant: the delayed command plus the actuator noise "
+                                "plus the disturbance"),
+                      ("force_command", "N", "the drive's total force command applied from this time on (as "
+                                             "logged: with the disturbance)"),
                       ("position_measured", "m", "encoder reading of the last sample"),
                       ("velocity_reference", "m/s", "reference velocity of the last sample"))
 REFERENCE_OUTPUT = ("position_reference", "m", "reference position, the table interpolated linearly")
+DISTURBANCE_OUTPUT = ("force_disturbance", "N", "known disturbance force, the table interpolated linearly, one "
+                                                "sample ahead (the controller applies it from the next sample on)")
 CONTROLLER_EQUATIONS = """at every sample t_k = k*sample_time (see controller_law.h):
 y = encoder(x); v_ref = (r - r_prev)/Ts; a_ref = (v_ref - v_ref_prev)/Ts
 v_hat = velocity from the position difference (optionally moving average / first-order filtered)
 e = kp_position*(r - y) + velocity_feedforward*v_ref - v_hat;  I += ki_velocity*Ts*e (held while saturated)
 u_k = clip(kp_velocity*e + I + mass_feedforward*a_ref + friction_feedforward*F_ff(v_ref), -limit, limit)
-force_command = u_(k+1-delay) from t_(k+1) on;  force = force_command + force_noise*N(0,1)"""
+force_command = u_(k+1-delay) + force_disturbance from t_(k+1) on;  force = force_command + force_noise*N(0,1)"""
 
 
 def _variables(inputs, outputs, parameters) -> list[Variable]:
@@ -144,25 +152,64 @@ def read_reference_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return cols["time"], cols["position"]
 
 
-def build_reference_fmu(time: np.ndarray, position: np.ndarray, output: str | Path, fmi_version: int = 3,
-                        name: str = "reference") -> Path:
-    """Write a reference source FMU: output ``position_reference``, the table (``time``, ``position``)
-    interpolated linearly and held outside it."""
-    time, position = np.asarray(time, dtype=float), np.asarray(position, dtype=float)
-    if time.ndim != 1 or time.shape != position.shape or time.size < 2 or np.any(np.diff(time) <= 0) \
-            or not (np.all(np.isfinite(time)) and np.all(np.isfinite(position))):
-        raise UserError("a reference needs at least two finite points with increasing time")
+def read_disturbance_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A known disturbance from a CSV with a header row: columns ``time`` (s, increasing) and ``force`` (N, the
+    force added after the controller's output limit from each time on)."""
+    from ..measurement.records import read_columns
 
-    def c_array(values) -> str:
-        return ", ".join(repr(float(v)) for v in values)
+    cols = read_columns(path, ["time", "force"])
+    return cols["time"], cols["force"]
 
-    table = (f"/* The reference table (generated by servofmu {__version__}). */\n#define REF_N {time.size}L\n"
-             f"static const double ref_t[REF_N] = {{{c_array(time)}}};\n"
-             f"static const double ref_x[REF_N] = {{{c_array(position)}}};\n")
+
+def _build_source_fmu(time, values, output: str | Path, fmi_version: int, name: str, variable: tuple,
+                      sample_time: float, lead: int, what: str) -> Path:
+    """A source FMU: output ``variable`` (name, unit, description), the table interpolated linearly at the sample
+    grid's times computed from the step index, ``lead`` samples ahead (control/c/source_component.c)."""
+    time, values = np.asarray(time, dtype=float), np.asarray(values, dtype=float)
+    if time.ndim != 1 or time.shape != values.shape or time.size < 2 or np.any(np.diff(time) <= 0) \
+            or not (np.all(np.isfinite(time)) and np.all(np.isfinite(values))):
+        raise UserError(f"a {what} needs at least two finite points with increasing time")
+    if not (np.isfinite(sample_time) and sample_time > 0):
+        raise UserError(f"a {what} source needs a positive sample time, not {sample_time}")
+
+    def c_array(items) -> str:
+        return ", ".join(repr(float(v)) for v in items)
+
+    table = (f"/* The {what} table (generated by servofmu {__version__}). */\n#define SRC_N {time.size}L\n"
+             f"#define SRC_TS {float(sample_time)!r}\n#define SRC_LEAD {int(lead)}\n"
+             f"static const double src_t[SRC_N] = {{{c_array(time)}}};\n"
+             f"static const double src_x[SRC_N] = {{{c_array(values)}}};\n")
     config = _config(name, 0, 1, [], table)
-    summary = (f"Reference trajectory '{name}': {time.size} points from {time[0]:g} s to {time[-1]:g} s, "
-               "interpolated linearly.")
-    return assemble_fmu(name, output, fmi_version, _variables([], [REFERENCE_OUTPUT], []),
-                        _sampled_sources("reference_component", config, {"reference_table.h": table}),
-                        ["sampled_core.c", "reference_component.c"], summary, "position_reference = table(t)",
-                        title=f"{name} — reference trajectory (FMI {fmi_version}.0)", continuous=False)
+    summary = (f"{what.capitalize()} '{name}': {time.size} points from {time[0]:g} s to {time[-1]:g} s, interpolated "
+               f"linearly at the samples k*{sample_time:g} s" + (f", {lead} sample(s) ahead." if lead else "."))
+    return assemble_fmu(name, output, fmi_version, _variables([], [variable], []),
+                        _sampled_sources("source_component", config, {"source_table.h": table}),
+                        ["sampled_core.c", "source_component.c"], summary, f"{variable[0]} = table(t)",
+                        title=f"{name} — {what} (FMI {fmi_version}.0)", continuous=False)
+
+
+def build_reference_fmu(time: np.ndarray, position: np.ndarray, output: str | Path, fmi_version: int = 3,
+                        name: str = "reference", sample_time: float = 1e-3) -> Path:
+    """Write a reference source FMU: output ``position_reference``, the table (``time``, ``position``)
+    interpolated linearly and held outside it, evaluated at the times k·``sample_time`` (s, the controller's)
+    computed from the step index."""
+    return _build_source_fmu(time, position, output, fmi_version, name, REFERENCE_OUTPUT, sample_time, 0,
+                             "reference trajectory")
+
+
+def build_disturbance_fmu(time: np.ndarray, force: np.ndarray, output: str | Path, fmi_version: int = 3,
+                          name: str = "disturbance", sample_time: float = 1e-3) -> Path:
+    """Write a disturbance source FMU: output ``force_disturbance`` (N), the table (``time``, ``force``)
+    interpolated linearly and held outside it, one sample of ``sample_time`` (s) ahead: the controller FMU adds
+    it after its output limit from the next sample on, so that the force of the table's time t_k is applied from
+    t_k on.  Both engines start every connection at 0 (and the source starts at 0): the table is 0 at the first
+    two samples."""
+    time, force = np.asarray(time, dtype=float), np.asarray(force, dtype=float)
+    if time.shape == force.shape and time.size and np.all(np.isfinite(force)):
+        first = np.interp([0.0, sample_time], time, force)
+        if np.any(first != 0):
+            raise UserError(f"a disturbance is 0 at the first two samples (0 and {sample_time:g} s; the engines start "
+                            f"every connection at 0 and the controller applies it from the next sample on), not "
+                            f"{first[0]:g} and {first[1]:g} N")
+    return _build_source_fmu(time, force, output, fmi_version, name, DISTURBANCE_OUTPUT, sample_time, 1,
+                             "disturbance")

@@ -1,6 +1,7 @@
-"""An axis as a system of FMUs in a standard SSP archive (SSP 1.0): reference source → controller ⇄ plant.
+"""An axis as a system of FMUs in a standard SSP archive (SSP 1.0): reference source → controller ⇄ plant, and
+optionally a disturbance source → controller.
 
-The archive holds SystemStructure.ssd, the three FMUs under resources/, and the controller's parameter values in
+The archive holds SystemStructure.ssd, the FMUs under resources/, and the controller's parameter values in
 resources/controller.ssv (a ParameterBinding of the controller component).  The default experiment carries the
 controller's sample time as the fixed communication step, in the annotation libcosim reads
 (com.opensimulationplatform FixedStepAlgorithm).  Connections:
@@ -8,6 +9,7 @@ controller's sample time as the fixed communication step, in the annotation libc
     reference.position_reference → controller.position_reference
     plant.position               → controller.position
     controller.force             → plant.u
+    disturbance.force_disturbance → controller.force_disturbance   (with a disturbance source)
 
 libcosim and FMPy's SSP runner use FMI 2.0 Co-Simulation, so the FMUs of a system are FMI 2.0 (docs/control.md).
 """
@@ -26,9 +28,17 @@ from ..fileio import atomic_write, claim_output, output_mode, write_failures
 from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import FmuInfo, read_fmu
 from ..model.controller import PARAMETERS, ControllerSpec
-from .fmus import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, REFERENCE_OUTPUT, build_reference_fmu
+from .fmus import (
+    CONTROLLER_INPUTS,
+    CONTROLLER_OUTPUTS,
+    DISTURBANCE_OUTPUT,
+    REFERENCE_OUTPUT,
+    build_disturbance_fmu,
+    build_reference_fmu,
+)
 
-__all__ = ["System", "write_system", "read_system", "controller_from_fmu", "parameter_set_xml", "COMPONENTS"]
+__all__ = ["System", "write_system", "read_system", "controller_from_fmu", "parameter_set_xml", "COMPONENTS",
+           "DISTURBANCE"]
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -38,21 +48,27 @@ COMPONENTS = ("reference", "controller", "plant")
 CONNECTIONS = (("reference", "position_reference", "controller", "position_reference"),
                ("plant", "position", "controller", "position"),
                ("controller", "force", "plant", "u"))
+DISTURBANCE = "disturbance"  # the optional component, and its connection
+DISTURBANCE_CONNECTION = (DISTURBANCE, DISTURBANCE_OUTPUT[0], "controller", DISTURBANCE_OUTPUT[0])
+# what a controller FMU must have to be servofmu's (one built before the disturbance input existed runs without one)
+_CONTROLLER_VARIABLES = [n for n, _, _ in CONTROLLER_INPUTS + CONTROLLER_OUTPUTS if n != DISTURBANCE_OUTPUT[0]]
 PLANT_CONNECTORS = (("u", "input"), ("v", "output"), ("position", "output"))
 
 
 @dataclass(frozen=True)
 class System:
     """What an axis archive holds: its folder once extracted, the controller's parameter values, the
-    communication step (the sample time) and the reference's duration."""
+    communication step (the sample time), the reference's duration and its components (COMPONENTS, and
+    DISTURBANCE when it has a disturbance source)."""
 
     folder: Path
     controller: dict
     step_size: float
     stop_time: float
+    components: tuple = COMPONENTS
 
     def fmu(self, component: str) -> Path:
-        """The extracted FMU of a component ("plant", "controller" or "reference")."""
+        """The extracted FMU of a component ("plant", "controller", "reference" or "disturbance")."""
         return self.folder / "resources" / f"{component}.fmu"
 
 
@@ -64,7 +80,7 @@ def controller_from_fmu(path: str | Path) -> ControllerSpec:
     """The controller an FMU built by servofmu was made of (its parameters' start values)."""
     info = read_fmu(path)
     missing = [p.name for p in PARAMETERS if p.name not in info.variables]
-    missing += [n for n, _, _ in CONTROLLER_INPUTS + CONTROLLER_OUTPUTS if n not in info.variables]
+    missing += [n for n in _CONTROLLER_VARIABLES if n not in info.variables]
     if missing:
         raise UserError(f"{path}: not a servofmu controller FMU (it has no variable {missing[0]!r})")
     return ControllerSpec(info.model_name, tuple(float(info.variables[p.name].start) for p in PARAMETERS),
@@ -80,7 +96,7 @@ def _check_fmi2_cs(path: Path, role: str) -> FmuInfo:
     return info
 
 
-def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict) -> bytes:
+def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict, connections) -> bytes:
     ET.register_namespace("ssd", SSD)
     ET.register_namespace("ssc", SSC)
     ET.register_namespace("osp", OSP)
@@ -88,7 +104,7 @@ def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict) -> byte
     system = ET.SubElement(root, _tag(SSD, "System"), {"name": "axis", "description":
                                                        "reference source, drive controller and plant"})
     elements = ET.SubElement(system, _tag(SSD, "Elements"))
-    for name in COMPONENTS:
+    for name in connectors:
         comp = ET.SubElement(elements, _tag(SSD, "Component"), {"name": name, "source": f"resources/{name}.fmu",
                                                                  "type": "application/x-fmu-sharedlibrary"})
         conns = ET.SubElement(comp, _tag(SSD, "Connectors"))
@@ -99,9 +115,9 @@ def _ssd(controller: ControllerSpec, stop_time: float, connectors: dict) -> byte
             bindings = ET.SubElement(comp, _tag(SSD, "ParameterBindings"))
             ET.SubElement(bindings, _tag(SSD, "ParameterBinding"), {"source": "resources/controller.ssv",
                                                                     "type": "application/x-ssp-parameter-set"})
-    connections = ET.SubElement(system, _tag(SSD, "Connections"))
-    for a, ac, b, bc in CONNECTIONS:
-        ET.SubElement(connections, _tag(SSD, "Connection"), {"startElement": a, "startConnector": ac,
+    connections_element = ET.SubElement(system, _tag(SSD, "Connections"))
+    for a, ac, b, bc in connections:
+        ET.SubElement(connections_element, _tag(SSD, "Connection"), {"startElement": a, "startConnector": ac,
                                                              "endElement": b, "endConnector": bc})
     experiment = ET.SubElement(root, _tag(SSD, "DefaultExperiment"), {"startTime": "0.0",
                                                                       "stopTime": repr(float(stop_time))})
@@ -126,7 +142,8 @@ def parameter_set_xml(values: dict) -> bytes:
 
 
 def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: tuple[np.ndarray, np.ndarray],
-                 output: str | Path, controller: ControllerSpec | None = None, overwrite: bool = False) -> Path:
+                 output: str | Path, controller: ControllerSpec | None = None, overwrite: bool = False,
+                 disturbance: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write the SSP archive of an axis.
 
     Parameters
@@ -139,10 +156,14 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
         The .ssp archive to write (atomically).
     controller : ControllerSpec, optional
         The controller parameter values to bind (default: the controller FMU's own).
-
-    Returns
     overwrite : bool
         Replace an existing ``output``; without it an existing file is refused.
+    disturbance : tuple of ndarray, optional
+        A known disturbance: times (s) and forces (N) that the controller adds after its output limit, the force
+        of time t_k applied from t_k on (a disturbance source FMU, connected to ``force_disturbance``); 0 at the
+        first two samples.
+
+    Returns
     -------
     Path
         The archive written.
@@ -150,27 +171,41 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
     Raises
     ------
     UserError
-        For FMUs that are not FMI 2.0 Co-Simulation, a plant without ``u``/``v``/``position``, a bad reference.
+        For FMUs that are not FMI 2.0 Co-Simulation, a plant without ``u``/``v``/``position``, a bad reference or
+        disturbance, a disturbance for a controller FMU without the ``force_disturbance`` input.
     """
     output = claim_output(output, output_mode(overwrite), inputs=(plant_fmu, controller_fmu))
     plant_fmu, controller_fmu = Path(plant_fmu), Path(controller_fmu)
     plant = _check_fmi2_cs(plant_fmu, "plant")
     plant.require(*(n for n, _ in PLANT_CONNECTORS))
-    _check_fmi2_cs(controller_fmu, "controller")
+    variables = _check_fmi2_cs(controller_fmu, "controller").variables
     controller = controller or controller_from_fmu(controller_fmu)
+    if disturbance is not None and DISTURBANCE_OUTPUT[0] not in variables:
+        raise UserError(f"{controller_fmu}: the controller FMU has no input {DISTURBANCE_OUTPUT[0]!r} for the "
+                        "disturbance (built by an older servofmu: build it again with `servofmu controller`)")
     time, position = reference
     connectors = {"reference": [(REFERENCE_OUTPUT[0], "output")],
-                  "controller": [(n, "input") for n, _, _ in CONTROLLER_INPUTS]
+                  "controller": [(n, "input") for n, _, _ in CONTROLLER_INPUTS
+                                 if n in variables and (disturbance is not None or n != DISTURBANCE_OUTPUT[0])]
                   + [(n, "output") for n, _, _ in CONTROLLER_OUTPUTS],
                   "plant": list(PLANT_CONNECTORS)}
+    connections = CONNECTIONS
+    if disturbance is not None:
+        connectors[DISTURBANCE] = [(DISTURBANCE_OUTPUT[0], "output")]
+        connections = CONNECTIONS + (DISTURBANCE_CONNECTION,)
     with temporary_folder("ssp") as tmp:
-        ref_fmu = build_reference_fmu(time, position, Path(tmp) / "reference.fmu", fmi_version=2)
+        fmus = {"reference": build_reference_fmu(time, position, Path(tmp) / "reference.fmu", fmi_version=2,
+                                                 sample_time=controller.sample_time),
+                "controller": controller_fmu, "plant": plant_fmu}
+        if disturbance is not None:
+            fmus[DISTURBANCE] = build_disturbance_fmu(*disturbance, Path(tmp) / "disturbance.fmu", fmi_version=2,
+                                                      sample_time=controller.sample_time)
         buffer = io.BytesIO()
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
-            zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors))
+            zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors, connections))
             zf.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
                                                                  controller.values))))
-            for name, path in (("reference", ref_fmu), ("controller", controller_fmu), ("plant", plant_fmu)):
+            for name, path in fmus.items():
                 zf.write(path, f"resources/{name}.fmu")
     atomic_write(output, buffer.getvalue())
     return output
@@ -198,7 +233,8 @@ def _check_connections(path: Path, root: ET.Element, fmus: dict[str, Path]) -> N
                 raise UserError(f"{path}: the connection {ends[0]}.{ends[1]} → {ends[2]}.{ends[3]} needs "
                                 f"{element}.{connector} to be an {role}, not an {kind}")
         found.add(ends)
-    for a, ac, b, bc in CONNECTIONS:
+    required = CONNECTIONS + ((DISTURBANCE_CONNECTION,) if DISTURBANCE in fmus else ())
+    for a, ac, b, bc in required:
         if (a, ac, b, bc) not in found:
             raise UserError(f"{path}: the system does not connect {a}.{ac} to {b}.{bc}")
 
@@ -220,10 +256,10 @@ def read_system(path: str | Path, folder: str | Path) -> System:
     except (OSError, ET.ParseError) as exc:
         raise UserError(f"{path}: no readable SystemStructure.ssd ({exc})") from exc
     sources = {c.get("name"): c.get("source") for c in root.iter(_tag(SSD, "Component"))}
-    for name in COMPONENTS:
+    for name in COMPONENTS + tuple(n for n in sources if n not in COMPONENTS):
         if name not in sources:
             raise UserError(f"{path}: the system has no component {name!r}")
-        if not (folder / sources[name]).is_file():
+        if not sources[name] or not (folder / sources[name]).is_file():
             raise UserError(f"{path}: the component {name!r} names a missing FMU ({sources[name]})")
     _check_connections(path, root, {name: folder / src for name, src in sources.items()})
     step = root.find(f".//{_tag(OSP, 'FixedStepAlgorithm')}")
@@ -237,4 +273,5 @@ def read_system(path: str | Path, folder: str | Path) -> System:
             real = p.find(_tag(SSV, "Real"))
             values[p.get("name")] = float(real.get("value"))
     return System(folder=folder, controller=values, step_size=float(step.get("baseStepSize")),
-                  stop_time=float(experiment.get("stopTime")))
+                  stop_time=float(experiment.get("stopTime")),
+                  components=COMPONENTS + ((DISTURBANCE,) if DISTURBANCE in sources else ()))

@@ -1,6 +1,8 @@
-/* The drive's controller as a sampled FMU component (sampled_core.h): inputs position_reference and position,
- * outputs force (applied: the delayed command plus actuator noise), force_command, position_measured (the
- * encoder reading) and velocity_reference of the last sample; the law is controller_law.h. */
+/* The drive's controller as a sampled FMU component (sampled_core.h): inputs position_reference, position and
+ * force_disturbance (a known force injected after the output limit), outputs force (applied: the delayed command
+ * plus actuator noise plus the disturbance), force_command (as logged: the delayed command plus the disturbance),
+ * position_measured (the encoder reading) and velocity_reference of the last sample; the law is
+ * controller_law.h. */
 #include "sampled_core.h"
 
 static const double low[CP_COUNT] = CP_LOW, high[CP_COUNT] = CP_HIGH;
@@ -21,10 +23,13 @@ const char *sc_parameters_error(const double *p) {
     return NULL;
 }
 
+/* The disturbance input as set at the step's start is applied from the step's end on (the exchange's delay: a
+ * source that leads by one sample makes up for it, servofmu.control.fmus.build_disturbance_fmu). */
 static void outputs(SvInstance *inst) {
-    const CtrlState *law = &inst->s.c.law;
-    inst->s.out[0] = law->applied;
-    inst->s.out[1] = law->command_out;
+    CtrlState *law = &inst->s.c.law;
+    ctrl_inject(law, inst->s.in[2]);
+    inst->s.out[0] = law->total_applied;
+    inst->s.out[1] = law->total_command;
     inst->s.out[2] = law->last_y;
     inst->s.out[3] = law->last_v_ref;
 }

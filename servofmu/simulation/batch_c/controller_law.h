@@ -15,7 +15,9 @@
  * F_ff(v) = g+(v)·max(t, 0) + g−(v)·min(t, 0) + fv·v with t = tanh(v/v_smooth), g±(v) = fc± + (fs± − fc±)·
  * exp(−(v/vs)²): the steady friction of the plant model.  The command u_k is applied from t_{k+delay} (delay ≥ 1:
  * the drive computes during the sample).  Actuator noise (force_noise > 0): a Gaussian sample per controller
- * sample (seeded, platform independent) added to the applied force, not to the logged command. */
+ * sample (seeded, platform independent) added to the applied force, not to the logged command.  A known
+ * disturbance d (a test signal the drive injects: force pulses, a noise burst) is added after the output limit,
+ * to the force applied and to the command as the drive logs it (ctrl_inject). */
 #ifndef CONTROLLER_LAW_H
 #define CONTROLLER_LAW_H
 
@@ -36,6 +38,7 @@ typedef struct {
     unsigned long long rng;
     double last_y, last_v_ref;           /* of the last sample: the encoder reading and the reference velocity */
     double command_out, applied;         /* the command applied from the next sample on; with actuator noise */
+    double total_command, total_applied; /* the same with the injected disturbance (ctrl_inject) */
 } CtrlState;
 
 static double ctrl_encoder(const double *p, double x) {
@@ -102,6 +105,13 @@ static double ctrl_sample(CtrlState *s, const double *p, double r, double x) {
     s->applied = s->command_out + (p[CP_FORCE_NOISE] > 0.0 ? p[CP_FORCE_NOISE] * ctrl_gaussian(s) : 0.0);
     s->k++;
     return u;
+}
+
+/* The disturbance d (N) injected after the output limit over the coming sample: the total command (as logged)
+ * and the total force applied. */
+static void ctrl_inject(CtrlState *s, double d) {
+    s->total_command = s->command_out + d;
+    s->total_applied = s->applied + d;
 }
 
 #endif

@@ -37,8 +37,9 @@ static void loop_task(const void *input, const double *params, int n_plant, doub
     for (k = 0; k < n; ++k) {
         x[k] = y[NS];
         v[k] = y[0];
-        command[k] = (k == 0 ? 0.0 : law.command_out) + (d ? d[k] : 0.0);
-        pb.u0 = (k == 0 ? 0.0 : law.applied) + (d ? d[k] : 0.0);
+        ctrl_inject(&law, d ? d[k] : 0.0); /* before the first sample the law's command is 0 (ctrl_reset) */
+        command[k] = law.total_command;
+        pb.u0 = law.total_applied;
         pb.slope = 0.0;
         ctrl_sample(&law, cp, r[k], y[NS]);
         if (k + 1 < n && integrate(&ev, &pb, y, 0.0, t[k + 1] - t[k], &h) != 0) {
