@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -24,8 +25,9 @@ FORCE_CONSTANT = 35.0  # N/V
 KP_POSITION, KV_VOLTS, LIMIT_VOLTS = 40.0, 60.0, 10.0
 PULSE_VOLTS = 5.0
 CLOCK_FAST, JITTER = 8e-6, 2e-5  # the stamps' clock rate error and RMS jitter, relative to a sample
-# The axis: mass, viscous damping, Stribeck friction (N, m/s); v_smooth as in the structure file.
-MASS, DAMPING = 25.0, 60.0
+# The axis: mass, viscous damping, a constant load force (N; gravity on an incline), Stribeck friction (N, m/s);
+# v_smooth as in the structure file.
+MASS, DAMPING, LOAD_OFFSET = 25.0, 60.0, -30.0
 FRICTION = {"fc_pos": 30.0, "fc_neg": 24.0, "fs_pos": 45.0, "fs_neg": 38.0, "vs": 0.01, "v_smooth": 1e-3}
 
 CONTROLLER = f"""name = "volt_drive"
@@ -55,11 +57,14 @@ fs_pos = 50.0
 fs_neg = 33.0
 vs = 0.012
 v_smooth = 1e-3
+[load]
+offset = -20.0
 """
 
 
 def true_parameters() -> dict:
-    return {"pole1": -DAMPING / MASS, "gain": 1.0 / MASS, **{k: v for k, v in FRICTION.items() if k != "v_smooth"}}
+    return {"pole1": -DAMPING / MASS, "gain": 1.0 / MASS, **{k: v for k, v in FRICTION.items() if k != "v_smooth"},
+            "offset": LOAD_OFFSET}
 
 
 def friction(v: float) -> float:
@@ -71,7 +76,8 @@ def friction(v: float) -> float:
 
 
 def drive_log(reference: np.ndarray, pulses: np.ndarray, seed: int, encoder: float = 0.0) -> dict:
-    """The drive's log of one run: the axis integrated by scipy (DOP853, rtol 1e-12) between the samples k·TS,
+    """The drive's log of one run: the axis (a constant load force on it) integrated by scipy (DOP853, rtol 1e-12)
+    between the samples k·TS,
     the cascade computed in volts at every sample from the encoder (quantum ``encoder`` m, 0: exact), its output
     clipped to ±10 V and applied from the next sample on, the pulses (V) added after the limit.  Logged per sample:
     the drive's time stamp, the reference, the encoder, the total output (V) and the pulse (V)."""
@@ -90,7 +96,7 @@ def drive_log(reference: np.ndarray, pulses: np.ndarray, seed: int, encoder: flo
         force = FORCE_CONSTANT * total
 
         def rhs(_, s, force=force):
-            return [(force - DAMPING * s[0] - friction(s[0])) / MASS, s[0]]
+            return [(force + LOAD_OFFSET - DAMPING * s[0] - friction(s[0])) / MASS, s[0]]
 
         state = solve_ivp(rhs, (0.0, TS), state, method="DOP853", rtol=1e-12, atol=1e-15).y[:, -1]
     rng = np.random.default_rng(seed)
@@ -176,10 +182,11 @@ def test_drive_logs_are_identified_exactly_and_replay_a_second_log(logs):
 
     # the second log, with a 1 µm encoder: the identified model replays it as well as the true plant does
     assert run("import", folder / "c.csv", *IMPORT, "-o", folder / "val.h5").returncode == 0
-    true_result = folder / "truth.h5"
-    write_truth(result, true_result)
+    write_truth(result, folder / "truth.h5")
+    write_truth(result, folder / "wrong.h5", friction_scale=0.8)  # 20 % too little friction
     fits = {}
-    for name, path in (("identified", folder / "r.h5"), ("truth", true_result)):
+    for name in ("identified", "truth", "wrong"):
+        path = folder / ("r.h5" if name == "identified" else f"{name}.h5")
         proc = run("validate", path, folder / "val.h5", "--closed-loop", folder / "drive.toml", "--json")
         assert proc.returncode in (0, 1), proc.stderr
         fits[name] = json.loads(proc.stdout)
@@ -188,18 +195,19 @@ def test_drive_logs_are_identified_exactly_and_replay_a_second_log(logs):
     assert fit[("c", "position")] > 99 and fit[("c", "force")] > 80, fit
     assert 100 - fit[("c", "force")] <= 1.1 * (100 - true_fit[("c", "force")]), (fit, true_fit)
     assert true_fit[("c", "force")] < 99.9  # the encoder's quantisation is a replay error of its own
+    wrong_fit = {(r["name"], r["output"]): r["fit_percent"] for r in fits["wrong"]["records"]}
+    assert 100 - wrong_fit[("c", "force")] > 1.1 * (100 - true_fit[("c", "force")]), (wrong_fit, true_fit)
 
 
-def write_truth(result, path) -> None:
-    """A result file holding the true plant (the generator's), for the replay of the same log."""
+def write_truth(result, path, friction_scale: float = 1.0) -> None:
+    """A result file holding the true plant (the generator's; its friction levels scaled by ``friction_scale``),
+    for the replay of the same log."""
     from servofmu.identification.results import write_result
 
     names = [n for n, m in zip(result.plant.parameter_names(), identified_mask(result.plant)) if m]
-    theta = np.array([true_parameters()[n] for n in names])
+    theta = np.array([true_parameters()[n] * (friction_scale if n[:3] in ("fc_", "fs_") else 1.0) for n in names])
     full = result.plant.parameter_vector().copy()
     full[identified_mask(result.plant)] = theta
-    from dataclasses import replace
-
     write_result(path, replace(result, plant=result.plant.with_parameters(full), theta=theta,
                                intervals=np.stack([theta, theta], axis=1)))
 
