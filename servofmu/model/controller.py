@@ -18,7 +18,7 @@ from .friction import viscous_damping
 from .plant import Plant
 
 __all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
-           "controller_from_dict", "friction_feedforward", "params_header"]
+           "controller_from_dict", "controller_toml", "friction_feedforward", "params_header"]
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,9 @@ _FILE_KEYS = {
     "feedforward": {"velocity": "velocity_feedforward", "mass": "mass_feedforward"},
     "output": {"limit": "force_limit"},
     "encoder": {"resolution": "encoder_resolution"},
-    "compensation": {"v_smooth": "ff_v_smooth"},
+    "compensation": {"v_smooth": "ff_v_smooth", "share": "friction_feedforward", "fc_pos": "ff_fc_pos",
+                     "fc_neg": "ff_fc_neg", "fs_pos": "ff_fs_pos", "fs_neg": "ff_fs_neg", "vs": "ff_vs",
+                     "fv": "ff_fv"},
 }
 _REQUIRED = ("sample_time", "kp_velocity")
 
@@ -168,6 +170,25 @@ def controller_from_dict(data: dict, source: str = "<memory>") -> ControllerSpec
             fail(next(f"{s}.{k}".lstrip(".") for s, keys in _FILE_KEYS.items() for k, p in keys.items()
                       if p == parameter), "missing")
     return ControllerSpec(name, tuple(values[p.name] for p in PARAMETERS), source)
+
+
+def controller_toml(spec: ControllerSpec, comment: str = "") -> str:
+    """The controller file's text that :func:`load_controller` reads back to ``spec`` (every key written, values
+    exact); ``comment`` lines go at its top as TOML comments.  Runtime values that are no part of a drive's
+    settings (actuator noise and its seed) are left out."""
+    lines = [f"# {line}".rstrip() for line in comment.splitlines()] + [f'name = "{spec.name}"']
+    for section, keys in _FILE_KEYS.items():
+        if section:
+            lines += ["", f"[{section}]"]
+        for key, parameter in keys.items():
+            value = spec[parameter]
+            if parameter == "velocity_filter":
+                lines.append(f'{key} = "{FILTERS[int(value)]}"')
+            elif PARAMETERS[INDEX[parameter]].integer:
+                lines.append(f"{key} = {int(value)}")
+            else:
+                lines.append(f"{key} = {float(value)!r}")
+    return "\n".join(lines) + "\n"
 
 
 def load_controller(path: str | Path) -> ControllerSpec:

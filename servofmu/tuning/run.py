@@ -1,0 +1,164 @@
+"""`servofmu tune`'s work: the drive's gains for an identified axis, beside its given gains and the reference rule,
+each judged on the model (linearised loop, simulated task and step) and, given the axis, on its co-simulation.
+
+The result of identification must be of the axis the controller drives: the controller's gains and mass
+feed-forward are read against the identified mass, and a model whose velocity loop they would put beyond the
+Nyquist frequency or far below any drive's (or whose mass is 20 times off the feed-forward's) is refused —
+tuning a drive on another plant's model writes gains that fit neither.
+"""
+from __future__ import annotations
+
+import time as clock
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import UserError
+from ..identification.results import Result
+from ..model.controller import ControllerSpec, friction_feedforward, load_controller
+from ..simulation.closed_loop import LoopSimulator
+from .check import AxisRun, Figures, check_on_axis, step_drive, tracking_figures
+from .loop import LoopAnalysis, analyse_loop, axis_mass, sensitivity_peak
+from .rule import tune_rule
+from .search import TuneOptions, TuneSearch, Uncertainty, search_gains, tracking_errors, uncertainty_sets
+from .task import Task, check_task, step_task
+
+__all__ = ["METHODS", "Tuning", "ModelRun", "check_pairing", "tune_axis", "step_for"]
+
+METHODS = ("pso", "rule")
+MASS_MISMATCH = 20.0  # a mass feed-forward this many times off the identified mass: another axis
+
+
+def check_pairing(result: Result, controller: ControllerSpec, source: str) -> float:
+    """The identified mass (kg), after checking that the result is of the axis ``controller`` drives (the
+    module's docstring): its closed-loop identification, if any, ran with a drive of the same sample time and
+    delay; the controller's velocity loop on the identified mass lies between 10⁻⁴ of and the Nyquist
+    frequency; its mass feed-forward, if any, within a factor of 20 of the identified mass."""
+    mass = axis_mass(result.plant)
+    ctrl_file = result.provenance.get("controller_file")
+    if ctrl_file:
+        try:
+            logged = load_controller(ctrl_file)
+        except UserError:
+            logged = None  # the file has moved: nothing to compare with
+        if logged is not None and any(abs(logged[n] - controller[n]) > 1e-12 * abs(controller[n])
+                                      for n in ("sample_time", "delay")):
+            raise UserError(f"{source}: identified in the loop of {ctrl_file} (sample time {logged.sample_time:g} s, "
+                            f"delay {logged['delay']:g}), not of {controller.source}'s drive: a result of another "
+                            "axis")
+    omega_ts = controller["kp_velocity"] / mass * controller.sample_time
+    ff = controller["mass_feedforward"]
+    if not 1e-4 <= omega_ts <= np.pi or (ff > 0 and not 1 / MASS_MISMATCH <= ff / mass <= MASS_MISMATCH):
+        raise UserError(f"{source}: the identified plant {result.plant.name} (a mass of {mass:.4g} kg) is not the "
+                        f"axis of {controller.source} (its velocity gain puts the loop at "
+                        f"{omega_ts / controller.sample_time / (2 * np.pi):.3g} Hz on it, its mass feed-forward is "
+                        f"{ff:g} kg): a result of another plant")
+    return mass
+
+
+def step_for(task: Task, controllers: list[ControllerSpec]) -> Task:
+    """The step the controllers are compared on: 1 % of the task's span, lowered so that no controller's first
+    command (kp_velocity·kp_position·height, feed-forward off) exceeds half the output limit; long enough for
+    the slowest position loop to settle (10/kp_position, 0.3 to 5 s)."""
+    c0 = controllers[0]
+    stiffest = max(c["kp_velocity"] * max(c["kp_position"], 1e-12) for c in controllers)
+    height = min(0.01 * task.span, 0.5 * c0["force_limit"] / stiffest)
+    slowest = min(max(c["kp_position"], 1e-12) for c in controllers)
+    return step_task(height, float(np.clip(10.0 / slowest, 0.3, 5.0)), c0.sample_time)
+
+
+@dataclass(frozen=True)
+class ModelRun:
+    """A controller on the identified model: its settings, the linearised loop, the largest sensitivity peak over
+    the corners of G's 95 % box, the worst RMS tracking error over the uncertainty set (m), the figures on the
+    nominal model and its simulated task and step (position, velocity at the samples)."""
+
+    controller: ControllerSpec
+    loop: LoopAnalysis
+    worst_peak: float
+    worst_rms: float
+    figures: Figures
+    position: np.ndarray
+    v: np.ndarray
+    step_position: np.ndarray
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """What `servofmu tune` found: the model, task and step, the method, every controller's :class:`ModelRun`
+    (labels "given", "rule" and, for the swarm, "tuned"), the rule's a, the swarm's search, the axis's runs
+    (or None) and the run time (s)."""
+
+    result: Result
+    task: Task
+    step: Task
+    method: str
+    options: TuneOptions
+    compensate: bool
+    runs: dict[str, ModelRun]
+    rule_a: float
+    search: TuneSearch | None
+    axis_runs: list[AxisRun] | None
+    seconds: float
+    uncertainty: Uncertainty = field(repr=False, default=None)
+
+    @property
+    def chosen(self) -> str:
+        """The label of the controller the tuning writes: "tuned" (swarm) or "rule"."""
+        return "tuned" if self.method == "pso" else "rule"
+
+    @property
+    def controller(self) -> ControllerSpec:
+        """The controller the tuning writes."""
+        return self.runs[self.chosen].controller
+
+
+def _model_run(uncertainty: Uncertainty, simulator: LoopSimulator, task: Task, step: Task,
+               controller: ControllerSpec, rtol: float) -> ModelRun:
+    nominal = uncertainty.nominal
+    loop = analyse_loop(nominal, controller)
+    worst_peak = max(sensitivity_peak(p, controller, points=3000) for p in uncertainty.linear_corners)
+    worst = float(np.max(tracking_errors(simulator, uncertainty.sets, task, controller, rtol)))
+    on_task = simulator.simulate_loop(nominal.parameter_vector()[None], task.time, task.position, controller,
+                                      rtol=rtol)
+    on_step = simulator.simulate_loop(nominal.parameter_vector()[None], step.time, step.position,
+                                      step_drive(controller), rtol=rtol)
+    figures = tracking_figures(task, on_task.position[0], on_task.v[0], step, on_step.position[0])
+    return ModelRun(controller, loop, worst_peak, worst, figures, on_task.position[0], on_task.v[0],
+                    on_step.position[0])
+
+
+def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: TuneOptions = TuneOptions(),
+              method: str = "pso", compensate: bool = False, axis=None, engine: str = "libcosim",
+              progress=None, source: str = "the result") -> Tuning:
+    """Tune the drive ``controller`` for the identified axis ``result`` on ``task``.
+
+    The swarm (``method="pso"``, servofmu.tuning.search) or the reference rule (``"rule"``,
+    servofmu.tuning.rule) at the sensitivity bound of ``options``; with ``compensate`` the identified friction
+    is fed forward in every controller compared.  Given ``axis`` (an SSP archive), the given, the rule's and the
+    tuned controller are also co-simulated on it (servofmu.tuning.check).  ``progress(done, total)`` follows the
+    swarm's iterations; ``source`` names the result in messages.  Raises UserError for a result of another axis, an infeasible task or an unreachable
+    bound; nothing is written here."""
+    if method not in METHODS:
+        raise UserError(f"--method must be one of {', '.join(METHODS)}, not {method!r}")
+    started = clock.perf_counter()
+    plant = result.plant
+    mass = check_pairing(result, controller, source)
+    check_task(task, plant, controller, mass)
+    base = friction_feedforward(controller, plant) if compensate else controller
+    uncertainty = uncertainty_sets(plant, result.theta, result.intervals, options.draws, options.seed)
+    rule, rule_a = tune_rule(plant, base, options.max_sensitivity, uncertainty.linear_corners)
+    controllers = {"given": base, "rule": rule}
+    search = None
+    if method == "pso":
+        search = search_gains(uncertainty, base, task, options, starts=[rule], progress=progress)
+        controllers["tuned"] = search.controller
+    step = step_for(task, list(controllers.values()))
+    simulator = LoopSimulator(plant, threads=options.threads)
+    runs = {label: _model_run(uncertainty, simulator, task, step, c, options.rtol)
+            for label, c in controllers.items()}
+    axis_runs = None
+    if axis is not None:
+        axis_runs = check_on_axis(axis, controllers, task, step, engine)
+    return Tuning(result, task, step, method, options, compensate, runs, rule_a, search, axis_runs,
+                  clock.perf_counter() - started, uncertainty)
