@@ -224,3 +224,17 @@ def test_libcosimpy_runs_fmi2_cosimulation_and_agrees_with_fmpy(built_fmu, fmu_l
     v = libcosim_cosimulation(built_fmu(name, 2), fmu_layout(name), amplitude, frequency)
     assert np.abs(v - fmpy_v(name, 2, amplitude, frequency, "cs")[1:]).max() < TOL_SAME_INTEGRATOR
     assert np.abs(v - fmpy_v(name, 2, amplitude, frequency, "me")[1:]).max() < TOL_INTEGRATORS
+
+
+def test_the_frequency_of_a_long_record_is_found_in_a_bounded_search():
+    """A record longer than the search's samples (a 16 kHz log of minutes) is thinned for the search, at eight
+    samples a period or more: its frequency still to far below its noise; an ordinary record is searched whole."""
+    from servofmu.measurement.frf import SEARCH_SAMPLES, estimate_frequency
+
+    rng = np.random.default_rng(1)
+    for n, dt, f0 in [(4 * SEARCH_SAMPLES, 1 / 16000, 37.3), (3 * SEARCH_SAMPLES, 1e-3, 0.8), (20000, 1e-3, 3.1)]:
+        t = np.arange(n) * dt
+        u = 2.0 * np.sin(2 * np.pi * f0 * t + 0.4) + 0.05 * rng.normal(size=n)
+        f, fraction = estimate_frequency(t, u)
+        assert abs(f / f0 - 1) < 1e-5, (n, f, f0)
+        assert fraction > 0.99

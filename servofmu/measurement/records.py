@@ -17,7 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import MAX_MAGNITUDE, UserError
 from ..fileio import claim_output, file_sha256, output_mode
 from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
@@ -52,40 +52,84 @@ def read_columns(path: str | Path, names: list[str]) -> dict[str, np.ndarray]:
 
 
 def _read_csv(path: Path, names: list[str]) -> dict[str, np.ndarray]:
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not a text (CSV) file") from exc
-    lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip() and not line.startswith("#")]
-    if not lines:
-        raise UserError(f"{path}: empty file")
-    try:
-        dialect = csv.Sniffer().sniff(lines[0][1], delimiters=",;\t ")
-        delimiter = dialect.delimiter
-    except csv.Error:
-        delimiter = ","
-    rows = list(csv.reader([line for _, line in lines], delimiter=delimiter, skipinitialspace=True))
-    header = [h.strip() for h in rows[0]]
+    """The columns ``names`` of a CSV file: a header row, then numbers; blank lines and lines starting with # are
+    skipped.  numpy's C reader parses it (millions of rows in seconds); where it fails, a scan of the text finds the
+    first bad value and names its line and column.  Values must be finite and within ±MAX_MAGNITUDE, as every
+    reader of servofmu's files checks, so that nothing is written that could not be read back."""
+    h, header, delimiter = _csv_header(path)
     missing = [n for n in names if n not in header]
     if missing:
         raise UserError(f"{path}: no column {missing[0]!r} (the header has {', '.join(header)})")
     cols = [header.index(n) for n in names]
-    data = np.empty((len(rows) - 1, len(names)))
-    for r, (row, (lineno, _)) in enumerate(zip(rows[1:], lines[1:])):
-        for c, (name, col) in enumerate(zip(names, cols)):
-            try:
-                value = float(row[col])
-            except IndexError as exc:
-                raise UserError(f"{path}: line {lineno}: has no value for column {name!r}") from exc
-            except ValueError as exc:
-                raise UserError(f"{path}: line {lineno}: column {name!r} is not a number: {row[col]!r}") from exc
-            if not math.isfinite(value):
-                raise UserError(f"{path}: line {lineno}: column {name!r} is {row[col].strip()} (NaN or Inf)")
-            data[r, c] = value
-    out = {n: data[:, c] for c, n in enumerate(names)}
-    _line_of = {i: lineno for i, (lineno, _) in enumerate(lines[1:])}
-    _check_time(path, out[names[0]], names[0], lambda i: f"line {_line_of[i]}")
+    try:
+        data = np.loadtxt(path, delimiter=delimiter, comments="#", skiprows=h + 1, usecols=cols, ndmin=2,
+                          quotechar='"', encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not a text (CSV) file") from exc
+    except (ValueError, IndexError) as exc:  # a value that is not a number, a row that is too short
+        _raise_first_bad_value(path, names, cols, delimiter)
+        raise UserError(f"{path}: not a readable CSV file ({(str(exc).splitlines() or ['damaged'])[0]})") from exc
+    finite = np.isfinite(data)
+    bad = ~finite | (np.abs(np.where(finite, data, 0.0)) > MAX_MAGNITUDE)
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        why = "NaN or Inf" if not finite[r, c] else f"beyond ±{MAX_MAGNITUDE:g}, which servofmu does not read"
+        raise UserError(f"{path}: line {_line_of_row(path, int(r))}: column {names[c]!r} is "
+                        f"{float(data[r, c])!r} ({why})")
+    out = {n: data[:, c].copy() for c, n in enumerate(names)}
+    _check_time(path, out[names[0]], names[0], lambda i: f"line {_line_of_row(path, i)}")
     return out
+
+
+def _data_lines(path: Path):
+    """(line number, text) of the lines that hold values or the header: not blank, not a comment."""
+    with path.open(encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if line.strip() and not line.startswith("#"):
+                yield lineno, line.rstrip("\r\n")
+
+
+def _csv_header(path: Path) -> tuple[int, list[str], str | None]:
+    """(index of the header's line counted from 0, the column names, the delimiter: None for white space)."""
+    try:
+        with path.open(encoding="utf-8") as fh:
+            for index, line in enumerate(fh):
+                if line.strip() and not line.startswith("#"):
+                    break
+            else:
+                raise UserError(f"{path}: empty file")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not a text (CSV) file") from exc
+    try:
+        delimiter = csv.Sniffer().sniff(line, delimiters=",;\t ").delimiter
+    except csv.Error:
+        delimiter = ","
+    header = [h.strip() for h in next(csv.reader([line.rstrip("\r\n")], delimiter=delimiter, skipinitialspace=True))]
+    return index, header, None if delimiter == " " else delimiter
+
+
+def _line_of_row(path: Path, row: int) -> int:
+    """The line number of data row ``row`` (counted from 0 after the header)."""
+    for k, (lineno, _) in enumerate(_data_lines(path)):
+        if k == row + 1:
+            return lineno
+    return -1
+
+
+def _raise_first_bad_value(path: Path, names: list[str], cols: list[int], delimiter: str | None) -> None:
+    """Find the first value numpy's reader refused, by a scan of the text, and name its line and column."""
+    lines = _data_lines(path)
+    next(lines)  # the header
+    for lineno, line in lines:
+        row = next(csv.reader([line], delimiter=delimiter or " ", skipinitialspace=True))
+        row = [v for v in row if v != ""] if delimiter is None else row
+        for name, col in zip(names, cols):
+            if col >= len(row):
+                raise UserError(f"{path}: line {lineno}: has no value for column {name!r}")
+            try:
+                float(row[col])
+            except ValueError:
+                raise UserError(f"{path}: line {lineno}: column {name!r} is not a number: {row[col]!r}") from None
 
 
 def _read_mat(path: Path, names: list[str]) -> dict[str, np.ndarray]:

@@ -198,3 +198,22 @@ def test_p11_a_plant_of_absurd_order_is_refused_naming_the_key(inputs, tmp_path)
     rc, err = run_here(["build", "p50.toml", "-o", "p50.fmu"], tmp_path)
     assert_one_line(err, rc, 2, "p50.toml", "linear.poles", "order 50")
     assert not (tmp_path / "p50.fmu").exists()
+
+
+# ---- 5. a failed append ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("force", [False, True])
+def test_p05_a_csv_value_beyond_range_is_named_and_the_file_appended_to_survives(inputs, tmp_path, force):
+    """The values are checked as the CSV is read, before anything is written: the error names the CSV's line and
+    column, and the records file it was to be appended to (or replace) stays as it was."""
+    good = copy_file(inputs["records"], tmp_path / "good.h5")
+    before = good.read_bytes()
+    lines = inputs["records_csv"].read_text().splitlines()
+    lines[7] = lines[7].split(",")[0] + ",1e300," + lines[7].split(",")[2]
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    mode = "--force" if force else "--append"
+    rc, err = run_here(["import", "bad.csv", "--time", "time", "--input", "u", "--output", "v", mode, "-o", "good.h5"],
+                       tmp_path)
+    err = "\n".join(line for line in err.splitlines() if "deprecated" not in line)  # (the spelling both revisions read)
+    assert_one_line(err, rc, 2, "bad.csv", "line 8", "column 'u'", "1e+300")
+    assert good.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "good.h5"]
