@@ -107,8 +107,21 @@ def selection_page(selection: Selection) -> str:
 def select_with_report(data_files, validation_file, output, options: SelectOptions | None = None,
                        run: RunOptions | None = None, plant_output=None, result_output=None,
                        report=None) -> Selection:
-    """:func:`servofmu.selection.run.select_files`, and with ``report`` the HTML page of the selection
-    (:func:`selection_page`); the page's path is claimed with the other outputs before any work."""
+    """Select a structure (:func:`servofmu.select_files`) and, with ``report``, write the selection's HTML page
+    (:func:`selection_page`): what `servofmu select` does.
+
+    Parameters
+    ----------
+    data_files, validation_file, output, options, run, plant_output, result_output
+        As for :func:`servofmu.select_files`.
+    report : str or Path, optional
+        The HTML page to write; claimed with the other outputs before any work.
+
+    Returns
+    -------
+    Selection
+        The ranked candidates and the outputs written.
+    """
     run = run or RunOptions()
     if report is not None:
         claim_output(report, output_mode(run.overwrite), inputs=(*data_files, validation_file))

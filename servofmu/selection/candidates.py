@@ -21,7 +21,8 @@ from ..errors import UserError
 from ..model.plant import FRICTION_MODELS, Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
-__all__ = ["Candidate", "parse_candidates", "default_candidates", "candidate_plant", "supported_load_terms",
+__all__ = ["Candidate", "parse_candidates", "default_candidates", "load_candidates", "candidate_plant",
+           "supported_load_terms",
            "LOAD_TERMS", "MAX_ORDER"]
 
 MAX_ORDER = 6  # G(s) of higher order is no candidate: a structure to choose, not a fit of any response
@@ -134,14 +135,18 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
 
 
 def default_candidates(orders=(1, 2, 3)) -> list[Candidate]:
-    """Every friction law at every order of ``orders``, with and without a zero (orders ≥ 2), and each with every
-    single load term the plant format supports (supported_load_terms)."""
+    """Every friction law at every order of ``orders``, with and without a zero (orders ≥ 2).  Load terms are
+    tried in a second stage, on the structure this set ranks first (:func:`load_candidates`)."""
     orders = _orders(orders)
-    out = []
-    for load in [(), *[(t,) for t in supported_load_terms()]]:
-        for law in FRICTION_MODELS:
-            out += _with_orders(law, load, orders)
-    return out
+    return [c for law in FRICTION_MODELS for c in _with_orders(law, (), orders)]
+
+
+def load_candidates(chosen: Candidate) -> list[Candidate]:
+    """The second stage of a default selection: ``chosen`` with each load term the plant format supports
+    (supported_load_terms) that it does not have yet."""
+    return [Candidate(chosen.law, chosen.order, chosen.zeros, tuple(sorted((*chosen.load, term),
+                                                                          key=list(LOAD_TERMS).index)))
+            for term in supported_load_terms() if term not in chosen.load]
 
 
 def _left(root: complex) -> complex:

@@ -17,7 +17,7 @@ from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
-from .candidates import Candidate, candidate_plant, parse_candidates
+from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import start_estimates
 from .select import CandidateJob, CandidateScore, SelectOptions, fit_candidate, rank
@@ -129,24 +129,34 @@ def select_files(data_files, validation_file, output, options: SelectOptions | N
     data, files = load_selection_data(data_files, options.skip, controller)
     validation, (vfile,) = load_selection_data([validation_file], options.skip, controller)
     check_validation(data, files, validation, vfile)
-    starts = _starts(candidates, data, files)
     provenance = {"data_file": ", ".join(map(str, data_files)),
                   "data_sha256": ", ".join(file_sha256(p) for p in data_files),
                   "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
-    in_process = run.scheduler is None and run.workers == 0
-    jobs = [CandidateJob(c, starts[c], data, validation, options, None if in_process else 1, provenance)
-            for c in candidates if not isinstance(starts[c], Exception)]
-    scores = [CandidateScore(c, "failed", message=str(starts[c])) for c in candidates
-              if isinstance(starts[c], Exception)]
-    run.report(len(scores), len(candidates))
+    job = CandidateJob(candidates[0], None, data, validation, options,
+                       None if run.scheduler is None and run.workers == 0 else 1, provenance)
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
-        for _, score in pool.imap(fit_candidate, jobs):
-            scores.append(score)
-            run.report(len(scores), len(candidates))
+        scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
+        first = rank(scores)[0]
+        if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
+            # second stage: the load terms on the structure ranked first
+            scores = _fit_all(pool, job, _starts(load_candidates(first.candidate), data, files), run, scores)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
     return _write(selection, outputs)
+
+
+def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, done: list) -> list[CandidateScore]:
+    """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
+    scores = list(done) + [CandidateScore(c, "failed", message=str(s)) for c, s in starts.items()
+                           if isinstance(s, Exception)]
+    jobs = [replace(job, candidate=c, start=s) for c, s in starts.items() if not isinstance(s, Exception)]
+    total = len(done) + len(starts)
+    run.report(len(scores), total)
+    for _, score in pool.imap(fit_candidate, jobs):
+        scores.append(score)
+        run.report(len(scores), total)
+    return scores
 
 
 def _key(score: CandidateScore) -> str:

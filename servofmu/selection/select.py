@@ -52,10 +52,26 @@ CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pai
 
 @dataclass(frozen=True)
 class SelectOptions:
-    """What a selection computes: ``candidates`` (names, :func:`servofmu.selection.candidates.parse_candidates`;
-    None: the default set) at the ``orders`` of G; the swarm's ``seed``, ``iterations`` (None: the paper's 50) and
-    box ``spread``; ``skip`` seconds at the start of records; ``closed_loop``: the controller file of closed-loop
-    records."""
+    """What a selection computes.
+
+    Parameters
+    ----------
+    candidates : tuple of str, optional
+        Candidate names (servofmu.selection.candidates.parse_candidates: ``coulomb``, ``stribeck+offset``,
+        ``lugre/2z``); None: the default set.
+    orders : tuple of int
+        The orders of G(s) a law without an order is tried at (with and without a zero).
+    seed : int
+        Seed of every candidate's swarm.
+    iterations : int, optional
+        Swarm iterations per candidate (None: the paper's 50).
+    spread : float
+        The swarm's box around each candidate's linear estimate: factors in [1/(1+spread), 1+spread].
+    skip : float
+        Seconds left out at the start of every record.
+    closed_loop : str, optional
+        The controller file of closed-loop records.
+    """
 
     candidates: tuple[str, ...] | None = None
     orders: tuple[int, ...] = (1, 2, 3)
