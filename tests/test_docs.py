@@ -115,6 +115,35 @@ def test_closed_loop_commands_of_docs_control_run(tmp_path):
     assert (tmp_path / "axis-compensation.html").stat().st_size > 0
 
 
+def test_drive_log_example_of_docs_control_runs(tmp_path):
+    """docs/control.md's "A drive's logs" example as written, in an empty folder: its Python and console blocks in
+    document order; the log in volts imports with its clock measured and identifies close to linear_axis."""
+    text = (README.parent / "docs" / "control.md").read_text()
+    section = text.split("## A drive's logs", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```(python|console)\n(.*?)```", section, flags=re.S)
+    assert [kind for kind, _ in blocks] == ["python", "console", "python", "console"]
+    outputs = []
+    for i, (kind, body) in enumerate(blocks):
+        if kind == "python":
+            (tmp_path / f"block{i}.py").write_text(body)
+            runs = [[sys.executable, f"block{i}.py"]]
+        else:
+            runs = [[sys.executable, "-m", "servofmu", *shlex.split(line[2:])[1:]] for line in body.splitlines()
+                    if line.startswith("$ servofmu ")]
+        for argv in runs:
+            proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True)
+            assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
+            outputs.append(proc.stdout)
+    assert "time stamps every 0.001000008 s" in outputs[-2] and "closed loop (reference, disturbance)" in outputs[-2]
+    assert "+8e-06 off the controller's clock" in outputs[-1]
+    import servofmu
+    from servofmu.identification.prior import identified_mask
+
+    result, plant = servofmu.read_result(tmp_path / "drive-result.h5"), servofmu.load_plant("linear_axis")
+    truth = plant.parameter_vector()[identified_mask(plant)]
+    assert np.max(np.abs(result.theta / truth - 1)) < 0.01
+
+
 def test_export_doc_python_control_example_runs(tmp_path):
     """docs/export.md's python-control section as written, in an empty folder: its console block in order, then
     each Python block as a script; the model read back is g1's (pole −10, DC gain 1, Coulomb friction)."""
