@@ -236,3 +236,22 @@ def test_bad_drive_logs_are_one_line_errors(tmp_path, edit, options, fragment):
     assert_one_line_error(proc)
     assert re.search(fragment, proc.stderr), proc.stderr
     assert not (tmp_path / "out.h5").exists()
+
+
+@pytest.mark.parametrize("stamps, fragment", [
+    (lambda k: 4.2 + k * TS * (1 + 3e-4), "+0.0003 relative to the controller's 0.001 s (a clock may be 0.0001 off)"),
+    (lambda k: 4.2 + k * 2 * TS, "the samples are 0.002 s apart, the controller samples every 0.001 s"),
+])
+def test_logs_off_the_controllers_clock_are_refused_in_one_line(tmp_path, stamps, fragment):
+    """Stamps that import accepts (a regular grid) but that are not the controller's samples: a clock 3e-4 fast,
+    a log of every other sample; identify refuses them before any simulation, and writes nothing."""
+    (tmp_path / "drive.toml").write_text(CONTROLLER)
+    (tmp_path / "structure.toml").write_text(STRUCTURE)
+    log = drive_log(*reference_and_pulses(0.05, 5), seed=5)
+    log["stamp"] = stamps(np.arange(log["stamp"].size))
+    write_log(tmp_path / "log.csv", log)
+    assert run("import", tmp_path / "log.csv", *IMPORT, "-o", tmp_path / "log.h5").returncode == 0
+    proc = run("identify", tmp_path / "log.h5", "--structure", tmp_path / "structure.toml", "--closed-loop",
+               tmp_path / "drive.toml", "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, fragment)
+    assert not (tmp_path / "r.h5").exists()

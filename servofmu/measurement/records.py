@@ -6,6 +6,11 @@ a zero-phase 4th-order Butterworth low-pass (applied forward and backward) follo
 central difference — no phase lag, and an amplitude error below 1e-5 for frequencies up to a fifth of
 the cut-off (docs/measurement.md).  Records whose input is a sinusoid get the first-harmonic analysis of
 measured experiments (servofmu.measurement.frf).
+
+A drive's log (:class:`LoopChannels`) adds the reference the controller followed and a known signal the drive
+injected after its output limit, with the force constants that turn the logged command and signal into newtons:
+a closed-loop record.  Time stamps are stored as logged; those of position records and drive logs must lie on a
+regular grid (servofmu.measurement.clock), whose step and jitter are stored with the record.
 """
 from __future__ import annotations
 
