@@ -46,6 +46,9 @@ _API = {
     "select_files": "servofmu.selection.run",
     "select_with_report": "servofmu.output.selection_report",
     "export_result": "servofmu.output.export",
+    "analyse_loop": "servofmu.tuning.loop",
+    "TuneOptions": "servofmu.tuning.search",
+    "tune_axis": "servofmu.tuning.run",
 }
 __all__ = list(_API)
 
@@ -69,6 +72,9 @@ if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by 
     from .selection.run import select_files  # noqa: F401
     from .selection.select import SelectOptions  # noqa: F401
     from .simulation.fmpy_runs import simulate  # noqa: F401
+    from .tuning.loop import analyse_loop  # noqa: F401
+    from .tuning.run import tune_axis  # noqa: F401
+    from .tuning.search import TuneOptions  # noqa: F401
 
 
 def __getattr__(name: str):

@@ -21,6 +21,7 @@ STAGES = [
     {"servofmu.baselines"},
     {"servofmu.selection"},
     {"servofmu.control"},
+    {"servofmu.tuning"},
     {"servofmu.output"},
     {"servofmu.cli", "servofmu.__main__"},
 ]

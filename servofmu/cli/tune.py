@@ -1,0 +1,56 @@
+"""`servofmu tune`: the drive's gains for an identified axis (servofmu.tuning, the page in output.tune_report)."""
+from __future__ import annotations
+
+__all__ = ["register", "cmd_tune"]
+
+
+def cmd_tune(args) -> None:
+    """Tune a controller file for an identified axis; write the tuned controller file (and its page)."""
+    import json
+
+    from ..output.tune_report import tune_files, tune_json, tune_text
+    from .common import ProgressBar
+
+    with ProgressBar(args, "iteration") as bar:
+        tuning = tune_files(args.result, args.controller, args.output, task=args.task, stroke=args.stroke,
+                            speed=args.speed, max_sensitivity=args.max_sensitivity, compensate=args.compensate,
+                            method=args.method, axis=args.axis, report=args.report, engine=args.engine,
+                            overwrite=args.force, progress=bar.update, seed=args.seed)
+    if args.json:
+        print(json.dumps(tune_json(tuning), allow_nan=True))
+        return
+    print(tune_text(tuning))
+    print(f"wrote {args.output}" + (f" and {args.report}" if args.report else ""))
+
+
+def register(sub) -> None:
+    """Add the subcommand tune to the subparsers ``sub``."""
+    from ..output.tune_report import DEFAULT_SPEED, DEFAULT_STROKE
+    from ..tuning.run import METHODS
+    from .common import add_progress_option
+
+    p = sub.add_parser("tune", help="tune a drive's gains for an identified axis (particle swarm, robustness bound)")
+    p.add_argument("result", metavar="RESULT.h5", role="input", help="result file of the axis (`servofmu identify`)")
+    p.add_argument("controller", metavar="CTRL.toml", role="input",
+                   help="the drive's controller file, or the name of an example (axis_controller)")
+    p.add_argument("--task", metavar="REF.csv", role="input",
+                   help="the motion to tune for: CSV with columns time (s) and position (m), one row per sample")
+    p.add_argument("--stroke", type=float, metavar="M",
+                   help=f"or a reversing stroke of M metres (default {DEFAULT_STROKE:g})")
+    p.add_argument("--speed", type=float, metavar="V", help=f"at a peak speed of V m/s (default {DEFAULT_SPEED:g})")
+    p.add_argument("--max-sensitivity", type=float, default=1.7, metavar="MS",
+                   help="bound on the sensitivity peak of the loop linearised about motion (default 1.7)")
+    p.add_argument("--compensate", action="store_true", help="feed forward the identified friction")
+    p.add_argument("--method", choices=METHODS, default="pso",
+                   help="pso: the particle swarm (default); rule: the reference rule alone")
+    p.add_argument("--axis", metavar="AXIS.ssp", role="input",
+                   help="check on this axis: co-simulate the given, rule and tuned gains on it (libcosim)")
+    p.add_argument("--engine", choices=("libcosim", "fmpy"), default="libcosim",
+                   help="co-simulation engine of the check (default libcosim)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the swarm and the uncertainty draws (default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", dest="output", metavar="TUNED.toml", required=True, help="controller file to write")
+    p.add_argument("--report", metavar="TUNE.html", help="HTML page of the tuning to write")
+    p.set_defaults(outputs=(*p.get_default("outputs"), "report"))
+    add_progress_option(p)
+    p.set_defaults(func=cmd_tune)
