@@ -56,6 +56,8 @@ class SineData:
 
     amplitudes, frequencies (n,): the plan (N, Hz); H (n,) complex: V1/U1; dc (n,): mean velocity (m/s).
     ``noisy``: whether H and dc are the noisy measurement (when the file has noise, that is what is fitted).
+    ``noise`` (n,): the standard deviation the measurement noise gives each residual of an experiment (Re, Im and
+    mean of :func:`sine_residuals`), from the noise level the file records; None (or zeros) for noise-free data.
     """
 
     amplitudes: np.ndarray
@@ -65,6 +67,7 @@ class SineData:
     noisy: bool
     source: str
     skipped: int  # experiments without steady state, left out
+    noise: np.ndarray | None = None
 
     @property
     def plan(self) -> np.ndarray:
@@ -187,8 +190,11 @@ def sine_data(data: DataFile) -> SineData:
     if len(magnitudes) < 2:
         raise UserError(f"{data.path}: identification needs experiments at two or more excitation magnitudes "
                         f"with a steady state (has {', '.join(map(str, magnitudes))})")
+    # white noise of std σ on N window samples puts σ·√(2/N) on Re and Im of V1 and σ/√N on the mean
+    noise = np.array([e.noise_sigma * math.sqrt(2 / (e.samples_per_period * e.window_periods)) / abs(e.U1 * h)
+                      for e, h in zip(exps, H)]) if noisy else np.zeros(len(exps))
     return SineData(amplitudes=amps, frequencies=np.array([e.frequency for e in exps]), H=H, dc=dc, noisy=noisy,
-                    source=str(data.path), skipped=len(data.experiments) - len(exps))
+                    source=str(data.path), skipped=len(data.experiments) - len(exps), noise=noise)
 
 
 # ---------------------------------------------------------------------------

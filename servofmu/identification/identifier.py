@@ -15,11 +15,13 @@ The GA comparators (``ga-ann``, ``aga-ann``) replace stage 2 with the same budge
 from __future__ import annotations
 
 import time
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError, check_int
+from ..errors import ServofmuWarning, UserError, check_int
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant
 from ..runtime import Progress
@@ -46,11 +48,25 @@ from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from .methods import METHODS, NEEDS_ANN, SEARCH_NAMES
 from .prior import canonical_order, full_vectors, identified_names
 from .pso import PsoOptions, minimize_pso
+from .restarts import RestartOptions, fits_agree, floor_test, noise_half_widths, restart_box, restart_seed
 from .results import Result, Stage, result_from_estimator
 
 __all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance", "swarm_options"]
 
 MAX_POLISH_ITERATIONS = 20
+
+
+@dataclass(frozen=True, eq=False)
+class _Fit:
+    """One search and its polish: parameters, search coordinates, residuals, fitness, the search's history and the
+    95 % intervals."""
+
+    theta: np.ndarray
+    y: np.ndarray
+    r: np.ndarray
+    fitness: float
+    history: np.ndarray
+    intervals: np.ndarray
 
 
 def check_method(method: str) -> None:
@@ -88,6 +104,9 @@ class PSOANNIdentifier:
         Threads of the batch simulator (default: all cores).
     progress : Progress, optional
         Called with (iterations done, iterations) during the search.
+    restarts : RestartOptions
+        When a fit that stopped above the noise floor is searched for again (servofmu.identification.restarts;
+        ``RestartOptions(restarts=0)``: never).
 
     Attributes
     ----------
@@ -108,7 +127,11 @@ class PSOANNIdentifier:
     stages_ : list of Stage
         Outcome of each stage.
     history_ : ndarray
-        Best cost of the search per iteration.
+        Best cost per iteration of the search whose fit was kept.
+    restarts_ : int
+        Searches after the first (0 when the first fit was at the noise floor).
+    floor_ : FloorTest or None
+        The kept fit against the noise floor (None for time-domain data, which has no known noise level).
     seconds_, evaluations_ : float, int
         Wall time and model evaluations of the whole fit.
 
@@ -123,9 +146,9 @@ class PSOANNIdentifier:
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
                  seed: int = 0, threads: int | None = None, progress: Progress | None = None,
-                 search_rtol: float = SEARCH_RTOL):
+                 search_rtol: float = SEARCH_RTOL, restarts: RestartOptions = RestartOptions()):
         self.structure, self.ann, self.method, self.pso = structure, ann, method, pso
-        self.search_rtol = search_rtol
+        self.search_rtol, self.restarts = search_rtol, restarts
         self.polish, self.box, self.spread, self.seed = polish, box, spread, seed
         self.threads, self.progress = threads, progress
 
@@ -163,13 +186,13 @@ class PSOANNIdentifier:
         return self._to_theta(y[None])[0]
 
     # ---- stage 2: the search ----------------------------------------------------------------------------
-    def _search(self, cost, lower, upper, y0):
+    def _search(self, cost, lower, upper, y0, seed):
         search = SEARCH_NAMES[self.method]
         if search == "pso":
-            return search, minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=self.seed, progress=self.progress)
+            return search, minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=seed, progress=self.progress)
         budget = self.pso.particles * (self.pso.iterations + 1)  # the swarm's number of model evaluations
         options = GaOptions(max_evaluations=budget) if search == "ga" else AdaptiveGaOptions(max_evaluations=budget)
-        return search, minimize_ga(cost, lower, upper, options, x0=y0, seed=self.seed, progress=self.progress)
+        return search, minimize_ga(cost, lower, upper, options, x0=y0, seed=seed, progress=self.progress)
 
     # ---- the fit ---------------------------------------------------------------------------------------
     def _check(self, data) -> None:
@@ -228,13 +251,26 @@ class PSOANNIdentifier:
             lower, upper = prior_box(self.structure, self.spread)
             y0 = None
 
+        fits = [self._search_and_polish(crit, cost, lower, upper, y0, self.seed, stages)]
+        chosen = self._restart_while_above_floor(crit, cost, data, fits, (lower, upper), y0, stages)
+        self.intervals_ = chosen.intervals
+        self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
+        self.theta_ = chosen.theta
+        self.fitness_ = chosen.fitness
+        self.history_ = chosen.history
+        self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
+        self.stages_ = stages
+        self.seconds_ = time.perf_counter() - start
+        self.evaluations_ = crit.evaluations
+        return self
+
+    def _search_and_polish(self, crit, cost, lower, upper, guesses, seed, stages: list) -> "_Fit":
+        """One search from ``guesses`` in the box and its polish, their stages appended to ``stages``."""
         t0, before = time.perf_counter(), crit.evaluations
-        search, result = self._search(cost, lower, upper, y0)
+        search, result = self._search(cost, lower, upper, guesses, seed)
         y_best = result.position
         stages.append(Stage(search, self._to_theta(y_best[None])[0], float(result.cost), time.perf_counter() - t0,
                             crit.evaluations - before))
-        self.history_ = result.cost_history
-
         time_domain = crit.blocks is not None
         if self.polish:
             t0, before = time.perf_counter(), crit.evaluations
@@ -249,18 +285,58 @@ class PSOANNIdentifier:
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
             jac = jac_y @ target_jacobian(self.structure, y_best)
         else:
-            theta = stages[-1].theta
+            theta, fitness = stages[-1].theta, stages[-1].fitness
             r = crit.residuals(theta, POLISH_RTOL)[0]
             jac = central_jacobian(crit, theta)
-        self.intervals_ = intervals_from_jacobian(theta, r, jac, blocks=crit.blocks)
-        self.fit_percent_ = crit.fit_percent(theta, POLISH_RTOL) if time_domain else None
-        self.theta_ = stages[-1].theta
-        self.fitness_ = stages[-1].fitness
-        self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
-        self.stages_ = stages
-        self.seconds_ = time.perf_counter() - start
-        self.evaluations_ = crit.evaluations
-        return self
+        return _Fit(theta=theta, y=y_best, r=r, fitness=fitness, history=result.cost_history,
+                    intervals=intervals_from_jacobian(theta, r, jac, blocks=crit.blocks))
+
+    def _restart_while_above_floor(self, crit, cost, data, fits: list, box, y0, stages: list) -> "_Fit":
+        """Search again while the best fit is above the noise floor (servofmu.identification.restarts), until a
+        fit reaches it, two fits agree or the budget is spent; the fit kept: the best, or the first fit that
+        agrees with it (a restart that only confirms the first fit leaves the result as it was)."""
+        opts, p = self.restarts, len(self.names_)
+
+        def same(i: int, j: int) -> bool:  # one minimum found twice (fits that failed to simulate are none)
+            a, b = fits[i], fits[j]
+            return bool(np.isfinite(a.fitness) and np.isfinite(b.fitness) and fits_agree(
+                a.theta, noise_half_widths(a.intervals, tests[i]), b.theta, noise_half_widths(b.intervals, tests[j]),
+                opts.agree_rtol))
+
+        tests = [floor_test(data, fits[0].r, p, opts)]
+        best, agreed = 0, False
+        while tests[best] is not None and not tests[best].at_floor and not agreed and len(fits) <= opts.restarts:
+            k = len(fits)
+            guesses = y0 if y0 is None else np.vstack([y0, self._neighbour_estimate(data, fits[best], y0)])
+            guesses = guesses if guesses is None else guesses[:self.pso.particles]
+            t0, before, inner = time.perf_counter(), crit.evaluations, []
+            fits.append(self._search_and_polish(crit, cost, *restart_box(k, *box), guesses, restart_seed(self.seed, k),
+                                                inner))
+            tests.append(floor_test(data, fits[-1].r, p, opts))
+            stages.append(Stage(f"restart {k}", fits[-1].theta, fits[-1].fitness, time.perf_counter() - t0,
+                                crit.evaluations - before))
+            best = min(range(len(fits)), key=lambda i: (fits[i].fitness, i))
+            agreed = any(i != best and same(i, best) for i in range(len(fits)))
+        kept = next(i for i in range(len(fits)) if i == best or same(i, best))
+        self.restarts_ = len(fits) - 1
+        self.floor_ = tests[kept]
+        if tests[kept] is not None and not tests[kept].at_floor and not agreed and self.restarts_:
+            warnings.warn(f"the fit stayed above the noise floor after {self.restarts_} restarts (residuals "
+                          f"{tests[kept].ratio:.3g} times the noise) and no two searches agreed: the structure may "
+                          "not fit the data, or a larger budget may find its minimum", ServofmuWarning, stacklevel=3)
+        return fits[kept]
+
+    def _neighbour_estimate(self, data: SineData, fit: "_Fit", y0: np.ndarray) -> np.ndarray:
+        """The network's estimate corrected by its own error at the fitted plant: the network's reading of the
+        fit's simulated features (recovered from its residuals) against the fit itself, subtracted from its
+        reading of the data — the estimate of a plant beside the fit, where the network may read better."""
+        n = data.amplitudes.size
+        scale = np.abs(data.H)
+        H = data.H + (fit.r[:n] + 1j * fit.r[n:2 * n]) * scale
+        dc = data.dc + fit.r[2 * n:] * scale * data.amplitudes / np.sqrt(2)
+        read = self.ann.network.predict(ann_features(H[None], dc[None], data.amplitudes))[0]
+        estimate = y0 + (fit.y - read)
+        return np.where(np.isfinite(estimate), estimate, y0)
 
     def result(self, provenance: dict | None = None) -> Result:
         """The fitted identification as a :class:`~servofmu.identification.results.Result` (what :func:`servofmu.write_result` stores).

@@ -66,13 +66,34 @@ class Result:
 def result_from_estimator(est, method: str, provenance: dict) -> Result:
     """The Result of a fitted :class:`servofmu.PSOANNIdentifier` (``method`` and ``provenance`` as stored); the
     provenance also records the fit's settings — seed, polish, swarm iterations — which a fleet's resume compares."""
-    provenance = {"seed": est.seed, "polish": est.polish, "iterations": est.pso.iterations, **provenance}
+    provenance = {"seed": est.seed, "polish": est.polish, "iterations": est.pso.iterations,
+                  **restart_provenance(est), **provenance}
     return Result(method=method, structure=est.structure, plant=est.plant_, names=tuple(est.names_),
                   theta=np.asarray(est.theta_), intervals=np.asarray(est.intervals_), fitness=float(est.fitness_),
                   seconds=float(est.seconds_), evaluations=int(est.evaluations_),
                   stages=tuple(est.stages_),
                   fit_percent=getattr(est, "fit_percent_", None),
                   history=np.asarray(est.history_), provenance=provenance)
+
+
+def restart_provenance(est) -> dict:
+    """What a result records of the searches repeated because a fit stopped above the noise floor
+    (servofmu.identification.restarts): ``restarts``, and for data with a known noise level ``noise_ratio``, the
+    kept fit's RMS residual over the noise's (about 1 at the floor; null when not finite)."""
+    floor = getattr(est, "floor_", None)
+    if not hasattr(est, "restarts_"):
+        return {}
+    ratio = None if floor is None or not np.isfinite(floor.ratio) else float(floor.ratio)
+    return {"restarts": int(est.restarts_), **({"noise_ratio": ratio} if floor is not None else {})}
+
+
+def restarts_line(provenance: dict) -> str | None:
+    """The table's line on restarts (None for a result that records none: older files, other estimators)."""
+    if "restarts" not in provenance:
+        return None
+    n, ratio = provenance["restarts"], provenance.get("noise_ratio")
+    noise = f"; residuals {ratio:.3g}× the noise's" if ratio is not None else ""
+    return f"swarm restarts: {n}" + (" (first fit at the noise floor)" if n == 0 and ratio is not None else "") + noise
 
 
 # ---------------------------------------------------------------------------
@@ -164,6 +185,8 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
 
 
 # ---------------------------------------------------------------------------
+    if restarts_line(result.provenance):
+        lines.append(restarts_line(result.provenance))
 # RESULT.h5
 # ---------------------------------------------------------------------------
 def _fill(group, result: Result) -> None:
