@@ -35,6 +35,8 @@ position = integral of v
 t_s = tanh(v/v_smooth),  g±(v) = fc± + (fs± - fc±)*exp(-(v/vs)^2)   (g± = fc± for coulomb)
 coulomb/stribeck: F = g+(v)*max(t_s, 0) + g-(v)*min(t_s, 0) + fv*v
 lugre: dz/dt = v - sigma0*|v|*z/g(v) (g = g+ for v >= 0, else g-);  F = sigma0*z + sigma1*dz/dt + fv*v"""
+LOAD_EQUATIONS = """load (the terms of the plant's [load] section; G is driven by u_total - F(v) + L(position)):
+L = offset - stiffness*(position - x0) + ripple_amplitude*sin(2*pi*position/ripple_period + ripple_phase)"""
 
 
 class BuildError(UserError):
@@ -105,7 +107,8 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
         return token
 
     return assemble_fmu(plant.name, output, fmi_version, fmu_variables(model), write_sources,
-                        list(description.SOURCE_FILES), _summary(plant, provenance), EQUATIONS, provenance,
+                        list(description.SOURCE_FILES), _summary(plant, provenance),
+                        EQUATIONS + ("\n" + LOAD_EQUATIONS if plant.load.keys() else ""), provenance,
                         title=f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)", overwrite=overwrite)
 
 
@@ -154,6 +157,8 @@ def _summary(plant: Plant, provenance: dict | None) -> str:
     zeros = f", zeros {', '.join(map(str, plant.all_zeros()))}" if plant.zeros else ""
     text = (f"Servo plant '{plant.name}': G(s) with poles {', '.join(map(str, plant.all_poles()))}{zeros} "
             f"and {plant.friction.model} friction in the feedback path.")
+    if plant.load.keys():
+        text += f" Load on the axis, adding to u: {plant.load.describe()}."
     if provenance:
         text += " " + "; ".join(f"{k}: {v}" for k, v in provenance.items())
     return text

@@ -105,14 +105,17 @@ def _pairs(roots) -> list[list[float]]:
 
 def parameters_json(plant: Plant) -> dict:
     """A plant as JSON-ready data: poles and zeros as [re, im] pairs (1/s), the DC gain (m/(N·s); None for an
-    integrating plant), the numerator gain K and the friction model with its values (N, N·s/m, m/s)."""
+    integrating plant), the numerator gain K, the friction model with its values (N, N·s/m, m/s) and, for a plant
+    with a load, its terms (``load``: offset N, stiffness N/m, x0 m, ripple_amplitude N, ripple_period m,
+    ripple_phase rad)."""
     fr = plant.friction.values()
     dc = None
     if not any(p == 0 for p in plant.all_poles()):
         num, den = plant.transfer_function()
         dc = float(num[-1] / den[-1])
     return {"poles": _pairs(plant.all_poles()), "zeros": _pairs(plant.all_zeros()), "dc_gain": dc,
-            "gain": plant.numerator_gain(), "friction": {"model": plant.friction.model, **fr}}
+            "gain": plant.numerator_gain(), "friction": {"model": plant.friction.model, **fr},
+            **({"load": plant.load.values()} if plant.load.keys() else {})}
 
 
 def to_json(result: Result) -> dict:
@@ -153,6 +156,9 @@ def paper_rows(plant: Plant) -> list[tuple[str, str]]:
     for key, label in (("fs_pos", "Fs+"), ("fs_neg", "Fs−"), ("vs", "vs"), ("sigma0", "σ0"), ("sigma1", "σ1")):
         if getattr(fr, key) is not None and key in fr.keys():
             rows.append((label, f"{getattr(fr, key):.6g}"))
+    labels = {"offset": "offset", "stiffness": "k", "x0": "x0", "ripple_amplitude": "ripple A",
+              "ripple_period": "ripple period", "ripple_phase": "ripple phase"}
+    rows += [(labels[key], f"{value:.6g}") for key, value in plant.load.values().items()]
     return rows
 
 

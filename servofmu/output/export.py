@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, claim_output, file_sha256, output_mode
 from ..identification.results import Result, read_result, to_json
-from ..model.plant import Friction, Plant, plant_from_dict
+from ..model.plant import Friction, Load, Plant, plant_from_dict
 from ..runtime import RunOptions, optional_import, utc_now
 from ..version import __version__
 from .formats import FORMATS, SUFFIX_FORMATS
@@ -89,7 +89,7 @@ def linear_state_space(plant: Plant) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
     from ..model.symbolic import build_model
 
-    linear = replace(plant, friction=Friction(model="coulomb", fc_pos=0.0, fc_neg=0.0, fv=0.0))
+    linear = replace(plant, friction=Friction(model="coulomb", fc_pos=0.0, fc_neg=0.0, fv=0.0), load=Load())
     model = build_model(linear)
     n = plant.order  # xi1..xin come first in the state vector, v is the first output
     jac = np.asarray(ca.DM(model.io_jacobian(0.0, np.zeros(model.nx), 0.0, model.parameter_start())))
@@ -133,13 +133,16 @@ def control_document(result: Result, name: str | None = None, provenance: dict |
     num, den = plant.transfer_function()
     A, B, C, D = linear_state_space(plant)
     return {"format": CONTROL_FORMAT, "schema_version": SCHEMA_VERSION, "name": plant.name,
-            "about": "G(s) = num(s)/den(s) from w = u - friction_force (N) to the velocity v (m/s); the friction "
-                     "acts in feedback: v = G(s)(u - F(v)). Coefficients highest power first.",
+            "about": "G(s) = num(s)/den(s) from w = u - friction_force + load force (N) to the velocity v (m/s); "
+                     "the friction acts in feedback: v = G(s)(u - F(v) + L(x)), with the load's force L(x) = offset "
+                     "- stiffness*(x - x0) + ripple_amplitude*sin(2*pi*x/ripple_period + ripple_phase) of the "
+                     "terms in `load` (docs/model.md). Coefficients highest power first.",
             "num": num.tolist(), "den": den.tolist(), "poles": _pairs(plant.all_poles()),
             "zeros": _pairs(plant.all_zeros()), "gain": plant.numerator_gain(),
             "state_space": {"A": A.tolist(), "B": B.tolist(), "C": C.tolist(), "D": D.tolist(),
                             "states": [f"xi{i + 1}" for i in range(plant.order)]},
             "friction": {"model": plant.friction.model, **plant.friction.values()},
+            "load": plant.load.values(),
             "provenance": provenance if provenance is not None else export_provenance(result)}
 
 
@@ -150,12 +153,13 @@ def export_control(result: Result, output: str | Path, name: str | None = None,
     return atomic_write(output, _json_text(control_document(result, name, provenance)))
 
 
-def load_control(path: str | Path, state_space: bool = False):
+def load_control(path: str | Path, state_space: bool = False, with_load: bool = False):
     """(control.TransferFunction, friction dict) from a file of ``servofmu export --format control``.
 
     ``state_space=True``: a control.StateSpace in the FMU's realisation (states xi1..xin) instead.
-    The friction dict holds ``model`` and the friction parameters of docs/plant-format.md.  Needs python-control
-    (``pip install 'servofmu[control]'``).
+    The friction dict holds ``model`` and the friction parameters of docs/plant-format.md.  ``with_load=True``:
+    (system, friction, load), the load dict holding the plant's [load] terms (empty without a load).  Needs
+    python-control (``pip install 'servofmu[control]'``).
     """
     control = optional_import("control", "load_control", "control", package="python-control")
 
@@ -175,9 +179,10 @@ def load_control(path: str | Path, state_space: bool = False):
         else:
             system = control.tf(np.array(doc["num"], dtype=float), np.array(doc["den"], dtype=float), **labels)
         friction = dict(doc["friction"])
-    except (KeyError, TypeError, ValueError) as exc:
+        load = {str(k): float(v) for k, v in doc.get("load", {}).items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise UserError(f"{path}: damaged control file ({type(exc).__name__}: {exc})") from exc
-    return system, friction
+    return (system, friction, load) if with_load else (system, friction)
 
 
 def _read_json(path: str | Path) -> dict:
@@ -194,8 +199,8 @@ def _read_json(path: str | Path) -> dict:
 
 
 def export_mat(result: Result, output: str | Path, name: str | None = None, provenance: dict | None = None) -> Path:
-    """MATLAB .mat (v5): num, den, A, B, C, D, poles, zeros, gain, friction (struct), method, fitness,
-    parameter_names, theta, intervals, provenance (struct)."""
+    """MATLAB .mat (v5): num, den, A, B, C, D, poles, zeros, gain, friction (struct), load (struct of the plant's
+    [load] terms, when it has any), method, fitness, parameter_names, theta, intervals, provenance (struct)."""
     import scipy.io
 
     doc = control_document(result, name, provenance)
@@ -212,6 +217,8 @@ def export_mat(result: Result, output: str | Path, name: str | None = None, prov
         "parameter_names": np.array(result.names, dtype=object), "theta": np.asarray(result.theta, dtype=float),
         "intervals": np.asarray(result.intervals, dtype=float), "provenance": doc["provenance"],
     }
+    if doc["load"]:
+        content["load"] = doc["load"]
     buffer = io.BytesIO()
     scipy.io.savemat(buffer, content, oned_as="row")
     return atomic_write(output, buffer.getvalue())

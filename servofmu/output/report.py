@@ -285,6 +285,11 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
                  f"order {structure.order}) identified from <code>{escape(Path(data_file.path).name)}</code> "
                  f"({len(data_file.experiments)} experiments, {len(data_file.records)} records). {escape(summary)}. "
                  "Fitness: RMS of the relative output-error residuals.</p>")
+    for e in entries:
+        if e.result.plant.load.keys():  # the force on the load besides friction (docs/model.md)
+            who = f" ({escape(e.label)})" if len(entries) > 1 else ""
+            parts.append(f"<p>Load{who}: {escape(e.result.plant.load.describe())}, adding to u: v = G(s)·(u − F(v) "
+                         "+ L(x)).</p>")
 
     parts += ["<h2>Identified parameters</h2>", parameter_table(entries, truth),
               '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit, written as the '
