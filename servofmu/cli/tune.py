@@ -15,7 +15,8 @@ def cmd_tune(args) -> None:
         tuning = tune_files(args.result, args.controller, args.output, task=args.task, stroke=args.stroke,
                             speed=args.speed, max_sensitivity=args.max_sensitivity, compensate=args.compensate,
                             method=args.method, axis=args.axis, report=args.report, engine=args.engine,
-                            overwrite=args.force, progress=bar.update, seed=args.seed)
+                            overwrite=args.force, progress=bar.update, seed=args.seed, particles=args.particles,
+                            iterations=args.iterations)
     if args.json:
         print(json.dumps(tune_json(tuning), allow_nan=True))
         return
@@ -48,6 +49,8 @@ def register(sub) -> None:
     p.add_argument("--engine", choices=("libcosim", "fmpy"), default="libcosim",
                    help="co-simulation engine of the check (default libcosim)")
     p.add_argument("--seed", type=int, default=0, help="seed of the swarm and the uncertainty draws (default 0)")
+    p.add_argument("--particles", type=int, default=16, help="particles of the swarm (default 16)")
+    p.add_argument("--iterations", type=int, default=30, help="iterations of the swarm (default 30)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", dest="output", metavar="TUNED.toml", required=True, help="controller file to write")
     p.add_argument("--report", metavar="TUNE.html", help="HTML page of the tuning to write")

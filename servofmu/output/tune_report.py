@@ -234,11 +234,13 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
                stroke: float | None = None, speed: float | None = None, max_sensitivity: float = 1.7,
                compensate: bool = False, method: str = "pso", axis: str | Path | None = None,
                report: str | Path | None = None, engine: str = "libcosim", overwrite: bool = False,
-               progress=None, seed: int = 0) -> Tuning:
+               progress=None, seed: int = 0, particles: int = 16, iterations: int = 30) -> Tuning:
     """Tune the controller file ``controller`` for the result file ``result`` and write the tuned controller file
-    ``output`` (and the page ``report``); an existing output only with ``overwrite``.  Nothing is written when
-    the tuning fails."""
-    options = TuneOptions(max_sensitivity=max_sensitivity, seed=seed)  # a bad bound: refused before any work
+    ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``seed``, ``particles`` and
+    ``iterations``: the swarm's (servofmu.tuning.search.TuneOptions).  Nothing is written when the tuning
+    fails."""
+    options = TuneOptions(max_sensitivity=max_sensitivity, seed=seed, particles=particles,
+                          iterations=iterations)  # a bad bound: refused before any work
     mode = output_mode(overwrite)
     inputs = (result, controller, task, axis)
     output = claim_output(output, mode, inputs=inputs)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ServofmuWarning, UserError
+from ..errors import ServofmuWarning, UserError, check_int, is_real
 from ..identification.pso import PsoOptions, minimize_pso
 from ..identification.prior import full_vectors, identified_names
 from ..model.controller import ControllerSpec
@@ -140,7 +140,11 @@ class TuneOptions:
     polish_steps: tuple[float, ...] = (0.02, 0.005)
 
     def __post_init__(self):
-        if not (np.isfinite(self.max_sensitivity) and self.max_sensitivity > 1.0):
+        check_int("--particles", self.particles, 1, 10_000)
+        check_int("--iterations", self.iterations, 0, 100_000)
+        check_int("the number of uncertainty draws", self.draws, 0, 10_000)
+        check_int("--seed", self.seed, 0)
+        if not (is_real(self.max_sensitivity) and self.max_sensitivity > 1.0):
             raise UserError(f"the sensitivity peak bound must be above 1 (|S| ≥ 1 somewhere for every loop "
                             f"with a delay), not {self.max_sensitivity!r}")
 
