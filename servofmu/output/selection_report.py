@@ -56,6 +56,9 @@ def _side_by_side(validations: list[tuple[str, Validation]]) -> bytes | None:
             ax.grid(True, alpha=0.4)
             if row == len(items) - 1:
                 ax.set_xlabel("time [s]")
+            if col == 0:
+                ax.set_ylabel({"position": "position [m]", "force": "force [N]"}.get(getattr(item, "output", "v"),
+                                                                                     "v [m/s]"))
         axes[0][col].legend(fontsize=7, loc="upper right")
     return png_bytes(fig)
 
