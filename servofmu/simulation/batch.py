@@ -127,7 +127,7 @@ class BatchSimulator:
         self._lib = self._load(plant)
         ns, n_p, nf = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
         self._lib.sb_sizes(ctypes.byref(ns), ctypes.byref(n_p), ctypes.byref(nf))
-        self.n_states = ns.value  # integrated states (all but the position)
+        self.n_states = ns.value  # integrated states (all but the position, unless a load's force depends on it)
 
     @staticmethod
     def _load(plant: Plant) -> ctypes.CDLL:
