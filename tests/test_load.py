@@ -336,6 +336,16 @@ def test_closed_loop_records_identify_the_inclined_axis(tmp_path):
                   "-o", tmp_path / "r.h5")):
         proc = run(*args)
         assert proc.returncode == 0, proc.stderr
+    # the batch simulator's loop is the co-simulated loop of the FMUs
+    from servofmu.identification.closed_loop import closed_loop_data
+    from servofmu.measurement.datafile import read_data_file
+    from servofmu.model.controller import load_controller
+    from servofmu.simulation.closed_loop import LoopSimulator
+
+    controller = load_controller(ctrl)
+    (series,) = closed_loop_data(read_data_file(tmp_path / "rec.h5"), controller).records
+    loop = series.simulate(LoopSimulator(truth), truth.parameter_vector()[None], controller, rtol=1e-10)
+    assert np.abs(loop.position[0] - series.position).max() <= 1e-8 * np.abs(series.position).max()
     result = sf.read_result(tmp_path / "r.h5")
     true = truth.parameter_vector()[identified_mask(truth)]
     assert "offset" in result.names and "ripple_period" in result.names
