@@ -4,6 +4,8 @@ writes, the check on the axis, and one-line errors for bad input."""
 from __future__ import annotations
 
 import itertools
+import shlex
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +24,7 @@ from servofmu.tuning.search import TuneOptions, search_gains, tracking_errors, u
 from servofmu.tuning.task import stroke_task
 
 TS = 1e-3
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "tuning.md"
 
 
 def controller(**changes):
@@ -217,21 +220,33 @@ def files(tmp_path_factory):
     return folder
 
 
-def test_tune_command_writes_a_controller_file_and_a_page(files, tmp_path):
-    out, page = tmp_path / "tuned.toml", tmp_path / "tune.html"
-    proc = run("tune", files / "result.h5", "axis_controller", "--stroke", "0.02", "--speed", "0.05",
-               "--particles", "6", "--iterations", "3", "--compensate", "-o", out, "--report", page)
-    assert proc.returncode == 0, proc.stderr
-    tuned = load_controller(out)
-    assert tuned["friction_feedforward"] == 1.0 and tuned["ff_fc_pos"] == pytest.approx(40.0)
-    assert analyse_loop(sf.load_plant("linear_axis"), tuned).ms <= 1.7 + 1e-6
-    html = page.read_text()
-    assert all(f'id="{t}"' in html for t in ("gains", "loop", "model")) and html.count("data:image/png") == 3
-    rule = tmp_path / "rule.toml"
-    proc = run("tune", files / "result.h5", "axis_controller", "--method", "rule", "--max-sensitivity", "1.5",
-               "--stroke", "0.02", "--speed", "0.05", "-o", rule)
-    assert proc.returncode == 0, proc.stderr
-    assert analyse_loop(sf.load_plant("linear_axis"), load_controller(rule)).ms == pytest.approx(1.5, abs=0.01)
+def test_commands_of_docs_tuning_run(tmp_path):
+    """docs/tuning.md's console block, in order, in an empty folder with a reference from rest: the tuned file
+    meets the bound on the identified plant and keeps the drive's settings, the rule's feeds the friction forward
+    at the other bound, the page holds its tables and figures."""
+    block = DOCS.read_text().split("```console", 1)[1].split("```", 1)[0]
+    commands = [shlex.split(line[2:]) for line in block.splitlines() if line.startswith("$ servofmu ")]
+    assert len(commands) == 8
+    t = np.arange(0.0, 2.0005, TS)
+    x = 0.03 * (1 - np.cos(np.pi * t)) + 0.01 * (1 - np.cos(2 * np.pi * 2.3 * t))
+    np.savetxt(tmp_path / "reference.csv", np.column_stack([t, x]), delimiter=",", header="time,position",
+               comments="")
+    for argv in commands:
+        proc = run(*argv[1:], cwd=tmp_path)
+        assert proc.returncode == 0, f"{' '.join(argv)}: {proc.stderr}"
+        if argv[1:3] == ["tune", "axis-result.h5"] and "--axis" in argv:
+            assert "on the axis" in proc.stdout and "tuned" in proc.stdout.splitlines()[3]
+    identified = sf.read_result(tmp_path / "axis-result.h5").plant
+    tuned, rule = load_controller(tmp_path / "tuned.toml"), load_controller(tmp_path / "rule.toml")
+    assert analyse_loop(identified, tuned).ms <= 1.7 + 1e-6
+    assert analyse_loop(identified, rule).ms == pytest.approx(1.5, abs=0.01)
+    for c in (tuned, rule):
+        assert (c.sample_time, c["delay"], c["force_limit"], c["encoder_resolution"]) == (1e-3, 1, 3000.0, 1e-6)
+    assert tuned["friction_feedforward"] == 0.0 and rule["friction_feedforward"] == 1.0
+    assert rule["ff_fc_pos"] == pytest.approx(identified.friction.fc_pos)
+    html = (tmp_path / "tune.html").read_text()
+    assert all(f'id="{t}"' in html for t in ("gains", "loop", "model", "axis")) and html.count("data:image/png") == 3
+    assert (tmp_path / "tuned.fmu").stat().st_size > 0
 
 
 def test_tune_checks_on_the_axis(files, tmp_path, built_fmu):

@@ -190,8 +190,24 @@ def sensitivity_peak(plant: Plant, controller: ControllerSpec, points: int = 600
 
 
 def analyse_loop(plant: Plant, controller: ControllerSpec, points: int = 3000) -> LoopAnalysis:
-    """Sensitivity peak, gain and phase margins of the loop of ``controller`` around ``plant`` linearised about
-    motion (the module's docstring).  An unstable closed loop has ms = inf."""
+    """Sensitivity peak, gain and phase margins of the drive's loop linearised about motion.
+
+    Parameters
+    ----------
+    plant : Plant
+        The axis: G(s) from force to velocity and its friction (of which the viscous part fv stays).
+    controller : ControllerSpec
+        The drive: sample time, delay, velocity estimate and gains (servofmu.model.controller).
+    points : int
+        Frequencies of the logarithmic grid up to the Nyquist frequency (the peak is refined about its maximum).
+
+    Returns
+    -------
+    LoopAnalysis
+        Ms (inf for an unstable closed loop) and where it is, the upper gain margin, the phase margin, the
+        crossover, stability and L on the grid; the loop is the discrete L(z) of servofmu.tuning.loop's
+        docstring, broken at the force.
+    """
     loop = discrete_loop(plant, controller)
     omega = frequency_grid(controller.sample_time, points)
     response = loop.response(omega)

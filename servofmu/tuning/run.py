@@ -131,14 +131,44 @@ def _model_run(uncertainty: Uncertainty, simulator: LoopSimulator, task: Task, s
 def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: TuneOptions = TuneOptions(),
               method: str = "pso", compensate: bool = False, axis=None, engine: str = "libcosim",
               progress=None, source: str = "the result") -> Tuning:
-    """Tune the drive ``controller`` for the identified axis ``result`` on ``task``.
+    """Tune the drive's gains for an identified axis.
 
-    The swarm (``method="pso"``, servofmu.tuning.search) or the reference rule (``"rule"``,
-    servofmu.tuning.rule) at the sensitivity bound of ``options``; with ``compensate`` the identified friction
-    is fed forward in every controller compared.  Given ``axis`` (an SSP archive), the given, the rule's and the
-    tuned controller are also co-simulated on it (servofmu.tuning.check).  ``progress(done, total)`` follows the
-    swarm's iterations; ``source`` names the result in messages.  Raises UserError for a result of another axis, an infeasible task or an unreachable
-    bound; nothing is written here."""
+    Parameters
+    ----------
+    result : Result
+        The axis identified (servofmu.read_result), with the 95 % intervals its uncertainty set is drawn from.
+    controller : ControllerSpec
+        The drive (servofmu.model.controller.load_controller): its sample time, delay, output limit and encoder
+        stay; its gains are the "given" ones compared with.
+    task : Task
+        The motion tuned for (servofmu.tuning.task: a stroke or a reference file).
+    options : TuneOptions
+        The bound on the sensitivity peak, the swarm's settings and the uncertainty set's.
+    method : str
+        "pso" (the particle swarm, servofmu.tuning.search) or "rule" (the reference rule alone,
+        servofmu.tuning.rule).
+    compensate : bool
+        Feed forward the identified friction in every controller compared.
+    axis : str or Path, optional
+        An axis archive (SSP) to co-simulate the given, the rule's and the tuned gains on (servofmu.tuning.check).
+    engine : str
+        Its co-simulation engine, "libcosim" or "fmpy".
+    progress : callable, optional
+        ``progress(done, total)`` after each of the swarm's iterations.
+    source : str
+        How messages name the result.
+
+    Returns
+    -------
+    Tuning
+        Every controller's loop figures and figures on the model (and on the axis); ``.controller`` is the one
+        chosen (the swarm's, or the rule's with ``method="rule"``).  Nothing is written.
+
+    Raises
+    ------
+    UserError
+        For a result of another axis, a task infeasible at the output limit, or a bound nothing meets.
+    """
     if method not in METHODS:
         raise UserError(f"--method must be one of {', '.join(METHODS)}, not {method!r}")
     started = clock.perf_counter()

@@ -125,10 +125,25 @@ class GainSpace:
 
 @dataclass(frozen=True)
 class TuneOptions:
-    """Settings of a tuning: the sensitivity bound ``max_sensitivity``, the swarm (``particles``,
-    ``iterations``) and the compass search after it (``polish_steps``: its steps, shares of the box's
-    widths), the uncertainty set (``draws`` random corners of the 95 % box), ``seed``, the simulation's
-    ``rtol`` and ``threads``."""
+    """Settings of a tuning.
+
+    Parameters
+    ----------
+    max_sensitivity : float
+        Bound on the sensitivity peak of the loop linearised about motion, above 1 (default 1.7).
+    particles, iterations : int
+        The particle swarm's size and length (default 16 and 30).
+    draws : int
+        Random corners of the identified 95 % box in the uncertainty set, beside the nominal model (default 6).
+    seed : int
+        Seed of the swarm and of the draws.
+    rtol : float
+        Relative tolerance of the loop simulations.
+    threads : int or None
+        Threads of the batch simulator (None: the cores this process may use).
+    polish_steps : tuple of float
+        Steps of the compass search after the swarm, as shares of the box's widths.
+    """
 
     max_sensitivity: float = 1.7
     particles: int = 16
