@@ -60,7 +60,8 @@ def scipy_loop(plant, c, omega):
 
 
 def test_zoh_plant_of_a_mass_with_damping_is_the_closed_form():
-    """G = K/(s + a) over s, held: (K/a)·[(Ts − β/a)z + (β/a − Ts·e^{−aTs})]/((z − 1)(z − e^{−aTs})), β = 1 − e^{−aTs}."""
+    """G = K/(s + a) over s, held: (K/a)·[(Ts − β/a)z + (β/a − Ts·e^{−aTs})]/((z − 1)(z − e^{−aTs})),
+    β = 1 − e^{−aTs}."""
     plant = sf.load_plant("linear_axis")
     k, a = plant.numerator_gain(), -plant.all_poles()[0].real
     e, beta = np.exp(-a * TS), -np.expm1(-a * TS)

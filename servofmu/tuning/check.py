@@ -10,7 +10,9 @@ of the model (servofmu.tuning.run), so that what the model promised and what the
 - RMS and peak tracking error r − x on the task;
 - the step's settling time (the last time |r − x| leaves ±2 % of the step) and overshoot;
 - the velocity error at the reversals: the largest |v − dr/dt| within ±50 ms of each reversal of the reference
-  velocity — the stick-slip ripple friction leaves there.
+  velocity — the stick-slip ripple friction leaves there;
+- the share of the task's samples whose force command is at the output limit (a tuning that saturates on its task
+  says so).
 """
 from __future__ import annotations
 
@@ -38,13 +40,15 @@ RUNTIME = ("encoder_resolution", "force_noise", "noise_seed")  # the axis's own,
 @dataclass(frozen=True)
 class Figures:
     """The figures of one controller on one plant (m, s, m/s): RMS and peak tracking error on the task, the
-    step's settling time and overshoot (a share of the step), the largest velocity error at the reversals."""
+    step's settling time and overshoot (a share of the step), the largest velocity error at the reversals, the
+    share of the task's samples at the output limit."""
 
     rms_error: float
     peak_error: float
     settling_time: float
     overshoot: float
     reversal_velocity_error: float
+    saturated: float
 
     def as_dict(self) -> dict:
         """The figures by name."""
@@ -82,13 +86,15 @@ def reversal_velocity_error(time: np.ndarray, reference: np.ndarray, v: np.ndarr
     return float(np.max(np.abs(v - v_ref)[near]))
 
 
-def tracking_figures(task: Task, position: np.ndarray, v: np.ndarray, step: Task,
-                     step_position: np.ndarray) -> Figures:
-    """The figures of a run on the task (``position``, ``v`` at its samples) and one on the step."""
+def tracking_figures(task: Task, position: np.ndarray, v: np.ndarray, command: np.ndarray, limit: float,
+                     step: Task, step_position: np.ndarray) -> Figures:
+    """The figures of a run on the task (``position``, ``v`` and the force ``command`` at its samples, the output
+    ``limit``) and one on the step."""
     error = task.position - position
     settle, overshoot = settling(step.time, step.position, step_position)
     return Figures(float(np.sqrt(np.mean(error ** 2))), float(np.max(np.abs(error))), settle, overshoot,
-                   reversal_velocity_error(task.time, task.position, v))
+                   reversal_velocity_error(task.time, task.position, v),
+                   float(np.mean(np.abs(command) >= limit * (1 - 1e-12))))
 
 
 def step_drive(controller: ControllerSpec) -> ControllerSpec:
@@ -140,7 +146,7 @@ def check_on_axis(ssp: str | Path, controllers: dict[str, ControllerSpec], task:
             on_task = run_variant(archives["task"], drive, label, engine).result
             on_step = run_variant(archives["step"], step_drive(drive), label, engine).result
             figures = tracking_figures(Task(on_task.time, on_task["reference"], task.label), on_task["position"],
-                                       on_task["v"], Task(on_step.time, on_step["reference"], step.label),
-                                       on_step["position"])
+                                       on_task["v"], on_task["force_command"], drive["force_limit"],
+                                       Task(on_step.time, on_step["reference"], step.label), on_step["position"])
             runs.append(AxisRun(label, on_task, on_step, figures))
     return runs

@@ -31,8 +31,8 @@ from ..errors import UserError
 from ..model.controller import ControllerSpec
 from ..model.plant import Plant
 
-__all__ = ["DiscreteLoop", "LoopAnalysis", "discrete_loop", "analyse_loop", "sensitivity_peak", "zoh_position_plant", "axis_mass",
-           "frequency_grid"]
+__all__ = ["DiscreteLoop", "LoopAnalysis", "discrete_loop", "analyse_loop", "sensitivity_peak", "zoh_position_plant",
+           "axis_mass", "frequency_grid"]
 
 
 def axis_mass(plant: Plant) -> float:
@@ -225,4 +225,5 @@ def analyse_loop(plant: Plant, controller: ControllerSpec, points: int = 3000) -
     if gain_cross.size:
         crossover = float(gain_cross[-1])
         phase_margin = float(180.0 + np.degrees(np.angle(loop.response(crossover))))
+        phase_margin = phase_margin - 360.0 if phase_margin > 180.0 else phase_margin  # in (−180°, 180°]
     return LoopAnalysis(ms, ms_frequency, gain_margin, phase_margin, crossover, stable, omega, response)

@@ -123,7 +123,8 @@ def _model_run(uncertainty: Uncertainty, simulator: LoopSimulator, task: Task, s
                                       rtol=rtol)
     on_step = simulator.simulate_loop(nominal.parameter_vector()[None], step.time, step.position,
                                       step_drive(controller), rtol=rtol)
-    figures = tracking_figures(task, on_task.position[0], on_task.v[0], step, on_step.position[0])
+    figures = tracking_figures(task, on_task.position[0], on_task.v[0], on_task.command[0],
+                               controller["force_limit"], step, on_step.position[0])
     return ModelRun(controller, loop, worst_peak, worst, figures, on_task.position[0], on_task.v[0],
                     on_step.position[0])
 
