@@ -1,5 +1,6 @@
 """`servofmu demo`: the paper's plants g1 and g2 end to end, then the example axis in its loop: co-simulated,
-identified from its closed-loop records, validated on a second run, its friction compensated."""
+identified from its closed-loop records, validated on a second run, its friction compensated, its drive's gains
+tuned on the identified model and checked on the axis."""
 from __future__ import annotations
 
 import time
@@ -30,6 +31,7 @@ from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
 from .report import make_report
+from .tune_report import tune_files, tune_text
 from .validate import validate
 
 __all__ = ["run_demo", "run_closed_loop_demo", "paper_comparison", "reference_trajectories", "DEMO_PLANTS",
@@ -123,7 +125,8 @@ def reference_trajectories(sample_time: float = 1e-3) -> dict[str, tuple[np.ndar
 
 def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str = ""):
     """linear_axis with axis_controller: system → co-simulation (libcosim) with a 1 µm encoder and actuator noise →
-    closed-loop identification → validation on a second run → friction compensation.  Returns the result."""
+    closed-loop identification → validation on a second run → friction compensation → the drive's gains tuned on
+    the identified model and checked on the axis.  Returns the result."""
     plant, controller = load_plant("linear_axis"), load_controller("axis_controller")
     build_fmu(plant, out / "axis.fmu", fmi_version=2, overwrite=True)
     build_controller_fmu(controller, out / "axis-controller.fmu", fmi_version=2, overwrite=True)
@@ -159,6 +162,12 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
                                 output=out / "axis-compensation.html")
     report(compensation_text(tracking))
     report(f"wrote {out / 'axis-compensation.html'}")
+    # the drive's gains tuned on the identified model for the same stroke, checked on the axis (a short swarm)
+    tuning = tune_files(out / "axis-result.h5", controller.source, out / "axis-tuned.toml", stroke=0.1,
+                        speed=0.05 * np.pi, axis=ssp, report=out / "axis-tune.html", overwrite=True, particles=10,
+                        iterations=10)
+    report(tune_text(tuning))
+    report(f"wrote {out / 'axis-tuned.toml'} and {out / 'axis-tune.html'}")
     return result
 
 
