@@ -41,7 +41,7 @@ from servofmu.simulation.closed_loop import LoopSimulator
 from servofmu.tuning.check import check_on_axis
 from servofmu.tuning.loop import analyse_loop, axis_mass, sensitivity_peak
 from servofmu.tuning.run import step_for, tune_axis
-from servofmu.tuning.search import GainSpace, TuneOptions, tracking_errors
+from servofmu.tuning.search import GainSpace, TuneOptions, to_bound, tracking_errors
 from servofmu.tuning.task import Task
 
 PLANTS = ("linear_axis", "stribeck_axis")
@@ -70,23 +70,33 @@ def at_truth(result, truth):
 
 def grid_search(truth, base, task: Task, quick: bool):
     """The best feedback gains and mass feed-forward on the true plant under the bound (filter off, the whole
-    reference velocity fed forward): a dense grid in the swarm's coordinates."""
+    reference velocity fed forward): a dense grid in the swarm's coordinates, and each of its shapes (integral
+    corner, bandwidth ratio, mass share) also at the fastest velocity loop the bound allows."""
     space = GainSpace(axis_mass(truth), base.sample_time, int(base["delay"]))
     sim = LoopSimulator(truth, threads=available_cores())
     # the velocity loop's speed every 0.05 decade (the bound cuts across it), the two corners every 0.13 decade
     # (the loop is symmetric in them), the mass feed-forward at three shares
     axes = ((np.linspace(-0.9, 0.1, 6), np.linspace(-1.6, 0.0, 6), np.linspace(-1.6, 0.0, 6), (1.0,)) if quick else
             (np.linspace(-0.9, 0.1, 21), np.linspace(-1.6, 0.0, 13), np.linspace(-1.6, 0.0, 13), (1.0, 1.25, 1.5)))
+    def peak(x, corners=True):
+        return sensitivity_peak(truth, space.controller(base, x))
+
     best, points = (np.inf, None), 0
-    for a, b, c, m in itertools.product(*axes):
-        candidate = space.controller(base, np.array([a, b, c, 0.0, 1.0, m]))
-        if sensitivity_peak(truth, candidate) > BOUND:
+    shapes = list(itertools.product(*axes[1:]))
+    # every point of the grid, and every shape at the fastest velocity loop the bound allows (the bound cuts
+    # across the grid's steps of the velocity loop)
+    grid = [np.array([a, b, c, 0.0, 1.0, m]) for a, (b, c, m) in itertools.product(axes[0], shapes)]
+    grid += [x for x in (to_bound(peak, np.array([axes[0][-1], b, c, 0.0, 1.0, m]), BOUND, -2.0)
+                         for b, c, m in shapes) if x is not None]
+    for x in grid:
+        if peak(x) > BOUND:
             continue
         points += 1
+        candidate = space.controller(base, x)
         rms = tracking_errors(sim, truth.parameter_vector()[None], task, candidate)[0]
         if rms < best[0]:
             best = (rms, candidate)
-    return best[1], points, int(np.prod([len(x) for x in axes]))
+    return best[1], points, len(grid)
 
 
 def corners(result, controller, task: Task):

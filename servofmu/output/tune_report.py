@@ -83,9 +83,12 @@ def tune_text(tuning: Tuning) -> str:
     figures = axis or {label: run.figures for label, run in tuning.runs.items()}
     where = "on the axis" if axis else "on the model"
     chosen = figures[tuning.chosen].rms_error
-    lines.append(f"{tuning.chosen}: RMS tracking error {where} {figures['given'].rms_error / chosen:.2f}x lower than "
-                 "the given gains" + (f", {figures['rule'].rms_error / chosen:.2f}x lower than the reference rule"
-                                      if tuning.chosen != "rule" else "")
+    def than(label: str, name: str) -> str:
+        ratio = figures[label].rms_error / chosen
+        return f"{ratio:.2f}x lower than {name}" if ratio >= 1 else f"{1 / ratio:.2f}x higher than {name}"
+
+    lines.append(f"{tuning.chosen}: RMS tracking error {where} {than('given', 'the given gains')}"
+                 + (f", {than('rule', 'the reference rule')}" if tuning.chosen != "rule" else "")
                  + f", at a sensitivity peak of {tuning.runs[tuning.chosen].loop.ms:.3f} "
                  f"(bound {tuning.options.max_sensitivity:g}); {tuning.seconds:.1f} s")
     if figures[tuning.chosen].saturated > 0:  # said, not hidden: the task asks for the limit
@@ -129,9 +132,8 @@ def _nyquist_png(tuning: Tuning) -> bytes:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 6))
     for i, (label, run) in enumerate(tuning.runs.items()):
-        resp = run.loop.response
-        near = np.abs(resp) < 5
-        ax.plot(resp.real[near], resp.imag[near], ".", ms=1.5, color=f"C{i}",
+        resp = np.where(np.abs(run.loop.response) < 5, run.loop.response, np.nan)  # the part near −1
+        ax.plot(resp.real, resp.imag, "-", lw=1.2, color=f"C{i}",
                 label=f"{LABELS[label]} (Ms {run.loop.ms:.2f}, GM {run.loop.summary()['gain_margin_db']:.1f} dB)")
     angle = np.linspace(0, 2 * np.pi, 400)
     radius = 1 / tuning.options.max_sensitivity
