@@ -223,6 +223,8 @@ def bad_log(path, edit) -> None:
      r"sample 21 \(t = 4.221\d* s\): 2 steps after the previous sample \(a missing sample"),
     (lambda log: log["stamp"].__setitem__(30, log["stamp"][29] - 1e-4), (),
      r"sample 31 at 4.2289\d* s after 4.2290\d* s"),
+    (lambda log: log["stamp"].__setitem__(25, log["stamp"][25] + 0.15 * TS), (),
+     r"sample 26 \(t = 4.2251\d* s\): \+0.1[45]\d* of a sample off the record's grid"),
     (lambda log: None, ("--reference", "position_ref"), "no column 'position_ref'"),
     (lambda log: None, ("--disturbance-scale", "nan"), "--disturbance-scale must be a finite number .*, not nan"),
 ])
