@@ -58,8 +58,10 @@ def _merge(parts: list, paths: list[str]):
     source = ", ".join(paths)
     if isinstance(first, SineData):
         cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        noise = cat("noise") if all(p.noise is not None for p in parts) else None  # the identifier's noise floor
         return SineData(amplitudes=cat("amplitudes"), frequencies=cat("frequencies"), H=cat("H"), dc=cat("dc"),
-                        noisy=all(p.noisy for p in parts), source=source, skipped=sum(p.skipped for p in parts))
+                        noisy=all(p.noisy for p in parts), source=source, skipped=sum(p.skipped for p in parts),
+                        noise=noise)
     records = [r for p in parts for r in p.records]
     files = [f for p, f in zip(parts, paths) for _ in p.records]
     return replace(first, records=_unique(records, files), source=source)
