@@ -164,13 +164,16 @@ def test_select_ranks_g1s_structure_first_and_writes_every_output(g1_records, tm
     assert 'id="chosen"' in page and "coulomb/1" in page and "<img" in page
 
 
-@pytest.mark.parametrize("case", ["unknown candidate", "order 0", "validation of other signals"])
+@pytest.mark.parametrize("case", ["unknown candidate", "order 0", "validation of other signals",
+                                  "validation on the fitted data"])
 def test_bad_input_is_one_line_and_nothing_is_written(g1_records, tmp_path, case):
     validation, extra = g1_records["val"], []
     if case == "unknown candidate":
         extra, fragment = ["--candidates", "coulomb,sticky"], "unknown friction law 'sticky'"
     elif case == "order 0":
         extra, fragment = ["--orders", "0,1"], "order 0 of G(s)"
+    elif case == "validation on the fitted data":
+        validation, fragment = g1_records["fit"], "is one of the fitted data files"
     else:  # the position of an encoder where the fitted records measure the velocity
         validation, fragment = g1_records["position"], "holds records of position"
     proc = run("select", g1_records["fit"], "--validate", validation, *extra, "--workers", "0",

@@ -121,6 +121,10 @@ def select_files(data_files, validation_file, output, options: SelectOptions | N
     if len({p.resolve() for p in outputs.values()}) < len(outputs):
         raise UserError(f"{output}: the selection, the plant file and the result must be three different files")
     candidates = _check_options(options)
+    if any(Path(d).is_file() and Path(validation_file).is_file() and file_sha256(d) == file_sha256(validation_file)
+           for d in data_files):
+        raise UserError(f"{validation_file}: is one of the fitted data files (the same contents): validate on data "
+                        "no candidate is fitted to")
     controller = None
     if options.closed_loop is not None:
         from ..model.controller import load_controller
