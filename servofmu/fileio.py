@@ -23,7 +23,7 @@ from .locks import release, sibling, take
 
 __all__ = ["file_sha256", "claim_output", "output_claims", "holds_outputs", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
            "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "read_hdf5",
-           "read_image",
+           "read_image", "read_hdf5_image",
            "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM",
            "write_failures"]
 
@@ -329,10 +329,24 @@ def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schem
     file is replaced meanwhile.  Whatever goes wrong (a missing or malformed item, a failed checksum or digest, a
     file the HDF5 library cannot finish reading) is one UserError naming the file: ``FILE: damaged WHAT
     (reason)``."""
-    import h5py
-
     path = Path(path)
     image = read_image(path, what)
+
+    def checked(f):
+        _, version = check_format(f, path, formats, schema_version, what)
+        return read(f, version)
+
+    value = read_hdf5_image(image, path, what, checked)
+    return (value, hashlib.sha256(image).hexdigest()) if with_sha256 else value
+
+
+def read_hdf5_image(image: bytes, path: str | Path, what: str, read: Callable):
+    """``read(f)`` of the HDF5 file whose bytes are ``image`` (read from ``path``), after the first pass that
+    cannot hang (servofmu.integrity.inspect_image: a file with a digest must match it), ``f`` opened on the bytes
+    in memory: for servofmu's files (:func:`read_hdf5`) and foreign ones (MAT 7.3 records).  What goes wrong is one
+    UserError naming ``path``."""
+    import h5py
+
     try:
         inspect_image(image)
     except InspectionFailed as exc:
@@ -342,13 +356,11 @@ def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schem
         raise UserError(f"{path}: damaged {what} ({exc.reason})") from None
     try:
         with h5py.File.in_memory(image) as f:
-            _, version = check_format(f, path, formats, schema_version, what)
-            value = read(f, version)
+            return read(f)
     except UserError:
         raise
     except (*READ_ERRORS, OverflowError) as exc:  # (OverflowError: a huge stored number made an int)
         raise UserError(f"{path}: damaged {what} ({read_error_reason(exc)})") from exc
-    return (value, hashlib.sha256(image).hexdigest()) if with_sha256 else value
 
 
 def read_image(path: str | Path, what: str) -> bytes:

@@ -9,7 +9,7 @@ checksum covers, such as variable-length strings, included) is found.  :func:`fi
 
 A damaged file can make the HDF5 library itself loop for ever (a flipped size in a global heap), deaf to signals,
 since the loop never returns to Python.  So the first pass over an input — opening it, walking every object,
-reading every value, checking the digest — runs in a forked child process with a deadline and a CPU-time limit;
+reading every value, checking the digest — runs in a forked child process with a limit on its processor time;
 only a file that pass has walked completely is then read by the process itself, from the same bytes.
 """
 from __future__ import annotations
@@ -27,10 +27,14 @@ DIGEST_ATTRIBUTE = "content_sha256"
 _LISTING_HEADER = b"servofmu-content-1\0"  # the listing's own version: a later change of it names itself
 MAX_DEPTH = 16  # servofmu's files are 4 levels deep; a cycle of links (a damaged address) ends here
 
-# How long the first pass over an input may take: BASE_DEADLINE seconds, plus one per DEADLINE_BYTES_PER_S bytes
-# (the pass reads and inflates every array; tens of MB/s on a slow machine).
+# How much processor time the first pass over an input may take: BASE_DEADLINE seconds, plus one per
+# DEADLINE_BYTES_PER_S bytes (the pass reads and inflates every array: tens of MB/s on a slow machine).  Processor
+# time, not wall time, so that a busy machine cannot make a sound file look like a looping one; the kernel ends the
+# child when it is spent (RLIMIT_CPU).  A child that neither ends nor computes (a stall) is given STALL_FACTOR times
+# as long in wall time.
 BASE_DEADLINE = 10.0
 DEADLINE_BYTES_PER_S = 5e6
+STALL_FACTOR = 10
 
 
 class InspectionFailed(Exception):
@@ -121,16 +125,16 @@ def _inspect(image: bytes) -> tuple[str, str]:
         return "damaged", read_error_reason(exc)
 
 
-def inspection_deadline(size: int) -> float:
-    """Seconds the first pass over an image of ``size`` bytes may take."""
-    return BASE_DEADLINE + size / DEADLINE_BYTES_PER_S
+def inspection_deadline(size: int) -> int:
+    """Seconds of processor time the first pass over an image of ``size`` bytes may take."""
+    return int(BASE_DEADLINE + size / DEADLINE_BYTES_PER_S)
 
 
 def inspect_image(image: bytes) -> None:
     """Open ``image`` (an HDF5 file's bytes), walk every object, read every value and check the digest, in a forked
-    child that is killed after :func:`inspection_deadline` (it also has that much CPU time and no more, should this
-    process die first).  Raises :class:`InspectionFailed`.  Where processes cannot be forked the pass runs here,
-    unbounded."""
+    child that has :func:`inspection_deadline` seconds of processor time (and STALL_FACTOR times as long in wall
+    time); a stop signal of this process ends it too.  Raises :class:`InspectionFailed`.  Where processes cannot be
+    forked the pass runs here, unbounded."""
     if not hasattr(os, "fork"):
         kind, reason = _inspect(image)
         if kind != "ok":
@@ -147,24 +151,25 @@ def inspect_image(image: bytes) -> None:
     finally:
         os.close(read_end)
     if report is None:
-        raise InspectionFailed("hang", f"reading it did not end within {deadline:.0f} s: a damaged file that makes "
-                                       "the HDF5 library loop")
+        raise InspectionFailed("hang", f"reading it did not end within {deadline} s of processor time: a damaged "
+                                       "file that makes the HDF5 library loop")
     kind, reason = report
     if kind != "ok":
         raise InspectionFailed(kind, reason)
 
 
-def _child(image: bytes, write_end: int, read_end: int, deadline: float) -> None:
+def _child(image: bytes, write_end: int, read_end: int, deadline: int) -> None:
     code = 1
     try:
         os.close(read_end)
-        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # a stop ends the child at once
+        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGXCPU):  # a stop ends the child at once
             signal.signal(s, signal.SIG_DFL)
         try:
             import resource
 
-            limit = int(deadline) + 1
-            resource.setrlimit(resource.RLIMIT_CPU, (limit, limit))  # even if the parent is gone
+            limit = deadline + 1  # (a forked child's processor time starts at zero)
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+            resource.setrlimit(resource.RLIMIT_CPU, (limit, limit))  # SIGKILL when spent, even with the parent gone
         except (ImportError, ValueError, OSError):
             pass
         message = json.dumps(_inspect(image)).encode()
@@ -177,10 +182,11 @@ def _child(image: bytes, write_end: int, read_end: int, deadline: float) -> None
         os._exit(code)
 
 
-def _wait_for(pid: int, read_end: int, deadline: float) -> tuple[str, str] | None:
-    """The child's report, or None when it did not come within ``deadline`` seconds (the child is then killed).
-    A stop signal of this process (an exception from its handler) kills the child too."""
-    chunks, end = [], time.monotonic() + deadline
+def _wait_for(pid: int, read_end: int, deadline: int) -> tuple[str, str] | None:
+    """The child's report, or None when it spent its processor time (killed by the kernel) or did not report
+    within STALL_FACTOR × ``deadline`` seconds (then killed here).  A stop signal of this process (an exception from
+    its handler) kills the child too."""
+    chunks, end = [], time.monotonic() + STALL_FACTOR * deadline
     reaped = False
     try:
         while True:
@@ -194,11 +200,13 @@ def _wait_for(pid: int, read_end: int, deadline: float) -> tuple[str, str] | Non
             if not chunk:
                 break
             chunks.append(chunk)
-        os.waitpid(pid, 0)
+        _, status = os.waitpid(pid, 0)
         reaped = True
         try:
             kind, reason = json.loads(b"".join(chunks))
-        except ValueError:  # the child died without a report (killed, out of memory, out of CPU time)
+        except ValueError:  # the child died without a report
+            if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGKILL, signal.SIGXCPU):
+                return None  # its processor time spent
             return "damaged", "reading it failed in the HDF5 library"
         return str(kind), str(reason)
     finally:

@@ -12,7 +12,6 @@ import xml.etree.ElementTree as ET
 import zipfile
 from dataclasses import replace
 
-import h5py
 import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
@@ -45,6 +44,7 @@ from servofmu.output.export import (
     remeasure,
 )
 from servofmu.runtime import RunOptions
+from hdf5edit import edit_hdf5
 
 # Perturbation of the identified parameters: an identification that is off by a few per cent.
 FACTORS = {"g1": 1.02, "g2": 1.01}
@@ -336,9 +336,7 @@ def test_cli_exports_and_lists_the_library_formats(result_file, tmp_path):
 def foreign_version(path, folder):
     target = folder / "foreign.h5"
     target.write_bytes(path.read_bytes())
-    with h5py.File(target, "r+") as f:
-        f.attrs["schema_version"] = 99
-    return target
+    return edit_hdf5(target, lambda f: f.attrs.__setitem__("schema_version", 99))
 
 
 def corrupt(path, folder):

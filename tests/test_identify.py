@@ -20,6 +20,7 @@ from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
 from servofmu.runtime import RunOptions
+from hdf5edit import edit_hdf5
 
 PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
 
@@ -156,8 +157,7 @@ def spoil_empty(f):
 def test_refuses_nan_or_empty_data(g1_files, tmp_path, spoil, message):
     bad = tmp_path / "bad.h5"
     bad.write_bytes(g1_files["data"].read_bytes())
-    with h5py.File(bad, "r+") as f:
-        spoil(f)
+    edit_hdf5(bad, spoil)
     out = tmp_path / "r.h5"
     assert_one_line_error(run("identify", bad, "--structure", "g1", "--method", "pso", "-o", out), message)
     assert not out.exists()

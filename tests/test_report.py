@@ -27,6 +27,7 @@ from servofmu.model.plant import load_plant
 from servofmu.baselines.compare import run_methods
 from servofmu.fileio import file_sha256
 from servofmu.model.friction import steady_friction
+from hdf5edit import edit_hdf5
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -273,8 +274,7 @@ def test_report_refuses_bad_input_in_one_line(g1_result, tmp_path):
     # data other than the result was identified from
     other = tmp_path / "other.h5"
     other.write_bytes(data.read_bytes())
-    with h5py.File(other, "a") as f:
-        f.attrs["note"] = "changed"
+    edit_hdf5(other, lambda f: f.attrs.__setitem__("note", "changed"))
     assert_one_line_error(run("report", result, "--data", other, "-o", out, "--force"), str(other), "SHA-256")
     # the data file cannot be found: the result alone in another folder
     alone = tmp_path / "alone"

@@ -82,6 +82,18 @@ class TrainOptions:
 # ---------------------------------------------------------------------------
 # Training
 # ---------------------------------------------------------------------------
+def _import_torch():
+    """torch, imported; a loader that cannot map its libraries for lack of memory (a limit on the address space)
+    is a MemoryError, as an allocation that fails later is, not an ImportError."""
+    try:
+        import torch
+    except ImportError as exc:
+        if "failed to map segment" in str(exc) or "cannot allocate memory" in str(exc).lower():
+            raise MemoryError(str(exc)) from exc
+        raise
+    return torch
+
+
 def train_network(X, Y, hidden: int = 20, seed: int = 0, options: TrainOptions = TrainOptions(),
                   progress: Progress | None = None) -> Network:
     """Train a network mapping X (n, inputs) to Y (n, outputs); deterministic for a given seed.
@@ -89,8 +101,7 @@ def train_network(X, Y, hidden: int = 20, seed: int = 0, options: TrainOptions =
     The seed fixes the train/validation split, the initial weights and the order of the
     mini-batches.
     """
-    import torch
-
+    torch = _import_torch()
     check_int("hidden", hidden, 1)
     check_int("seed", seed, 0)
     X, Y = _check_training_data(X, Y)

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import MAX_MAGNITUDE, UserError
-from ..fileio import claim_output, file_sha256, output_mode
+from ..fileio import claim_output, file_sha256, output_mode, read_hdf5_image, read_image
 from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
 from ..version import __version__
@@ -166,12 +166,12 @@ def _read_mat(path: Path, names: list[str]) -> dict[str, np.ndarray]:
 
 
 def _read_mat73(path: Path) -> dict:
+    """The datasets of a MATLAB 7.3 file (HDF5), read as servofmu reads its own files: once, in a first pass that
+    cannot hang on a damaged file (fileio.read_hdf5_image)."""
     import h5py
-    try:
-        with h5py.File(path, "r") as f:
-            return {k: np.asarray(v[()]) for k, v in f.items() if isinstance(v, h5py.Dataset)}
-    except OSError as exc:
-        raise UserError(f"{path}: not a readable MAT file") from exc
+
+    return read_hdf5_image(read_image(path, "MAT file"), path, "MAT file",
+                           lambda f: {k: np.asarray(v[()]) for k, v in f.items() if isinstance(v, h5py.Dataset)})
 
 
 def _check_time(path: Path, t: np.ndarray, name: str, where) -> None:

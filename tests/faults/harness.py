@@ -19,6 +19,9 @@ from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/
+from hdf5edit import edit_hdf5  # noqa: E402,F401  (for the suites here)
+
 FULL = os.environ.get("SERVOFMU_FAULTS") == "all"
 # SERVOFMU_FAULTS_AGAINST=SRC: the commands under test run from the servofmu sources in SRC (an earlier revision,
 # scripts/fault_suite.py --against REV), in subprocesses, while the inputs are still made by this checkout — the way
