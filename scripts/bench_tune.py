@@ -52,7 +52,7 @@ BOUND = 1.7
 def identify(folder: Path, name: str, fmu: Path, controller, refs):
     """The plant identified in the loop from noisy co-simulated records (as bench_closed_loop's section 2)."""
     exact = controller.with_values(encoder_resolution=0.0)
-    drive = build_controller_fmu(exact, folder / "ident-drive.fmu", fmi_version=2)
+    drive = build_controller_fmu(exact, folder / f"{name}-ident-drive.fmu", fmi_version=2)
     ssp = write_system(fmu, drive, refs["identify"], folder / f"{name}-clean.ssp", controller=exact)
     force_noise = float(np.std(cosimulate(ssp)["force_command"])) / 10 ** (SNR_DB / 20)
     noisy = controller.with_values(force_noise=force_noise, noise_seed=0)
@@ -188,7 +188,7 @@ def main() -> None:
             truth = sf.load_plant(name)
             fmu = sf.build_fmu(truth, folder / f"{name}.fmu", fmi_version=2)
             result = identify(folder, name, fmu, base, refs)
-            drive = build_controller_fmu(base, folder / "drive.fmu", fmi_version=2)
+            drive = build_controller_fmu(base, folder / f"{name}-drive.fmu", fmi_version=2)
             ssp = write_system(fmu, drive, refs["reversals"], folder / f"{name}-axis.ssp", controller=base)
             error = np.max(np.abs(result.theta / truth.parameter_vector()[identified_mask(truth)] - 1))
             lines += [f"## {name}", "", f"Identified in the loop: worst relative parameter error {error:.2e}.", ""]
