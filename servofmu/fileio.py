@@ -245,7 +245,8 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
 
     The file is built in memory: HDF5 never writes to the disk itself, so a write that fails (disk full, size
     limit) is a plain OSError of atomic_write, not an error inside the HDF5 library.  The file gets the root
-    attribute ``content_sha256`` (servofmu.integrity), the digest :func:`read_hdf5` checks."""
+    attribute ``content_sha256`` (servofmu.integrity), the digest :func:`read_hdf5` checks; ``start_from`` must pass
+    the same check (and first pass) before it is continued."""
     import h5py
     import numpy as np
 
@@ -256,6 +257,10 @@ def write_hdf5(path: str | Path, edit: Callable, start_from: str | Path | None =
             image = Path(start_from).read_bytes()
         except OSError as exc:
             raise UserError(f"cannot read {start_from}: {exc.strerror or exc}") from exc
+        try:  # the file continued must be sound: its damage would otherwise be signed anew with the new digest
+            inspect_image(image)
+        except InspectionFailed as exc:
+            raise UserError(f"{start_from}: damaged, not continued ({exc.reason})") from None
     try:
         f = h5py.File.in_memory(image, libver=HDF5_LIBVER) if image is not None else \
             h5py.File.in_memory(libver=HDF5_LIBVER)
