@@ -92,7 +92,7 @@ def restarts_line(provenance: dict) -> str | None:
     if "restarts" not in provenance:
         return None
     n, ratio = provenance["restarts"], provenance.get("noise_ratio")
-    noise = f"; residuals {ratio:.3g}× the noise's" if ratio is not None else ""
+    noise = f"; residuals {ratio:.3g}× the noise floor" if ratio is not None else ""
     return f"swarm restarts: {n}" + (" (first fit at the noise floor)" if n == 0 and ratio is not None else "") + noise
 
 
@@ -185,14 +185,14 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
                      + ", ".join(f"{name} {fit:.4f}" for name, fit in result.fit_percent.items()))
     for s in result.stages:
         lines.append(f"  stage {s.name:<7} fitness {s.fitness:.3e}  {s.seconds:7.3f} s  {s.evaluations} evaluations")
+    if restarts_line(result.provenance):
+        lines.append(restarts_line(result.provenance))
     lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
                                               for n, (lo, hi) in zip(result.names, result.intervals)))
     return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------
-    if restarts_line(result.provenance):
-        lines.append(restarts_line(result.provenance))
 # RESULT.h5
 # ---------------------------------------------------------------------------
 def _fill(group, result: Result) -> None:
