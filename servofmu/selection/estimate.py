@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LinearEstimate", "Series", "estimate_linear", "start_estimates", "series_of_records",
+__all__ = ["LinearEstimate", "Series", "estimate_linear", "start_estimates", "data_bandwidth", "series_of_records",
            "series_of_experiments"]
 
 ITERATIONS = 4  # Sanathanan–Koerner reweightings
@@ -181,6 +181,14 @@ def _as_estimate(a, b, c, e, lam, series) -> LinearEstimate:
     v_rms = float(np.sqrt(np.mean(np.concatenate([s.v for s in series]) ** 2)))
     return LinearEstimate(poles=tuple(poles), zeros=tuple(zeros), gain=gain, fc_pos=fc_pos, fc_neg=fc_neg,
                           v_rms=v_rms)
+
+
+def data_bandwidth(series: list[Series]) -> float:
+    """The fastest dynamics the data can show (rad/s): the Nyquist frequency of records, the highest harmonic
+    the estimate uses of stepped-sine windows."""
+    if series[0].periodic:
+        return HARMONICS * max(2 * np.pi * _periods(s) / (s.u.size * s.dt) for s in series)
+    return float(np.pi / min(s.dt for s in series))
 
 
 def _dc_gain(e: LinearEstimate) -> float:

@@ -19,7 +19,7 @@ from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
-from .estimate import start_estimates
+from .estimate import data_bandwidth, start_estimates
 from .select import CandidateJob, CandidateScore, SelectOptions, fit_candidate, rank
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
@@ -141,6 +141,9 @@ def select_files(data_files, validation_file, output, options: SelectOptions | N
                        None if run.scheduler is None and run.workers == 0 else 1, provenance)
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
+        reduced = _reduced_starts(scores, candidates, data_bandwidth(estimation_series(data, files)))
+        if reduced:  # a smaller candidate again, from a larger one's fit without its roots beyond the data
+            scores = _keep_better(scores, _fit_all(pool, job, reduced, run, []))
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
@@ -148,6 +151,35 @@ def select_files(data_files, validation_file, output, options: SelectOptions | N
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
     return _write(selection, outputs)
+
+
+def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float) -> dict:
+    """Starts for the candidates one order (or zero) smaller than a fitted one whose G has poles or zeros beyond
+    the data's bandwidth: that fit without them.  A larger candidate whose swarm found the optimum its smaller
+    sibling missed (the extra root then sits where the data cannot see it) hands it over; the smaller one is
+    fitted again from there, and the better of its two fits kept."""
+    out = {}
+    for s in scores:
+        if s.status != "fitted":
+            continue
+        plant = s.result.plant
+        poles = tuple(p for p in plant.poles if abs(p) <= bandwidth)
+        zeros = tuple(z for z in plant.zeros if abs(z) <= bandwidth)
+        if not poles or (poles, zeros) == (plant.poles, plant.zeros):
+            continue
+        smaller = replace(plant, poles=poles, zeros=zeros)
+        c = s.candidate
+        target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.load)
+        if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
+            out[target] = smaller
+    return out
+
+
+def _keep_better(scores: list[CandidateScore], again: list[CandidateScore]) -> list[CandidateScore]:
+    """``scores`` with each candidate of ``again`` replaced where its new fit has the lower BIC."""
+    better = {s.candidate: s for s in again if s.status == "fitted" and
+              not any(o.candidate == s.candidate and o.status == "fitted" and o.bic <= s.bic for o in scores)}
+    return [better.get(s.candidate, s) for s in scores]
 
 
 def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, done: list) -> list[CandidateScore]:
