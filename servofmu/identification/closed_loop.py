@@ -2,10 +2,16 @@
 command) and the output-error criterion that simulates candidate plants in the known loop
 (servofmu.simulation.closed_loop).
 
-The encoder's quantisation and the actuator noise are not reproduced in a fit: they are the measurement's and the
-machine's noise, unknown to the identifier (simulating a quantiser would make the criterion piecewise constant in
-the parameters).  A known disturbance that the drive injected after its output limit (a record's ``disturbance``)
-is reproduced exactly as recorded.
+The actuator noise is not reproduced in a fit: it is the machine's noise, unknown to the identifier.  The
+encoder's quantisation is modelled, not simulated (a quantiser would make the criterion piecewise constant in the
+parameters): its error — uniform on ±q/2, variance q²/12, white while the axis moves — is fed back through the
+controller, where the velocity loop turns it into a force jitter that the friction averages at low speed (a bias
+of up to 0.5 % in static friction when it is left out; docs/bench-closed-loop.md).  A candidate is simulated in
+the loop once per encoder-error sequence — :data:`ENCODER_REALISATIONS` sequences drawn once per fit from a
+seeded generator, the same for every candidate (common random numbers: the criterion stays smooth) — and the
+mean of these loops is compared with the record.  Without a quantiser (resolution 0) one loop is simulated, with
+no error.  A known disturbance that the drive injected after its output limit (a record's ``disturbance``) is
+reproduced exactly as recorded.
 
 A log's time stamps come from the drive's clock: they are checked against the controller's sample time
 (servofmu.measurement.clock: no missing sample, no stamp off the grid, a rate error of at most 1e-4) and the loop
@@ -29,7 +35,9 @@ from .identifier import identification_provenance
 from .prior import full_vectors
 
 __all__ = ["ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion", "closed_loop_data",
-           "load_closed_loop_inputs", "clock_lines"]
+           "load_closed_loop_inputs", "clock_lines", "ENCODER_REALISATIONS"]
+
+ENCODER_REALISATIONS = 4  # encoder-error sequences a candidate's loop is averaged over (docs/bench-closed-loop.md)
 
 
 @dataclass(frozen=True)
@@ -49,21 +57,43 @@ class ClosedLoopSeries:
     clock: ClockFit | None = None
 
     def simulate(self, simulator: LoopSimulator, params: np.ndarray, controller: ControllerSpec,
-                 rtol: float = 1e-8):
+                 rtol: float = 1e-8, encoder_error: np.ndarray | None = None):
         """The loop of every row of ``params`` through this record (servofmu.simulation.closed_loop.LoopResponse):
-        its reference followed and its disturbance injected."""
+        its reference followed, its disturbance injected, ``encoder_error`` (m per sample, optional) added to the
+        position the controller reads."""
         return simulator.simulate_loop(params, self.time, self.reference, controller, rtol=rtol,
-                                       disturbance=self.disturbance)
+                                       disturbance=self.disturbance, encoder_error=encoder_error)
+
+    def encoder_errors(self, resolution: float, realisations: int, seed: int) -> np.ndarray:
+        """(realisations, samples) encoder errors uniform on ±resolution/2, from a generator seeded by ``seed``;
+        (1, samples) zeros without a quantiser."""
+        if resolution <= 0:
+            return np.zeros((1, self.time.size))
+        return resolution * (np.random.default_rng(seed).random((realisations, self.time.size)) - 0.5)
+
+    def mean_loop(self, simulator: LoopSimulator, params: np.ndarray, controller: ControllerSpec, rtol: float,
+                  errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The position and the command (N, samples) of the loop averaged over the encoder-error sequences
+        ``errors`` (one row each; a row of zeros: the loop without error)."""
+        position, command = 0.0, 0.0
+        for e in errors:
+            loop = self.simulate(simulator, params, controller, rtol, None if not np.any(e) else e)
+            position, command = position + loop.position, command + loop.command
+        return position / len(errors), command / len(errors)
 
 
 @dataclass(frozen=True)
 class ClosedLoopData:
     """Closed-loop records and the controller they were made with (its noise-free, unquantised law: the loop a
-    candidate plant is simulated in)."""
+    candidate plant is simulated in); ``encoder_resolution``: the drive's encoder quantum q (m, 0: exact), whose
+    error is modelled by ``realisations`` sequences of uniform noise drawn from ``seed`` (module docstring)."""
 
     records: tuple[ClosedLoopSeries, ...]
     controller: ControllerSpec
     source: str
+    encoder_resolution: float = 0.0
+    realisations: int = ENCODER_REALISATIONS
+    seed: int = 0
 
     def criterion(self, structure: Plant, threads: int | None = None) -> "ClosedLoopCriterion":
         """The criterion the identifier scores candidates by."""
@@ -76,7 +106,8 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     Every record needs its reference, the measured position and the force command, sampled once per controller
     sample: its time stamps are mapped to the controller's grid (a UserError names the first stamp beyond the
     bounds of servofmu.measurement.clock).  The controller's encoder quantisation and actuator noise are switched
-    off (see the module docstring); ``skip`` seconds at the start of every record are left out of the fit.
+    off in the law and the quantum kept as the data's ``encoder_resolution`` (see the module docstring); ``skip``
+    seconds at the start of every record are left out of the fit.
     """
     out = []
     ts = controller.sample_time
@@ -93,7 +124,7 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
         grid = t[0] + ts * np.arange(t.size)
         out.append(ClosedLoopSeries(r.name, grid, s.reference, s.position, s.u, fitted, s.disturbance, clock))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
-    return ClosedLoopData(tuple(out), law, str(data_file.path))
+    return ClosedLoopData(tuple(out), law, str(data_file.path), controller["encoder_resolution"])
 
 
 class ClosedLoopCriterion(TimeDomainCriterion):
@@ -102,6 +133,8 @@ class ClosedLoopCriterion(TimeDomainCriterion):
 
     def __init__(self, structure: Plant, data: ClosedLoopData, simulator: LoopSimulator):
         self.data, self.simulator = data, simulator
+        self.encoder_errors = [r.encoder_errors(data.encoder_resolution, data.realisations, data.seed + i)
+                               for i, r in enumerate(data.records)]
         super().__init__(structure)
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
@@ -115,9 +148,9 @@ class ClosedLoopCriterion(TimeDomainCriterion):
         self.evaluations += theta.shape[0]
         full = full_vectors(self.structure, theta)
         out = []
-        for r in self.data.records:
-            loop = r.simulate(self.simulator, full, self.data.controller, rtol=rtol)
-            out += [loop.position[:, r.fitted] - r.position[r.fitted], loop.command[:, r.fitted] - r.command[r.fitted]]
+        for r, errors in zip(self.data.records, self.encoder_errors):
+            position, command = r.mean_loop(self.simulator, full, self.data.controller, rtol, errors)
+            out += [position[:, r.fitted] - r.position[r.fitted], command[:, r.fitted] - r.command[r.fitted]]
         return out
 
 

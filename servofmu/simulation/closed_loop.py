@@ -40,7 +40,7 @@ def _loop_library(plant: Plant) -> ctypes.CDLL:
                           {"controller_params.h": params_header(),
                            "controller_law.h": CONTROLLER_LAW.read_text()})
     d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
-    lib.sb_loop.argtypes = [lng, i, pd, ctypes.POINTER(ctypes.c_ubyte), lng, pd, pd, pd, pd, d, d, lng, i, pd]
+    lib.sb_loop.argtypes = [lng, i, pd, ctypes.POINTER(ctypes.c_ubyte), lng, pd, pd, pd, pd, pd, d, d, lng, i, pd]
     lib.sb_loop.restype = i
     return lib
 
@@ -53,21 +53,20 @@ class LoopSimulator(BatchSimulator):
         return _loop_library(plant)
 
     def simulate_loop(self, params, time, reference, controller: ControllerSpec, rtol: float = 1e-8,
-                      max_steps: int = 50_000_000, disturbance=None) -> LoopResponse:
+                      max_steps: int = 50_000_000, disturbance=None, encoder_error=None) -> LoopResponse:
         """The loop at the sample times ``time`` (uniform, the controller's sample time: a log's own time stamps
         are mapped to that grid by servofmu.identification.closed_loop) following ``reference``, all plant states
         zero at time[0], for every row of ``params``; ``disturbance`` (N, one value per sample, optional) is added
-        to the force applied on [t_k, t_k+1) after the output limit, and to the command returned."""
+        to the force applied on [t_k, t_k+1) after the output limit, and to the command returned;
+        ``encoder_error`` (m, one value per sample, optional) to the position the controller reads at t_k (not to
+        the position returned)."""
         p, valid = self._parameter_sets(params)
         t = np.ascontiguousarray(np.asarray(time, dtype=float).ravel())
         r = np.ascontiguousarray(np.asarray(reference, dtype=float).ravel())
         if t.size != r.size or t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
             raise UserError("a closed-loop run needs at least two finite samples of time and reference")
-        d = None
-        if disturbance is not None:
-            d = np.ascontiguousarray(np.asarray(disturbance, dtype=float).ravel())
-            if d.size != t.size or not np.all(np.isfinite(d)):
-                raise UserError("a closed-loop disturbance needs one finite value per sample")
+        d, e = (_per_sample(a, t.size, what) for a, what in ((disturbance, "disturbance"),
+                                                            (encoder_error, "encoder error")))
         steps = np.diff(t)
         if np.max(np.abs(steps - controller.sample_time)) > 1e-6 * controller.sample_time:
             raise UserError(f"the samples are {np.median(steps):g} s apart, the controller samples every "
@@ -77,7 +76,18 @@ class LoopSimulator(BatchSimulator):
         cp = np.ascontiguousarray(controller.vector())
         out = np.empty((p.shape[0], 3, t.size))
         rc = self._lib.sb_loop(p.shape[0], p.shape[1], c_doubles(p), c_mask(valid), t.size, c_doubles(t),
-                               c_doubles(r), None if d is None else c_doubles(d), c_doubles(cp), rtol, H_START, max_steps, self.threads, c_doubles(out))
+                               c_doubles(r), None if d is None else c_doubles(d), None if e is None else c_doubles(e),
+                               c_doubles(cp), rtol, H_START, max_steps, self.threads, c_doubles(out))
         if rc != 0:
             raise RuntimeError(f"loop library rejected the call (code {rc})")
         return LoopResponse(position=out[:, 0], v=out[:, 1], command=out[:, 2])
+
+
+def _per_sample(values, n: int, what: str) -> np.ndarray | None:
+    """An optional per-sample signal of the loop as a contiguous array (a UserError if not n finite values)."""
+    if values is None:
+        return None
+    a = np.ascontiguousarray(np.asarray(values, dtype=float).ravel())
+    if a.size != n or not np.all(np.isfinite(a)):
+        raise UserError(f"a closed-loop {what} needs one finite value per sample")
+    return a
