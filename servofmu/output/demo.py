@@ -1,6 +1,7 @@
-"""`servofmu demo`: the paper's plants g1 and g2 end to end, then the example axis in its loop: co-simulated,
-identified from its closed-loop records, validated on a second run, its friction compensated, its drive's gains
-tuned on the identified model and checked on the axis."""
+"""`servofmu demo`: the paper's plants g1 and g2 end to end, then the example axis (inclined: gravity on it) in its
+loop: co-simulated with test pulses, written as its drive would log it (volts, the drive's clock) and imported,
+identified from that log, validated on a second one, its friction compensated, its drive's gains tuned on the
+identified model and checked on the axis."""
 from __future__ import annotations
 
 import time
@@ -23,6 +24,7 @@ from ..identification.results import paper_rows, result_from_estimator, write_re
 from ..identification.train import train_from_file
 from ..identification.training_set import make_training_set
 from ..measurement.measure import measure
+from ..measurement.records import LoopChannels, import_records
 from ..runtime import RunOptions
 from ..model.plant import load_plant
 from .compensation_report import compensate_files, compensation_text
@@ -34,8 +36,9 @@ from .report import make_report
 from .tune_report import tune_files, tune_text
 from .validate import validate
 
-__all__ = ["run_demo", "run_closed_loop_demo", "paper_comparison", "reference_trajectories", "DEMO_PLANTS",
-           "DEMO_PLANS", "DEMO_SAMPLES"]
+__all__ = ["run_demo", "run_closed_loop_demo", "paper_comparison", "reference_trajectories", "demo_pulses",
+           "write_drive_log", "DEMO_PLANTS", "DEMO_PLANS", "DEMO_SAMPLES", "DEMO_AXIS_LOAD", "FORCE_CONSTANT",
+           "PULSE_FORCE", "CLOCK_FAST", "CLOCK_JITTER", "REST", "resting_first"]
 
 DEMO_PLANTS = ("g1", "g2")
 # Excitation magnitudes m1 > m2 and frequencies per plant.  g2 (as the paper defines it, with Coulomb friction in
@@ -101,7 +104,7 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
                          command=command)
         report(f"exported {trip.fmu} and re-measured it: largest |H − H_data|/|H_data| {trip.max_H_error:.2e} "
                f"(identification residual {result.fitness:.2e})")
-    results["linear_axis"] = run_closed_loop_demo(out, report, command)
+    results["axis"] = run_closed_loop_demo(out, report, command)
     return results
 
 
@@ -123,25 +126,79 @@ def reference_trajectories(sample_time: float = 1e-3) -> dict[str, tuple[np.ndar
             "reversals": (c, 0.05 * (1 - np.cos(np.pi * c)))}
 
 
+# The demo's axis: linear_axis on a 3° incline, gravity pulling it towards negative positions (m·g·sin 3°); its
+# drive's log in volts with a force constant, test pulses injected after the output limit, a clock of its own.
+DEMO_AXIS_LOAD = "\n[load]\noffset = -51.3\n"
+FORCE_CONSTANT = 50.0  # N/V
+PULSE_FORCE = 150.0  # N, for 10 ms every 0.2 s
+CLOCK_FAST, CLOCK_JITTER = 5e-6, 2e-5  # the log's clock rate error and its jitter (RMS), relative to a sample
+# The identification run first holds the axis at rest: the force that holds it against gravity, with no friction
+# at rest, tells the offset from the friction (in motion only their sums offset ∓ fc± show).
+REST = 1.0  # s
+
+
+def resting_first(reference: tuple[np.ndarray, np.ndarray], rest: float) -> tuple[np.ndarray, np.ndarray]:
+    """``reference`` (times from 0, a position from 0) delayed by ``rest`` seconds at 0."""
+    t, x = reference
+    ts = t[1] - t[0]
+    extra = int(round(rest / ts))
+    return np.arange(t.size + extra) * ts, np.concatenate([np.zeros(extra), x])
+
+
+def demo_pulses(time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The drive's test pulses (N) at the samples ``time``: ±PULSE_FORCE for 10 ms every 0.2 s, signs alternating
+    irregularly."""
+    on = (time % 0.2 >= 0.1) & (time % 0.2 < 0.11 - 1e-9)
+    return time, np.where(on, PULSE_FORCE * np.sign(np.sin(2 * np.pi * 1.3 * time) + 1e-12), 0.0)
+
+
+def write_drive_log(result, path: Path, seed: int) -> Path:
+    """A co-simulated run as the drive logs it (CSV): its clock's time stamps (CLOCK_FAST fast, CLOCK_JITTER of a
+    sample RMS jitter, from a generator seeded by ``seed``), the reference (m), the encoder (m), the total output
+    command and the injected pulse, both in volts (force / FORCE_CONSTANT).  The columns line up as
+    write_cosim_records aligns them: at stamp k the encoder's reading at t_k and the output applied from t_k on."""
+    t = result.time[:-1]
+    pulse = np.concatenate([[0.0], result["disturbance"][:-2]])  # the source's force at t_k-1, applied from t_k
+    ts = float(t[1] - t[0])
+    rng = np.random.default_rng(seed)
+    stamps = 1000.0 + np.arange(t.size) * ts * (1 + CLOCK_FAST) + CLOCK_JITTER * ts * rng.standard_normal(t.size)
+    columns = np.column_stack([stamps, result["reference"][:-1], result["position_measured"][1:],
+                               result["force_command"][:-1] / FORCE_CONSTANT, pulse / FORCE_CONSTANT])
+    np.savetxt(path, columns, delimiter=",", header="stamp,reference,encoder,command_V,pulse_V", comments="",
+               fmt="%.17g")
+    return path
+
+
 def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str = ""):
-    """linear_axis with axis_controller: system → co-simulation (libcosim) with a 1 µm encoder and actuator noise →
-    closed-loop identification → validation on a second run → friction compensation → the drive's gains tuned on
-    the identified model and checked on the axis.  Returns the result."""
-    plant, controller = load_plant("linear_axis"), load_controller("axis_controller")
+    """An inclined linear_axis with axis_controller: system with test pulses → co-simulation (libcosim) with a
+    1 µm encoder and actuator noise → written as a drive's log (volts, its own clock) and imported → closed-loop
+    identification → validation on a second log → friction compensation → the drive's gains tuned on the
+    identified model and checked on the axis.  Returns the result."""
+    axis_file = out / "axis.toml"
+    axis_file.write_text(load_plant("linear_axis").to_toml().replace('name = "linear_axis"', 'name = "inclined_linear_axis"')
+                         + DEMO_AXIS_LOAD)
+    plant, controller = load_plant(axis_file), load_controller("axis_controller")
     build_fmu(plant, out / "axis.fmu", fmi_version=2, overwrite=True)
     build_controller_fmu(controller, out / "axis-controller.fmu", fmi_version=2, overwrite=True)
     references = reference_trajectories(controller.sample_time)
+    references["identify"] = resting_first(references["identify"], REST)
+    loop = LoopChannels(reference="reference", disturbance="pulse_V", input_scale=FORCE_CONSTANT,
+                        disturbance_scale=FORCE_CONSTANT)
     runs = {}
     for seed, role in enumerate(("identify", "validate")):
         noisy = controller.with_values(force_noise=1.5, noise_seed=seed)  # about 40 dB below the force command
         ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references[role],
-                           out / f"axis-{role}.ssp", controller=noisy, overwrite=True)
-        (out / f"axis-{role}.h5").unlink(missing_ok=True)
+                           out / f"axis-{role}.ssp", controller=noisy, overwrite=True,
+                           disturbance=demo_pulses(references[role][0]))
         result = cosimulate(ssp, engine="libcosim")
-        runs[role] = write_cosim_records(result, ssp, out / f"axis-{role}.h5", run=RunOptions(command=command))
+        log = write_drive_log(result, out / f"axis-{role}.csv", seed)
+        runs[role] = import_records([log], out / f"axis-{role}.h5", time="stamp", input="command_V",
+                                    output_column="encoder", kind="position", loop=loop,
+                                    run=RunOptions(command=command, overwrite=True))
         error = result["reference"] - result["position"]
-        report(f"co-simulated {ssp} on {result.engine} into {out / f'axis-{role}.h5'}: tracking error RMS "
-               f"{np.sqrt(np.mean(error ** 2)):.3g} m")
+        report(f"co-simulated {ssp} on {result.engine} (test pulses of ±{PULSE_FORCE:g} N), logged as the drive "
+               f"would into {log} (volts, its own clock) and imported into {out / f'axis-{role}.h5'}: tracking "
+               f"error RMS {np.sqrt(np.mean(error ** 2)):.3g} m")
     data = closed_loop_data(runs["identify"], controller)
     est = PSOANNIdentifier(plant, method="pso", seed=0).fit(data)
     provenance = {"data_file": str(out / "axis-identify.h5"), "data_sha256": file_sha256(out / "axis-identify.h5"),
@@ -149,17 +206,16 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     result = est.result(provenance)
     write_result(out / "axis-result.h5", result, overwrite=True)
     true = plant.parameter_vector()[identified_mask(plant)]
-    report("identified linear_axis in the loop: "
+    report("identified inclined_linear_axis in the loop from its log: "
            + ", ".join(f"{n} {v:.6g} (true {t:g})" for n, v, t in zip(est.names_, est.theta_, true))
            + f"; worst relative error {np.max(np.abs(est.theta_ / true - 1)):.2e}")
     check = validate(result, runs["validate"], controller=controller)
-    report("validated on the second run: " + ", ".join(f"{r.output} fit {r.fit:.3f} %" for r in check.records)
+    report("validated on the second log: " + ", ".join(f"{r.output} fit {r.fit:.3f} %" for r in check.records)
            + ("; residuals independent of the reference" if check.passed else "; verdict FAILED"))
     ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references["reversals"],
                        out / "axis-reversals.ssp", overwrite=True)
     (out / "axis-compensation.html").unlink(missing_ok=True)
-    tracking = compensate_files(out / "axis-result.h5", ssp, truth="linear_axis",
-                                output=out / "axis-compensation.html")
+    tracking = compensate_files(out / "axis-result.h5", ssp, truth=axis_file, output=out / "axis-compensation.html")
     report(compensation_text(tracking))
     report(f"wrote {out / 'axis-compensation.html'}")
     # the drive's gains tuned on the identified model for the same stroke, checked on the axis (a short swarm)
