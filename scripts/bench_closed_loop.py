@@ -145,10 +145,10 @@ def main() -> None:
         lines += ["", "### Where the error comes from", "",
                   "Mean relative error of each parameter in % (in brackets: how often its 95 % interval covers the "
                   f"truth) over the {args.seeds} seeds, with both disturbances, with the actuator noise alone (exact "
-                  "encoder), and with the quantised encoder alone (one run, no noise).  The identification simulates "
-                  "the loop without the quantiser (it would make the criterion piecewise constant): the encoder's "
-                  "steps, fed back through the controller, jitter the force, and the friction averages that jitter "
-                  "at low speed — a bias the intervals do not include.", "",
+                  "encoder), and with the quantised encoder alone (one run, no noise).  The encoder's steps, fed back "
+                  "through the controller, jitter the force, and the friction averages that jitter at low speed; "
+                  "the identification models the quantiser's error (servofmu.identification.closed_loop: "
+                  "docs/bench-quantiser.md compares it with leaving it out).", "",
                   *(line for table in sources.values() for line in (*table, ""))][:-1]
         print("\n".join(lines[-5:]), flush=True)
 

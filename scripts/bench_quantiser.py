@@ -1,0 +1,181 @@
+"""The encoder's quantiser in closed-loop identification: bias and coverage of the 95 % intervals with the
+quantiser's error left out of the fit and modelled (servofmu.identification.closed_loop).
+
+Two axes in their drives' loops, each with a 1 µm encoder and actuator noise 40 dB below the force command:
+
+- stribeck_axis (fmu_models/) with axis_controller, on the demo's 16 s identification reference;
+- the axis of tests/test_drive_logs.py — 25 kg, viscous damping, Stribeck friction, a constant load force (an
+  incline) — with its drive (position P, velocity P on a two-sample moving average, a 350 N output limit) and
+  ±175 N test pulses injected after the limit, on a 4 s reference with reversals and a fast move.
+
+The records come from the loop simulator with the controller's own quantiser and actuator noise (the law the
+controller FMU runs: docs/bench-closed-loop.md, section 1, has it equal to libcosim's co-simulation to 1e-12); the
+encoder reading is logged.  Every seed is fitted twice: with the quantiser left out of the fit (the criterion as
+before: encoder resolution 0 in the data) and modelled (ENCODER_REALISATIONS white uniform error sequences fed back
+through the loop, common to every candidate).  Without a quantiser in the data nothing changes: a fit of
+records without one simulates a single loop without error.
+
+Usage: nice -n 10 python scripts/bench_quantiser.py [--seeds 20] [--out docs/bench-quantiser.md]
+       (or each case alone, e.g. in parallel: --case stribeck_axis, --case drive_axis; then --join)
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from servofmu.identification.closed_loop import (ENCODER_REALISATIONS, ClosedLoopData, ClosedLoopSeries,
+                                                 LoopSimulator)
+from servofmu.identification.identifier import PSOANNIdentifier
+from servofmu.identification.prior import full_vectors, identified_mask, identified_names
+from servofmu.model.controller import controller_from_dict, load_controller
+from servofmu.model.plant import load_plant, plant_from_dict
+from servofmu.output.demo import reference_trajectories
+from servofmu.runtime import available_cores
+
+SNR_DB = 40.0
+Q = 1e-6  # the encoder's quantum (m)
+CASES = ("stribeck_axis", "drive_axis", "drive_axis_pi")
+
+# The drive-log axis of tests/test_drive_logs.py, in newtons (35 N/V: velocity P 60 V per m/s, ±10 V, 5 V pulses).
+DRIVE = {"name": "volt_drive", "sample_time": 1e-3, "delay": 1, "position": {"kp": 40.0},
+         "velocity": {"kp": 60.0 * 35.0, "filter": "moving-average", "window": 2}, "output": {"limit": 350.0},
+         "encoder": {"resolution": Q}}
+# The same drive with an integral in its velocity loop (about 3 Hz): the force that holds the load at rest comes
+# from the integral, not from whole encoder counts times the position and velocity gains (84 N a count).
+DRIVE_PI = {**DRIVE, "name": "volt_drive_pi", "velocity": {**DRIVE["velocity"], "ki": 60.0 * 35.0 * 2 * np.pi * 3}}
+DRIVE_AXIS = {"name": "drive_axis", "linear": {"poles": [[-60.0 / 25.0, 0.0]], "zeros": [], "gain": 1.0 / 25.0},
+              "friction": {"model": "stribeck", "fc_pos": 30.0, "fc_neg": 24.0, "fs_pos": 45.0, "fs_neg": 38.0,
+                           "vs": 0.01, "v_smooth": 1e-3},
+              "load": {"offset": -30.0}}
+
+
+def drive_reference(duration: float = 4.0, ts: float = 1e-3, rest: float = 0.5):
+    """The drive axis's reference (m) and test pulses (N): at rest for ``rest`` s (the force holding the axis
+    against its load, with no friction at rest, tells the load from the friction), then reversals at 0.8 and
+    2.4 Hz, a 30 mm move in 16 ms at the middle (the output saturates); ±175 N pulses of 8-15 ms every 120-220 ms
+    (seeded, the same every run)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, duration, ts)
+    s = np.maximum(t - rest, 0.0)
+    move = 0.03 / (1 + np.exp(-(t - duration / 2) / 0.008))
+    x = 0.015 * (1 - np.cos(2 * np.pi * 0.8 * s)) + 0.004 * (1 - np.cos(2 * np.pi * 2.4 * s)) + move - move[0]
+    pulses, start = np.zeros_like(t), int(0.1 / ts)
+    while start < t.size:
+        width = int(rng.integers(8, 16))
+        pulses[start:start + width] = 175.0 * rng.choice([-1.0, 1.0])
+        start += int(rng.integers(120, 220))
+    return t, x, pulses
+
+
+def case(name: str):
+    """(plant, controller, time, reference, disturbance or None) of a case."""
+    if name == "stribeck_axis":
+        controller = load_controller("axis_controller")
+        t, x = reference_trajectories(controller.sample_time)["identify"]
+        return load_plant("stribeck_axis"), controller, t, x, None
+    drive = DRIVE_PI if name == "drive_axis_pi" else DRIVE
+    return plant_from_dict(DRIVE_AXIS), controller_from_dict(drive), *drive_reference()
+
+
+def run_case(name: str, seeds: int) -> dict:
+    """Per fit kind ("left out", "modelled"): relative errors (seeds, parameters), coverage, seconds per fit; and
+    the errors of one noise-free run with the quantiser alone."""
+    plant, controller, t, ref, dist = case(name)
+    truth = plant.parameter_vector()[identified_mask(plant)]
+    sim = LoopSimulator(plant, threads=1)
+    full = full_vectors(plant, truth[None])
+    law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
+    clean = sim.simulate_loop(full, t, ref, law, rtol=1e-10, disturbance=dist)
+    force_noise = float(np.std(clean.command[0])) / 10 ** (SNR_DB / 20)
+    fitted = np.ones(t.size, dtype=bool)
+
+    def data(noise: float, seed: int, resolution: float) -> ClosedLoopData:
+        loop = sim.simulate_loop(full, t, ref, controller.with_values(force_noise=noise, noise_seed=seed),
+                                 rtol=1e-10, disturbance=dist)
+        encoder = Q * np.floor(loop.position[0] / Q + 0.5)  # the reading the law used, as the drive logs it
+        series = ClosedLoopSeries("log", t, ref, encoder, loop.command[0], fitted, dist)
+        return ClosedLoopData((series,), law, "simulated", encoder_resolution=resolution)
+
+    def fit(d: ClosedLoopData, seed: int):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            est = PSOANNIdentifier(plant, method="pso", seed=seed, threads=1).fit(d)
+            return est, time.perf_counter() - t0
+
+    out = {"names": identified_names(plant), "truth": truth, "force_noise": force_noise}
+    for kind, resolution in (("left out", 0.0), ("modelled", Q)):
+        errors, covered, seconds = [], [], []
+        for seed in range(seeds):
+            est, s = fit(data(force_noise, seed, resolution), seed)
+            errors.append(est.theta_ / truth - 1)
+            covered.append((est.intervals_[:, 0] <= truth) & (truth <= est.intervals_[:, 1]))
+            seconds.append(s)
+            print(name, kind, seed, " ".join(f"{100 * e:+.3f}{'' if c else '!'}"
+                                            for e, c in zip(errors[-1], covered[-1])), f"{s:.1f} s", flush=True)
+        out[kind] = np.array(errors), np.array(covered), float(np.median(seconds))
+        out[kind + ", quantiser alone"] = fit(data(0.0, 0, resolution), 0)[0].theta_ / truth - 1
+    return out
+
+
+def table(name: str, res: dict, seeds: int) -> list[str]:
+    """The page's lines for one case."""
+    names = res["names"]
+    lines = [f"### {name}", "", f"Actuator noise {res['force_noise']:.3g} N RMS; truth: "
+             + ", ".join(f"{n} {v:g}" for n, v in zip(names, res["truth"])) + ".", "",
+             "| the quantiser in the fit | worst rel. error | median worst | intervals covering the truth | "
+             "lowest per parameter | s per fit |", "|---|---|---|---|---|---|"]
+    for kind in ("left out", "modelled"):
+        errors, covered, seconds = res[kind]
+        worst = np.max(np.abs(errors), axis=1)
+        lines.append(f"| {kind} | {100 * worst.max():.3f} % | {100 * np.median(worst):.3f} % | "
+                     f"{100 * covered.mean():.1f} % ({covered.sum()} of {covered.size}) | "
+                     f"{100 * covered.mean(axis=0).min():.0f} % | {seconds:.1f} |")
+    lines += ["", f"Mean relative error of each parameter in % (in brackets: how often its 95 % interval covers the "
+              f"truth, of {seeds} seeds); last rows: one run with the quantiser alone (no actuator noise).", "",
+              "| the quantiser in the fit | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for kind in ("left out", "modelled"):
+        errors, covered, _ = res[kind]
+        lines.append(f"| {kind} | " + " | ".join(f"{100 * e:+.3f} ({100 * c:.0f} %)" for e, c in
+                                                 zip(errors.mean(axis=0), covered.mean(axis=0))) + " |")
+    for kind in ("left out", "modelled"):
+        lines.append(f"| {kind}, quantiser alone | "
+                     + " | ".join(f"{100 * e:+.3f}" for e in res[kind + ", quantiser alone"]) + " |")
+    return lines + [""]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--case", choices=CASES, help="run one case; its table is written beside the page (OUT.CASE)")
+    ap.add_argument("--join", action="store_true", help="write the page from the tables of the cases run alone")
+    ap.add_argument("--out", default="docs/bench-quantiser.md")
+    args = ap.parse_args()
+    if args.join:
+        body = [Path(f"{args.out}.{name}").read_text() for name in CASES]
+    else:
+        body = []
+        for name in [args.case] if args.case else CASES:
+            body.append("\n".join(table(name, run_case(name, args.seeds), args.seeds)))
+            print(body[-1], flush=True)
+        if args.case:
+            Path(f"{args.out}.{args.case}").write_text(body[0])
+            return
+    lines = ["# The encoder's quantiser in closed-loop identification", "",
+             f"Made by `scripts/bench_quantiser.py` on {available_cores()} cores, {args.seeds} noise seeds per "
+             f"axis; a 1 µm encoder and actuator noise {SNR_DB:g} dB below the force command in the loop.  "
+             "*Left out*: the fit simulates the loop without the quantiser (what identify did before).  "
+             f"*Modelled*: the quantiser's error, white and uniform on ±q/2, fed back through the loop in "
+             f"{ENCODER_REALISATIONS} sequences common to every candidate, the candidate's loops averaged "
+             "(servofmu.identification.closed_loop).", "", *body]
+    Path(args.out).write_text("\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
