@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import os
 import tempfile
 import time
 from dataclasses import replace
@@ -202,7 +203,7 @@ def main() -> None:
                 speed["linear_axis with --axis"] = time.perf_counter() - t0
     lines += ["## Speed", "", "`tune` (the library's tune_axis; swarm of 16 particles × 30 iterations, the "
               "uncertainty set of the nominal model and 6 corners) on the example axis, the first tuning of each "
-              "plant:", "",
+              f"plant (load average at the end of the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores):", "",
               *(f"- {k}: {v:.1f} s" for k, v in speed.items()), ""]
     Path(args.out).write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out}")
