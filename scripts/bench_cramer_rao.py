@@ -196,8 +196,8 @@ def main() -> None:
              "per fit). CRB: √(I⁻¹)_kk with I = Jᵀ diag(s⁻²) J at the truth (servofmu.identification.cramer_rao), "
              f"s the noise level of each measurement at {SNR_DB:g} dB output SNR; RMS error over the seeds of the "
              "estimates as `identify` makes them; coverage of the 95 % intervals with its binomial standard "
-             "error. The cases are described in the script's docstring; what the numbers say is in "
-             "docs/identification.md.", ""]
+             "error. The cases are described in the script's docstring; what the numbers say follows the "
+             "tables.", ""]
     for case in args.cases.split(","):
         seeds = args.loop_seeds if case.startswith("stribeck_axis") else args.seeds
         run_case(case, args.demo, seeds, lines)
