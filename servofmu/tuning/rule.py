@@ -8,8 +8,8 @@ time of the sampled loop
 (the computation delay, half a sample for the zero-order hold, and the lag of the velocity estimate: T_v = Ts/2
 for the position difference, N·Ts/2 for its moving average over N samples, τ + Ts/2 for its first-order filter).
 For an integrating plant with small lags the velocity PI is tuned by the *symmetric optimum* (Kessler): the
-crossover at ω_c = 1/(a·Tσ), the PI corner a² below... the integral corner at 1/(a²·Tσ), symmetric about ω_c in
-phase, so that the phase margin is maximal there:
+crossover at ω_c = 1/(a·Tσ), the integral corner a times below it at 1/(a²·Tσ) and the lags' corner a times above
+it, so that the phase is at its maximum at the crossover:
 
     kp_velocity = m/(a·Tσ)        ki_velocity = kp_velocity/(a²·Tσ)
 
