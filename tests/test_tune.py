@@ -290,3 +290,19 @@ def test_bad_input_is_one_line_and_writes_nothing(files, tmp_path):
     write_result(result, fake_result(sf.load_plant("linear_axis"), controller_file=other))
     assert_one_line_error(run("tune", result, "axis_controller", "-o", out), "another axis")
     assert not out.exists()
+
+
+def test_json_of_the_rule_is_its_formula_at_the_bound(files, tmp_path):
+    import json
+
+    proc = run("tune", files / "result.h5", "axis_controller", "--method", "rule", "--max-sensitivity", "1.6",
+               "--stroke", "0.02", "--speed", "0.05", "--json", "-o", tmp_path / "rule.toml")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["chosen"] == "rule" and set(out["controllers"]) == {"given", "rule"}
+    rule = out["controllers"]["rule"]
+    expected = rule_gains(sf.load_plant("linear_axis"), load_controller("axis_controller"), out["rule_a"])
+    for name in ("kp_position", "kp_velocity", "ki_velocity", "mass_feedforward"):
+        assert rule["gains"][name] == pytest.approx(expected[name], rel=1e-9)
+    assert 1.59 < rule["loop"]["worst_sensitivity_peak"] <= 1.6 + 1e-6
+    assert load_controller(tmp_path / "rule.toml")["kp_velocity"] == pytest.approx(expected["kp_velocity"])
