@@ -42,7 +42,9 @@ def scipy_loop(plant, c, omega):
     controller law (controller_law.h) by hand."""
     num, den = plant.transfer_function()
     ts = c["sample_time"]
-    pz = signal.cont2discrete((num, np.polymul(np.polyadd(den, plant.friction.fv * num), [1, 0])), ts, "zoh")
+    spring = plant.load.stiffness or 0.0  # x = G_v/s·(u − k·x)
+    position = np.polyadd(np.polymul(np.polyadd(den, plant.friction.fv * num), [1, 0]), spring * num)
+    pz = signal.cont2discrete((num, position), ts, "zoh")
     w = omega * ts
     _, p = signal.freqz(np.ravel(pz[0]), pz[1], worN=w)
     _, pi = signal.freqz([c["kp_velocity"] + c["ki_velocity"] * ts, -c["kp_velocity"]], [1, -1], worN=w)
@@ -73,11 +75,24 @@ def test_zoh_plant_of_a_mass_with_damping_is_the_closed_form():
     np.testing.assert_allclose(den, np.poly([1.0, e]), rtol=1e-12, atol=1e-15)
 
 
+def sprung_axis():
+    """stribeck_axis with viscous friction and a spring on its load (the linearisation keeps both)."""
+    from servofmu.model.plant import plant_from_dict
+
+    import tomllib
+
+    data = tomllib.loads(sf.load_plant("stribeck_axis").to_toml())
+    data["friction"]["fv"] = 50.0
+    data["load"] = {"offset": -40.0, "stiffness": 2e6, "x0": 0.01}  # 22 Hz with the mass: near the crossover
+    return plant_from_dict(data)
+
+
 @pytest.mark.parametrize("changes", [{}, {"velocity_filter": 1.0, "filter_window": 4.0},
                                      {"velocity_filter": 2.0, "filter_time_constant": 2e-3},
-                                     {"delay": 2.0, "kp_velocity": 9000.0}, {"kp_position": 120.0}])
+                                     {"delay": 2.0, "kp_velocity": 9000.0}, {"kp_position": 120.0}, "spring"])
 def test_sensitivity_peak_matches_scipy(changes):
-    plant = sf.load_plant("stribeck_axis")
+    plant = sf.load_plant("stribeck_axis") if changes != "spring" else sprung_axis()
+    changes = {} if changes == "spring" else changes
     c = controller(**changes)
     analysis = analyse_loop(plant, c)
     omega = np.linspace(0.1, np.pi / TS * (1 - 1e-9), 400_000)

@@ -3,7 +3,8 @@ time, its sensitivity peak and its margins.
 
 About a motion (a velocity that does not change sign) the Coulomb and Stribeck friction is a constant force and
 the loop is linear; what is left of the friction is its viscous part fv.  The plant from the force to the
-velocity is then G_v(s) = G(s)/(1 + fv·G(s)), to the position G_v(s)/s.  The drive (controller_law.h) holds the
+velocity is then G_v(s) = G(s)/(1 + fv·G(s)), to the position G_v(s)/s (with a spring of stiffness k on the load:
+G_v/(s + k·G_v); a constant load force drops out like the friction, a position ripple is left out).  The drive (controller_law.h) holds the
 force between samples (zero-order hold) and applies the command computed from the measurement at t_k from
 t_k+delay on, so the plant seen by the controller is the ZOH discretisation
 
@@ -53,11 +54,13 @@ def axis_mass(plant: Plant) -> float:
 @functools.lru_cache(maxsize=256)  # a tuning asks for the same few plants thousands of times
 def zoh_position_plant(plant: Plant, sample_time: float) -> tuple[np.ndarray, np.ndarray]:
     """(num, den) in z, highest power first, of the ZOH discretisation of G_v(s)/s (force → position, viscous
-    friction fv closed around G), from the matrix exponential of its controllable realisation."""
+    friction fv closed around G, and a spring of the plant's load, −k·(x − x0), around G_v/s), from the matrix
+    exponential of its controllable realisation."""
     num, den = plant.transfer_function()
     fv = plant.friction.fv
     den = np.polyadd(den, fv * num)  # G/(1 + fv·G)
     den = np.polymul(den, [1.0, 0.0])  # the position integrates the velocity
+    den = np.polyadd(den, (plant.load.stiffness or 0.0) * num)  # a spring on the load: −k·x fed back
     lead = den[0]
     num, den = num / lead, den / lead
     n = den.size - 1

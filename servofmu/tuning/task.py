@@ -82,15 +82,17 @@ def task_from_csv(path: str | Path, sample_time: float) -> Task:
 
 def check_task(task: Task, plant: Plant, controller: ControllerSpec, mass: float) -> float:
     """The largest force (N) the model needs to follow the task (mass·a_ref + friction + viscous force at v_ref,
-    with the drive's own difference quotients); a task that needs more than the output limit is refused,
-    naming the time and force."""
+    with the drive's own difference quotients, + the load's forces at their largest); a task that needs more
+    than the output limit is refused, naming the time and force."""
     from ..model.friction import viscous_damping
 
     v = reference_velocity(task)
     a = np.r_[0.0, np.diff(v) / np.diff(task.time)]
     fr = plant.friction
     breakaway = max(fr.fc_pos, fr.fc_neg, fr.fs_pos or 0.0, fr.fs_neg or 0.0)
-    force = mass * np.abs(a) + (viscous_damping(plant) + fr.fv) * np.abs(v) + breakaway
+    load = plant.load
+    force = mass * np.abs(a) + (viscous_damping(plant) + fr.fv) * np.abs(v) + breakaway + abs(load.offset or 0.0) \
+        + abs(load.stiffness or 0.0) * np.abs(task.position - (load.x0 or 0.0)) + abs(load.ripple_amplitude or 0.0)
     k = int(np.argmax(force))
     limit = controller["force_limit"]
     if force[k] > limit:
