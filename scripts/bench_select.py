@@ -8,7 +8,8 @@ force is absorbed exactly by a G of the same order (docs/selection.md), so no da
 
 Per plant and seed: a 20 s record at 100 Hz (two magnitudes, two tones each, random phases) to fit and another
 to validate on, white noise on the velocity at 40 dB; `select` over the default candidates (15: 3 laws x
-orders 1-3, with and without a zero).
+orders 1-3, with and without a zero; where the plant format has load terms, the second stage adds each to the
+structure ranked first, and a plant with a constant load offset is benchmarked too).
 
     python scripts/bench_select.py --seeds 20              # the full benchmark
     python scripts/bench_select.py --seeds 3 --plants g1,g2  # a smaller one
@@ -28,7 +29,7 @@ import servofmu as sf
 from servofmu.measurement.records import import_records
 from servofmu.model.plant import plant_from_dict
 from servofmu.runtime import RunOptions
-from servofmu.selection.candidates import default_candidates
+from servofmu.selection.candidates import default_candidates, supported_load_terms
 from servofmu.simulation.batch import BatchSimulator
 
 DT, DURATION, SNR_DB = 0.01, 20.0, 40.0
@@ -53,6 +54,11 @@ PLANTS = {
     "stribeck2_fv": (sf.load_plant("stribeck_servo"), "stribeck/2", 1.0),
     "lugre1_fv": (sf.load_plant("lugre_servo"), "lugre/1", 1.0),
 }
+if "offset" in supported_load_terms():  # the plant format's [load] section
+    PLANTS["coulomb1_offset"] = (plant_from_dict({
+        "name": "coulomb1_offset", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+        "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": {"offset": 0.3}}),
+        "coulomb+offset/1", 1.0)
 
 
 def excitation(t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
@@ -126,7 +132,14 @@ def main() -> None:
     parser.add_argument("--iterations", type=int)
     parser.add_argument("-o", "--output", default="docs/bench-select.md")
     parser.add_argument("--json", help="also write every selection's row (JSON lines)")
+    parser.add_argument("--from-json", help="make the report from the rows of an earlier run (JSON lines)")
     args = parser.parse_args()
+    if args.from_json:
+        rows = [json.loads(line) for line in Path(args.from_json).read_text().splitlines() if line.strip()]
+        args.seeds = max(r["seed"] for r in rows) + 1
+        Path(args.output).write_text(report(rows, args))
+        print(report(rows, args))
+        return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.seeds):
