@@ -8,8 +8,9 @@ parameters): its error — uniform on ±q/2, variance q²/12, white while the ax
 controller, where the velocity loop turns it into a force jitter that the friction averages at low speed (a bias
 of up to 0.5 % in static friction when it is left out; docs/bench-closed-loop.md).  A candidate is simulated in
 the loop once per encoder-error sequence — :data:`ENCODER_REALISATIONS` sequences drawn once per fit from a
-seeded generator, the same for every candidate (common random numbers: the criterion stays smooth) — and the
-mean of these loops is compared with the record.  Without a quantiser (resolution 0) one loop is simulated, with
+seeded generator in antithetic pairs (e and −e), the same for every candidate (common random numbers: the
+criterion stays smooth) — and the mean of these loops is compared with the record: the part of the response
+linear in the error cancels, what the friction makes of the jitter stays.  Without a quantiser (resolution 0) one loop is simulated, with
 no error.  A known disturbance that the drive injected after its output limit (a record's ``disturbance``) is
 reproduced exactly as recorded.
 
@@ -65,11 +66,14 @@ class ClosedLoopSeries:
                                        disturbance=self.disturbance, encoder_error=encoder_error)
 
     def encoder_errors(self, resolution: float, realisations: int, seed: int) -> np.ndarray:
-        """(realisations, samples) encoder errors uniform on ±resolution/2, from a generator seeded by ``seed``;
-        (1, samples) zeros without a quantiser."""
+        """(realisations, samples) encoder errors uniform on ±resolution/2 from a generator seeded by ``seed``, in
+        antithetic pairs (e and −e); (1, samples) zeros without a quantiser."""
         if resolution <= 0:
             return np.zeros((1, self.time.size))
-        return resolution * (np.random.default_rng(seed).random((realisations, self.time.size)) - 0.5)
+        # antithetic pairs e, −e: the loops' response linear in the error cancels in their mean, which keeps what
+        # the friction makes of the jitter (even in the error) with far less of the draws' own randomness
+        half = resolution * (np.random.default_rng(seed).random(((realisations + 1) // 2, self.time.size)) - 0.5)
+        return np.concatenate([half, -half])[:realisations]
 
     def mean_loop(self, simulator: LoopSimulator, params: np.ndarray, controller: ControllerSpec, rtol: float,
                   errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
