@@ -57,6 +57,8 @@ def test_without_a_quantiser_one_loop_is_simulated_with_no_error():
     (e,) = quantised.encoder_errors
     assert e.shape == (ENCODER_REALISATIONS, t.size) and np.max(np.abs(e)) <= Q / 2
     assert abs(np.std(e) / (Q / np.sqrt(12)) - 1) < 0.05
+    half = ENCODER_REALISATIONS // 2
+    np.testing.assert_array_equal(e[half:], -e[:half])  # antithetic pairs
 
 
 def quantised_run(plant, controller, t, r, force_noise: float, seed: int) -> ClosedLoopData:
