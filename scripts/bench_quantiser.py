@@ -11,9 +11,9 @@ Two axes in their drives' loops, each with a 1 µm encoder and actuator noise 40
 The records come from the loop simulator with the controller's own quantiser and actuator noise (the law the
 controller FMU runs: docs/bench-closed-loop.md, section 1, has it equal to libcosim's co-simulation to 1e-12); the
 encoder reading is logged.  Every seed is fitted twice: with the quantiser left out of the fit (the criterion as
-before: encoder resolution 0 in the data) and modelled (ENCODER_REALISATIONS white uniform error sequences in antithetic pairs, fed back
-through the loop, common to every candidate).  Without a quantiser in the data nothing changes: a fit of
-records without one simulates a single loop without error.
+before: encoder resolution 0 in the data) and modelled (ENCODER_REALISATIONS white uniform error sequences in
+antithetic pairs, fed back through the loop, common to every candidate).  Without a quantiser in the data nothing
+changes: a fit of records without one simulates a single loop without error.
 
 Usage: nice -n 10 python scripts/bench_quantiser.py [--seeds 20] [--out docs/bench-quantiser.md]
        (or each case alone, e.g. in parallel: --case stribeck_axis, --case drive_axis; then --join)
