@@ -333,11 +333,6 @@ def find_data_file(results: Sequence[Result], source: Path, data: str | Path | N
     data = Path(data)
     if not data.is_file():
         raise UserError(f"{data}: no such file")
-    expected = next(iter(hashes))
-    if expected and read.sha256 != expected:
-        raise UserError(f"{path}: is not the data file {source} was identified from (its SHA-256 differs from the "
-                        "one recorded in the result)")
-    return read
     return data
 
 
@@ -349,3 +344,8 @@ def read_identified_data(results: Sequence[Result], source: Path, data: str | Pa
         raise UserError(f"{source}: its results were identified from different data files")
     path = find_data_file(results, source, data)
     read = read_data_file(path)
+    expected = next(iter(hashes))
+    if expected and read.sha256 != expected:
+        raise UserError(f"{path}: is not the data file {source} was identified from (its SHA-256 differs from the "
+                        "one recorded in the result)")
+    return read
