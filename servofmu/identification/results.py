@@ -221,14 +221,14 @@ def write_result(path: str | Path, result: Result, overwrite: bool = False) -> P
         The file to write.
     result : Result
         The result (:meth:`servofmu.PSOANNIdentifier.result`).
+    overwrite : bool
+        Replace an existing file; without it an existing ``path`` is refused.
 
     Returns
     -------
     Path
         The file written.
 
-    overwrite : bool
-        Replace an existing file; without it an existing ``path`` is refused.
     Raises
     ------
     UserError

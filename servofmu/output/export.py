@@ -282,12 +282,12 @@ def export_result(result_file: str | Path, output: str | Path, fmt: str | None =
         Model name in the export (default: the plant's name + ``_identified``).
     command : str
         The command line, for provenance.
+    overwrite : bool
+        Replace an existing ``output``; without it an existing file is refused.
 
     Returns
     -------
     tuple of (Path, str)
-    overwrite : bool
-        Replace an existing ``output``; without it an existing file is refused.
         The file written and its format.
 
     Raises
