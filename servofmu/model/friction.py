@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from .plant import Plant
-from .symbolic import friction_force
 
 __all__ = ["steady_friction", "viscous_damping"]
 
@@ -13,7 +12,9 @@ __all__ = ["steady_friction", "viscous_damping"]
 def steady_friction(plant: Plant, v: np.ndarray) -> np.ndarray:
     """Friction force F(v) (N) at constant velocities ``v`` (m/s, none zero), from the model's own friction
     expression (servofmu.model.symbolic.friction_force); for LuGre with the bristles at rest (dz/dt = 0)."""
-    import casadi as ca  # only the curve needs CasADi
+    import casadi as ca  # only the curve needs CasADi (commands that never draw it start without it)
+
+    from .symbolic import friction_force
 
     v = np.asarray(v, dtype=float).ravel()
     vel = ca.SX.sym("v")

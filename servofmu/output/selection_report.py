@@ -3,6 +3,7 @@ and the best candidates' fits on the validation data side by side (each simulate
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -107,9 +108,10 @@ def selection_page(selection: Selection) -> str:
     return page(title, parts)
 
 
-def select_with_report(data_files, validation_file, output, options: SelectOptions | None = None,
-                       run: RunOptions | None = None, plant_output=None, result_output=None,
-                       report=None) -> Selection:
+def select_with_report(data_files: Sequence[str | Path], validation_file: str | Path, output: str | Path,
+                       options: SelectOptions | None = None, run: RunOptions | None = None,
+                       plant_output: str | Path | None = None, result_output: str | Path | None = None,
+                       report: str | Path | None = None) -> Selection:
     """Select a structure (:func:`servofmu.select_files`) and, with ``report``, write the selection's HTML page
     (:func:`selection_page`): what `servofmu select` does.
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -80,8 +81,9 @@ def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]
 
 
 @holds_outputs
-def select_files(data_files, validation_file, output, options: SelectOptions | None = None,
-                 run: RunOptions | None = None, plant_output=None, result_output=None) -> Selection:
+def select_files(data_files: Sequence[str | Path], validation_file: str | Path, output: str | Path,
+                 options: SelectOptions | None = None, run: RunOptions | None = None,
+                 plant_output: str | Path | None = None, result_output: str | Path | None = None) -> Selection:
     """Fit every candidate structure to ``data_files``, rank them on ``validation_file`` and write the outputs.
 
     Parameters

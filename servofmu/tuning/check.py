@@ -17,17 +17,18 @@ of the model (servofmu.tuning.run), so that what the model promised and what the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
 
-from ..control.compensation import run_variant
-from ..control.cosim import CosimResult
-from ..control.system import read_system, write_system
 from ..errors import UserError
 from ..model.controller import PARAMETERS, ControllerSpec
 from ..runtime import temporary_folder
 from .task import Task
+
+if TYPE_CHECKING:  # the co-simulation (FMPy, CasADi) is imported by the check itself, not by the names
+    from ..control.cosim import CosimResult
 
 __all__ = ["Figures", "AxisRun", "tracking_figures", "settling", "reversal_velocity_error", "axis_drive",
            "step_drive", "check_on_axis", "STEP_BAND", "REVERSAL_WINDOW"]
@@ -132,6 +133,9 @@ def check_on_axis(ssp: str | Path, controllers: dict[str, ControllerSpec], task:
                   engine: str = "libcosim") -> list[AxisRun]:
     """Co-simulate every controller (label → settings) on the axis archive ``ssp``, on the task and on the step,
     in archives rebuilt from the axis's FMUs with those references."""
+    from ..control.compensation import run_variant
+    from ..control.system import read_system, write_system
+
     runs = []
     with temporary_folder("tune") as tmp:
         system = read_system(ssp, Path(tmp) / "axis")

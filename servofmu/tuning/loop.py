@@ -26,7 +26,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from ..errors import UserError
 from ..model.controller import ControllerSpec
@@ -73,6 +72,8 @@ def zoh_position_plant(plant: Plant, sample_time: float) -> tuple[np.ndarray, np
     c[n - num.size:] = num
     block = np.zeros((n + 1, n + 1))
     block[:n, :n], block[:n, n] = a * sample_time, b * sample_time
+    from scipy.linalg import expm  # here, so that commands importing the tuning's names start without scipy
+
     m = expm(block)
     ad, bd = m[:n, :n], m[:n, n]
     den_z = np.real(np.poly(ad))

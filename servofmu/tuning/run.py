@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import time as clock
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
 from ..identification.results import Result
 from ..model.controller import ControllerSpec, friction_feedforward, load_controller
+from ..runtime import Progress
 from ..simulation.closed_loop import LoopSimulator
 from .check import AxisRun, Figures, check_on_axis, step_drive, tracking_figures
 from .loop import LoopAnalysis, analyse_loop, axis_mass, sensitivity_peak
@@ -130,8 +132,8 @@ def _model_run(uncertainty: Uncertainty, simulator: LoopSimulator, task: Task, s
 
 
 def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: TuneOptions = TuneOptions(),
-              method: str = "pso", compensate: bool = False, axis=None, engine: str = "libcosim",
-              progress=None, source: str = "the result") -> Tuning:
+              method: str = "pso", compensate: bool = False, axis: str | Path | None = None,
+              engine: str = "libcosim", progress: Progress | None = None, source: str = "the result") -> Tuning:
     """Tune the drive's gains for an identified axis.
 
     Parameters
