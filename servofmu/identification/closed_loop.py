@@ -140,6 +140,9 @@ class ClosedLoopCriterion(TimeDomainCriterion):
         self.encoder_errors = [r.encoder_errors(data.encoder_resolution, data.realisations, data.seed + i)
                                for i, r in enumerate(data.records)]
         super().__init__(structure)
+        # a record's position and command are sampled together and share the loop's noise (the actuator noise
+        # moves the axis and the controller answers it): their residuals are correlated
+        self.concurrent = [(2 * i, 2 * i + 1) for i in range(len(data.records))]
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
         """Per record its measured position (m) and force command (N) at the fitted samples, with their names."""

@@ -29,7 +29,7 @@ from .prior import full_vectors
 from .student_t import t_quantile
 
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure",
-           "record_errors", "fit_percent", "newey_west_covariance", "sine_residuals", "sine_residual_jacobian",
+           "record_errors", "fit_percent", "newey_west_covariance", "bartlett_lags", "long_run_dof", "sine_residuals", "sine_residual_jacobian",
            "SineCriterion", "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options",
            "central_jacobian", "intervals_from_jacobian", "undetermined", "output_error_fitness", "SEARCH_RTOL",
            "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
@@ -286,7 +286,8 @@ class TimeDomainCriterion:
     counts by how exactly it was measured: the maximum-likelihood weighting for signals of different units,
     noise levels and lengths.  Before a fit the scale is the spread of the signal (relative errors);
     :meth:`reweight` sets it to the RMS error of a fit, after which the fit is repeated (feasible generalised
-    least squares).  ``blocks``: the residuals of each signal, consecutive samples (Newey–West intervals).
+    least squares).  ``blocks``: the residuals of each signal, consecutive samples (Newey–West intervals);
+    ``concurrent``: groups of blocks sampled at the same instants, whose noise may be correlated (None: none).
     """
 
     def __init__(self, structure: Plant):
@@ -297,6 +298,7 @@ class TimeDomainCriterion:
         self.scales = self.spreads.copy()
         sizes = [y.size for y in measured]
         self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+        self.concurrent: list[tuple[int, ...]] | None = None  # blocks sampled at the same instants (a subclass's)
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
         """The measured signals at their fitted samples, as (name, values) pairs (the subclass's)."""
@@ -369,9 +371,12 @@ def central_jacobian(crit: SineCriterion | RecordCriterion, theta: np.ndarray) -
 
 
 def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95,
-                            blocks: list[slice] | None = None) -> np.ndarray:
+                            blocks: list[slice] | None = None,
+                            concurrent: list[tuple[int, ...]] | None = None) -> np.ndarray:
     """(p, 2) intervals with a Student t quantile, from the Gauss–Newton covariance s²(JᵀJ)⁻¹ or, with ``blocks``
-    (the residuals of each record, consecutive samples), from :func:`newey_west_covariance`."""
+    (the residuals of each signal, consecutive samples), from :func:`newey_west_covariance` (``concurrent``: the
+    blocks sampled at the same instants, e.g. a closed-loop record's position and command) with the degrees of
+    freedom of its long-run covariance, 1.5·n/L per group of n samples and bandwidth L (at most n − p)."""
     p = theta.size
     dof = max(r.size - p, 1)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
@@ -379,7 +384,8 @@ def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, l
     if blocks is None:
         cov = float(r @ r) / dof * np.linalg.pinv(jac.T @ jac)
     else:
-        cov = newey_west_covariance(r, jac, blocks) * r.size / dof
+        cov = newey_west_covariance(r, jac, blocks, concurrent) * r.size / dof
+        dof = min(dof, long_run_dof(r, blocks, concurrent))
     half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
     half[undetermined(jac)] = np.inf
     return np.stack([theta - half, theta + half], axis=1)
@@ -400,19 +406,62 @@ def undetermined(jac: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     return out
 
 
-def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice]) -> np.ndarray:
+def bartlett_lags(r: np.ndarray) -> int:
+    """The Newey–West bandwidth L of residuals ``r`` (one signal, consecutive samples) by Andrews's (1991) AR(1)
+    plug-in rule from their lag-1 autocorrelation ρ: L = ⌈1.1447·(α·n)^(1/3)⌉, α = 4ρ²/((1−ρ)²(1+ρ)²)."""
+    n = r.size
+    rho = float(np.clip(r[1:] @ r[:-1] / max(r @ r, 1e-300), -0.97, 0.97))
+    alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    return max(min(int(np.ceil(1.1447 * (alpha * n) ** (1 / 3))), n - 1), 0)
+
+
+def _groups(blocks: list[slice], concurrent: list[tuple[int, ...]] | None) -> list[list[slice]]:
+    """The blocks in their groups of signals sampled together (each block alone without ``concurrent``)."""
+    return [[blocks[k] for k in group] for group in concurrent or [(k,) for k in range(len(blocks))]]
+
+
+def long_run_dof(r: np.ndarray, blocks: list[slice], concurrent: list[tuple[int, ...]] | None = None) -> int:
+    """The degrees of freedom of :func:`newey_west_covariance`: about 1.5·n/L independent pieces of information per
+    group of n samples and bandwidth L (the equivalent degrees of freedom of a Bartlett estimate at frequency 0,
+    Priestley 1981) — far fewer than n − p when the residuals are strongly coloured."""
+    total = sum(1.5 * (parts[0].stop - parts[0].start) / max(max(bartlett_lags(r[b]) for b in parts), 1)
+                for parts in _groups(blocks, concurrent))
+    return max(int(total), 1)
+
+
+def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice],
+                          concurrent: list[tuple[int, ...]] | None = None) -> np.ndarray:
     """The sandwich (JᵀJ)⁻¹ Ω (JᵀJ)⁻¹ of least squares whose residuals may be correlated in time within each block
-    (Newey & West 1987): Ω sums the scores g_t = J_t·r_t and their lagged products with Bartlett weights
-    1 − l/(L+1); the bandwidth L follows Andrews (1991) from the residuals' lag-1 autocorrelation ρ,
-    L = 1.1447·(α·n)^(1/3) with α = 4ρ²/((1−ρ)²(1+ρ)²).  For white residuals it is s²(JᵀJ)⁻¹."""
-    bread = np.linalg.pinv(jac.T @ jac)
+    (Newey & West 1987), and between the blocks of a group in ``concurrent`` (signals sampled at the same instants,
+    e.g. a closed loop's position and command: their scores are summed sample by sample; default: every block
+    alone).  Ω sums the scores g_t = J_t·r_t and their lagged products with Bartlett weights 1 − l/(L+1); the
+    bandwidth L is :func:`bartlett_lags`'s, the largest of the group's signals.
+
+    The scores are taken on the residuals each segment of L+1 samples (all the group's signals) would have had
+    in a fit without it, r_S + J_S (JᵀJ − J_SᵀJ_S)⁻¹ J_Sᵀ r_S: the leave-one-segment-out residuals (the jackknife's,
+    the time-series counterpart of HC3).  A fit absorbs the part of the noise that its parameters can explain;
+    for white noise that is p of n samples' worth, but coloured noise has few degrees of freedom where its power
+    is (a closed loop's position error is noise filtered to the loop's bandwidth), and the parameters may take up
+    much of it — in the fit's own residuals the scores then look up to 3 times smaller than they are
+    (docs/bench-quantiser.md).  For white residuals L is 1-2, the segments hold a few samples, and the estimate
+    is s²(JᵀJ)⁻¹ up to O(p/n)."""
+    gram = jac.T @ jac
+    bread = np.linalg.pinv(gram)
     omega = np.zeros_like(bread)
-    for block in blocks:
-        rb, g = r[block], jac[block] * r[block, None]
-        n = rb.size
-        rho = float(np.clip(rb[1:] @ rb[:-1] / max(rb @ rb, 1e-300), -0.97, 0.97))
-        alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
-        lags = min(int(np.ceil(1.1447 * (alpha * n) ** (1 / 3))), n - 1)
+    for parts in _groups(blocks, concurrent):
+        n = parts[0].stop - parts[0].start
+        lags = max(bartlett_lags(r[b]) for b in parts)
+        span = lags + 1
+        g = 0.0
+        for b in parts:
+            g = g + jac[b] * r[b, None]
+        for start in range(0, n, span):  # the scores on the leave-one-segment-out residuals
+            rows = np.concatenate([np.arange(b.start + start, min(b.start + start + span, b.stop)) for b in parts])
+            js = jac[rows]
+            shift = js @ (np.linalg.pinv(gram - js.T @ js) @ (js.T @ r[rows]))
+            for k, b in enumerate(parts):
+                m = min(span, n - start)
+                g[start:start + m] += jac[b.start + start:b.start + start + m] * shift[k * m:(k + 1) * m, None]
         omega += g.T @ g
         for lag in range(1, lags + 1):
             gamma = g[lag:].T @ g[:-lag]

@@ -289,7 +289,8 @@ class PSOANNIdentifier:
             r = crit.residuals(theta, POLISH_RTOL)[0]
             jac = central_jacobian(crit, theta)
         return _Fit(theta=theta, y=y_best, r=r, fitness=fitness, history=result.cost_history,
-                    intervals=intervals_from_jacobian(theta, r, jac, blocks=crit.blocks))
+                    intervals=intervals_from_jacobian(theta, r, jac, blocks=crit.blocks,
+                                                        concurrent=getattr(crit, "concurrent", None)))
 
     def _restart_while_above_floor(self, crit, cost, data, fits: list, box, y0, stages: list) -> "_Fit":
         """Search again while the best fit is above the noise floor (servofmu.identification.restarts), until a
