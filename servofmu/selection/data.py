@@ -11,9 +11,17 @@ import numpy as np
 from ..errors import UserError
 from ..identification.criterion import RecordData, SineCriterion, RecordCriterion, SineData, record_data, sine_data
 from ..measurement.datafile import DataFile, read_data_file
+from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
 from .estimate import Series, series_of_experiments, series_of_records
 
-__all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind"]
+__all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
+           "BoundedSimulator", "STEPS_PER_SAMPLE"]
+
+# The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
+# for a failed integration): the bench's true plants need at most 24 per sample at the polish's tolerance 1e-10
+# (docs/bench-select.md); a candidate with fast poles and Coulomb friction can chatter about zero velocity and
+# take millions (one simulation of the polish 24 s instead of 10 ms).
+STEPS_PER_SAMPLE = 200
 
 
 def data_kind(data) -> str:
@@ -114,14 +122,31 @@ def check_validation(fit, fit_files: list[DataFile], validation, validation_file
                         "differ); validate on data of the same axis")
 
 
-def criterion_for(structure, data, threads: int | None = None):
-    """The identifier's criterion of ``structure`` on ``data`` (the same the fit used)."""
-    from ..simulation.batch import BatchSimulator
+class BoundedSimulator(BatchSimulator):
+    """The batch simulator with a step budget on every record: STEPS_PER_SAMPLE integrator steps per sample, a run
+    that needs more stopped and its response NaN (a candidate far from the data: the search scores it infinite,
+    the polish steps back).  ``stopped`` counts the runs of valid parameter sets that gave NaN (stopped at the
+    budget or failed)."""
 
+    stopped = 0
+
+    def simulate_record(self, params, time, u, hold: str = "zoh", rtol: float = 1e-8, max_steps: int = 50_000_000,
+                        progress=None) -> RecordResponse:
+        """As :meth:`BatchSimulator.simulate_record`, with at most STEPS_PER_SAMPLE steps per sample."""
+        budget = min(max_steps, STEPS_PER_SAMPLE * max(np.size(time), 1))
+        out = super().simulate_record(params, time, u, hold=hold, rtol=rtol, max_steps=budget, progress=progress)
+        valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
+        self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.v), axis=1)))
+        return out
+
+
+def criterion_for(structure, data, threads: int | None = None):
+    """The identifier's criterion of ``structure`` on ``data``, records simulated within the step budget
+    (BoundedSimulator); closed-loop data brings its own."""
     if isinstance(data, SineData):
         return SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
     if isinstance(data, RecordData):
-        return RecordCriterion(structure, data, BatchSimulator(structure, threads=threads))
+        return RecordCriterion(structure, data, BoundedSimulator(structure, threads=threads))
     return data.criterion(structure, threads)
 
 

@@ -195,10 +195,19 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
                               if not isinstance(exc, UserError) else text, seconds=time.perf_counter() - start)
 
 
+class _CandidateIdentifier(PSOANNIdentifier):
+    """The identifier with the selection's criterion: records simulated within a step budget
+    (data.BoundedSimulator), so that a candidate whose simulation chatters cannot hold up the selection."""
+
+    def _criterion(self, data):
+        self.criterion_ = criterion_for(self.structure, data, self.threads)
+        return self.criterion_
+
+
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
-    est = PSOANNIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
-                           spread=job.options.spread, seed=job.options.seed, threads=job.threads).fit(job.data)
+    est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
+                               spread=job.options.spread, seed=job.options.seed, threads=job.threads).fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
     fitted = _signal_errors(criterion_for(job.start, job.data, job.threads), job.data, theta)
@@ -208,8 +217,10 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     names = [name for name, _ in crit_v.signals()] if crit_v.blocks is not None else ["harmonics"]
     val_neg2, _ = _neg2loglik([e for _, e in validated])
     p = theta.size
+    stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
+        message=f"{stopped} simulations stopped at the step budget or failed" if stopped else "",
         aic=neg2 + 2 * p, bic=neg2 + p * math.log(max(n, 1)),
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),
