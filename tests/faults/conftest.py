@@ -60,13 +60,16 @@ def inputs(tmp_path_factory, built_fmu) -> dict[str, Path]:
     from servofmu.model.plant import example_files, load_plant
 
     d = tmp_path_factory.mktemp("fault-inputs")
-    f = {"g1_fmu": d / "g1.fmu", "data": d / "data.h5", "partial": d / "partial.h5", "records_csv": d / "rec.csv",
+    f = {"g1_fmu": d / "g1.fmu", "data": d / "data.h5", "data2": d / "data2.h5", "partial": d / "partial.h5", "records_csv": d / "rec.csv",
          "records": d / "rec.h5", "ds": d / "ds.h5", "ann": d / "ann.h5", "result": d / "result.h5",
          "plant2_fmu": d / "plant2.fmu", "ctrl2_fmu": d / "ctrl2.fmu", "reference_csv": d / "ref.csv",
          "axis": d / "axis.ssp", "axis_result": d / "axis-result.h5", "plant_toml": d / "plant.toml",
          "controller_toml": d / "ctrl.toml"}
     f["g1_fmu"].write_bytes(built_fmu("g1", 3).read_bytes())
     servofmu("measure", f["g1_fmu"], "--amplitudes", "2,0.6", "--frequencies", "1,5", "--workers", "0", "-o", f["data"])
+    # another measurement of the same axis and plan at other frequencies: what `select` validates on
+    servofmu("measure", f["g1_fmu"], "--amplitudes", "2,0.6", "--frequencies", "2,4", "--workers", "0", "-o",
+             f["data2"])
     data = read_data_file(f["data"])  # the first half of it, as an interrupted run leaves it
     create_measurement(f["partial"], data.plan, data.provenance, data.parameters)
     add_experiments(f["partial"], data.experiments[:2])

@@ -75,6 +75,10 @@ WRITERS = {
     "system": Writer(("system", "{plant2_fmu}", "{ctrl2_fmu}", "--reference", "{reference_csv}", "-o", "out.ssp",
                       "--force"), "out.ssp"),
     "cosim": Writer(("cosim", "{axis}", "--engine", "fmpy", "-o", "out.h5", "--force"), "out.h5"),
+    "select": Writer(("select", "{data}", "--validate", "{data2}", "--candidates", "coulomb/1", "--iterations", "5",
+                      "--workers", "0", "-o", "out.h5", "--force"), "out.h5"),
+    "tune": Writer(("tune", "{axis_result}", "{controller_toml}", "--particles", "4", "--iterations", "2", "-o",
+                    "out.toml", "--force"), "out.toml"),
     "compensate": Writer(("compensate", "{axis_result}", "--axis", "{axis}", "--engine", "fmpy", "-o", "out.html",
                           "--force"), "out.html"),
 }

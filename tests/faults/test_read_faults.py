@@ -22,6 +22,11 @@ READERS = {
     "identify --ann": ("ann", ["identify", "{data}", "--structure", "g1", "--ann", "{bad}", "-o", "out.h5"]),
     "report": ("result", ["report", "{bad}", "-o", "out.html"]),
     "export": ("result", ["export", "{bad}", "-o", "out.fmu"]),
+    "select": ("data", ["select", "{bad}", "--validate", "{data2}", "--candidates", "coulomb/1", "--workers", "0",
+                        "-o", "out.h5"]),
+    "select --validate": ("data", ["select", "{data}", "--validate", "{bad}", "--candidates", "coulomb/1",
+                                   "--workers", "0", "-o", "out.h5"]),
+    "tune": ("result", ["tune", "{bad}", "{controller_toml}", "-o", "out.toml"]),
 }
 FAULTS = ("truncated", "bit-flip", "nan", "inf", "wrong-shape", "1e308", "-1e308")
 

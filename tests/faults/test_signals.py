@@ -1,6 +1,7 @@
 """Writers that continue an interrupted file (measure, dataset) stopped by SIGTERM, SIGINT (Ctrl-C) or SIGKILL at a
 seeded random moment: one line and exit 128 + the signal (none for SIGKILL, which cannot be handled), no partial
-file, no temporary folder left, no worker left; then --resume finishes identical to an uninterrupted run."""
+file, no temporary folder left, no worker left; then --resume finishes identical to an uninterrupted run.
+A selection (candidates fitted in workers, three files written at the end) stopped anywhere writes nothing."""
 from __future__ import annotations
 
 import os
@@ -155,3 +156,45 @@ def test_a_stop_at_any_moment_of_a_run_with_workers_ends_it_at_once_with_one_lin
     if proc.returncode in (0, -signum) and (tmp_path / "out.h5").exists():  # after main() returned
         pytest.skip("the command finished before the signal")
     assert_one_line(err, proc.returncode, status, message)
+
+
+SELECT = ["select", "{data}", "--validate", "{data2}", "--candidates", "coulomb/1,coulomb/2,stribeck/1",
+          "--iterations", "5", "--workers", "2", "-o", "out.h5"]
+
+
+@pytest.fixture(scope="module")
+def selection_seconds(inputs, tmp_path_factory) -> float:
+    """How long an uninterrupted selection takes."""
+    folder = tmp_path_factory.mktemp("uninterrupted-select")
+    start = time.monotonic()
+    proc = run_servofmu([a.format(**{k: str(v) for k, v in inputs.items()}) for a in SELECT], folder, folder)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err
+    return time.monotonic() - start
+
+
+@pytest.mark.parametrize("name, k", sample([(name, k) for k in range(4) for name in ("SIGTERM", "SIGINT")], every=3))
+def test_a_selection_stopped_at_any_moment_writes_nothing_and_leaves_no_worker(inputs, selection_seconds, tmp_path,
+                                                                               name, k):
+    """`select` fits its candidates in worker processes and writes three files at the end: a stop anywhere in the
+    run is one line, leaves none of them (nor a partial file) and no worker (their temporary folder goes with
+    them)."""
+    signum, status, message = SIGNALS[name]
+    temp, work = tmp_path / "tmp", tmp_path / "work"
+    temp.mkdir()
+    work.mkdir()
+    proc = run_servofmu([a.format(**{key: str(v) for key, v in inputs.items()}) for a in SELECT], work, temp)
+    time.sleep(0.3 + 0.8 * selection_seconds * k / 4)
+    if signum == signal.SIGINT:
+        os.killpg(proc.pid, signum)
+    else:
+        proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    if proc.returncode in (0, -signum) and "wrote" in out:  # after main() returned
+        pytest.skip("the command finished before the signal")
+    assert_one_line(err, proc.returncode, status, message)
+    assert sorted(p.name for p in work.iterdir()) == []
+    deadline = time.monotonic() + 10
+    while list(temp.iterdir()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not list(temp.iterdir())
