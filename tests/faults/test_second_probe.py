@@ -162,15 +162,20 @@ def looping_result(inputs, folder: Path) -> Path:
     raise AssertionError("no bit of the first object's size lands in the free space")
 
 
-def test_p09_a_reader_never_hangs_on_a_damaged_file(inputs, tmp_path):
-    bad = looping_result(inputs, tmp_path)
-    proc = run_servofmu(["export", bad, "--format", "json", "-o", "out.json"], tmp_path, tmp_path)
+def stderr_within(proc, seconds: float, failure: str) -> str:
+    """The standard error of ``proc`` once it ended within ``seconds``; else it is killed and the test fails."""
     try:
-        _, err = proc.communicate(timeout=90)
+        return proc.communicate(timeout=seconds)[1]
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
-        pytest.fail("export of a damaged result file did not end in 90 s")
+        pytest.fail(failure)
+
+
+def test_p09_a_reader_never_hangs_on_a_damaged_file(inputs, tmp_path):
+    bad = looping_result(inputs, tmp_path)
+    proc = run_servofmu(["export", bad, "--format", "json", "-o", "out.json"], tmp_path, tmp_path)
+    err = stderr_within(proc, 90, "export of a damaged result file did not end in 90 s")
     assert_one_line(err, proc.returncode, 2, str(bad), "damaged result file", "did not end")
     assert not (tmp_path / "out.json").exists()
 
@@ -180,12 +185,7 @@ def test_p09_a_stop_signal_ends_a_read_at_once(inputs, tmp_path):
     proc = run_servofmu(["export", bad, "--format", "json", "-o", "out.json"], tmp_path, tmp_path)
     time.sleep(3)  # reading the file by now
     proc.send_signal(signal.SIGTERM)
-    try:
-        _, err = proc.communicate(timeout=10)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.communicate()
-        pytest.fail("export did not heed SIGTERM while it read a damaged file")
+    err = stderr_within(proc, 10, "export did not heed SIGTERM while it read a damaged file")
     assert_one_line(err, proc.returncode, 128 + signal.SIGTERM, "terminated")
     time.sleep(0.5)
     assert subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True).stdout == b"", "a reader left running"
