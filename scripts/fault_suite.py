@@ -47,6 +47,8 @@ def classify(module: str, name: str) -> tuple[str, str]:
     if module.endswith("test_signals"):
         if name.startswith("test_a_stop_at_any_moment"):  # [SIGNAL-k]: measure with workers, start-up included
             return "measure", f"{params[0]} at any moment"
+        if name.startswith("test_a_selection_stopped"):  # [SIGNAL-k]: select with workers
+            return "select", f"{params[0]} at any moment"
         return (params[0], params[1]) if params else ("(signal handling)", name.removeprefix("test_"))
     if module.endswith("test_read_faults"):
         reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
