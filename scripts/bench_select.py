@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -83,20 +85,32 @@ def record(plant, path: Path, seed: int, scale: float) -> Path:
     return path
 
 
-def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None) -> dict:
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (the worker processes)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None, screen: bool = True) -> dict:
     plant, truth, scale = PLANTS[name]
     fit = record(plant, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1, scale)
     val = record(plant, folder / f"{name}-{seed}-val.h5", 1000 * seed + 2, scale)
-    t0 = time.perf_counter()
-    sel = sf.select_files([fit], val, folder / f"{name}-{seed}-select.h5",
-                          sf.SelectOptions(seed=seed, iterations=iterations), RunOptions(workers=workers))
-    seconds = time.perf_counter() - t0
+    options = sf.SelectOptions(seed=seed, iterations=iterations)
+    if "screen" in sf.SelectOptions.__dataclass_fields__:
+        options = replace(options, screen=screen)
+    load, t0, cpu0 = os.getloadavg()[0], time.perf_counter(), _cpu()
+    sel = sf.select_files([fit], val, folder / f"{name}-{seed}-select.h5", options,
+                          RunOptions(workers=workers, overwrite=True))
+    seconds, cpu = time.perf_counter() - t0, _cpu() - cpu0
     by_name = {s.name: s for s in sel.scores}
     chosen = sel.chosen
     return {"plant": name, "seed": seed, "truth": truth, "chosen": chosen.name if chosen else None,
             "truth_rank": by_name[truth].rank, "more_parameters": bool(chosen and chosen.parameters >
                                                                       by_name[truth].parameters),
-            "failed": sum(s.status == "failed" for s in sel.scores), "seconds": seconds}
+            "failed": sum(s.status == "failed" for s in sel.scores), "seconds": seconds, "cpu_seconds": cpu,
+            "load": [load, os.getloadavg()[0]], "fits": len(sel.scores),
+            "screened": sum(getattr(s, "screened", False) for s in sel.scores),
+            "slowest": max((s.seconds, s.name) for s in sel.scores)}
 
 
 def report(rows: list[dict], args) -> str:
@@ -130,6 +144,7 @@ def main() -> None:
     parser.add_argument("--plants", default=",".join(PLANTS))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int)
+    parser.add_argument("--no-screen", action="store_true", help="every candidate fitted at the full tolerance")
     parser.add_argument("-o", "--output", default="docs/bench-select.md")
     parser.add_argument("--json", help="also write every selection's row (JSON lines)")
     parser.add_argument("--from-json", help="make the report from the rows of an earlier run (JSON lines)")
@@ -144,7 +159,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.seeds):
             for name in args.plants.split(","):
-                rows.append(one(name, seed, Path(tmp), args.workers, args.iterations))
+                rows.append(one(name, seed, Path(tmp), args.workers, args.iterations, not args.no_screen))
                 print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
                 if args.json:
                     with open(args.json, "a") as f:

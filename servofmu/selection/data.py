@@ -125,16 +125,20 @@ def check_validation(fit, fit_files: list[DataFile], validation, validation_file
 class BoundedSimulator(BatchSimulator):
     """The batch simulator with a step budget on every record: STEPS_PER_SAMPLE integrator steps per sample, a run
     that needs more stopped and its response NaN (a candidate far from the data: the search scores it infinite,
-    the polish steps back).  ``stopped`` counts the runs of valid parameter sets that gave NaN (stopped at the
+    the polish steps back); ``rtol_floor``: the loosest tolerance asked for is kept (a screening fit's).
+    ``stopped`` counts the runs of valid parameter sets that gave NaN (stopped at the
     budget or failed)."""
 
     stopped = 0
+    rtol_floor = 0.0  # no tolerance tighter than this (the screening fit's)
 
     def simulate_record(self, params, time, u, hold: str = "zoh", rtol: float = 1e-8, max_steps: int = 50_000_000,
                         progress=None) -> RecordResponse:
-        """As :meth:`BatchSimulator.simulate_record`, with at most STEPS_PER_SAMPLE steps per sample."""
+        """As :meth:`BatchSimulator.simulate_record`, with at most STEPS_PER_SAMPLE steps per sample and a
+        tolerance of at least ``rtol_floor``."""
         budget = min(max_steps, STEPS_PER_SAMPLE * max(np.size(time), 1))
-        out = super().simulate_record(params, time, u, hold=hold, rtol=rtol, max_steps=budget, progress=progress)
+        out = super().simulate_record(params, time, u, hold=hold, rtol=max(rtol, self.rtol_floor), max_steps=budget,
+                                      progress=progress)
         valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
         self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.v), axis=1)))
         return out

@@ -21,7 +21,7 @@ from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
-from .select import CandidateJob, CandidateScore, SelectOptions, fit_candidate, rank
+from .select import CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
 
@@ -139,8 +139,10 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                   "data_sha256": ", ".join(f.sha256 for f in files),  # of the bytes read and fitted
                   "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
+    screen = options.screen and data_kind(data) == "records"
     job = CandidateJob(candidates[0], None, data, validation, options,
-                       None if run.scheduler is None and run.workers == 0 else 1, provenance)
+                       None if run.scheduler is None and run.workers == 0 else 1, provenance,
+                       mode="screen" if screen else "full")
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
         reduced = _reduced_starts(scores, candidates, data_bandwidth(estimation_series(data, files)))
@@ -150,6 +152,8 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
             scores = _fit_all(pool, job, _starts(load_candidates(first.candidate), data, files), run, scores)
+        if screen:
+            scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
     return _write(selection, outputs)
@@ -175,6 +179,36 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
         if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
             out[target] = smaller
     return out
+
+
+def _refit_contenders(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
+                      ) -> list[CandidateScore]:
+    """The screened candidates that could still be chosen (select.could_win) polished again at the identifier's
+    tolerances from their screened fits, until the candidate ranked first is one so polished and no screened one
+    could beat it.  A candidate whose polish fails keeps its screened fit (marked no longer screened, its
+    message saying why)."""
+    scores = list(scores)
+    while True:
+        first = rank(scores)[0]
+        todo = {s.candidate: s for s in scores if could_win(s, first)}
+        if not todo:
+            return scores
+        again = {s.candidate: s for s in _fit_all(pool, job, {c: s.result.plant for c, s in todo.items()}, run, [])}
+        scores = [_refitted(s, again[s.candidate]) if s.candidate in again else s for s in scores]
+
+
+def _refitted(screened: CandidateScore, again: CandidateScore) -> CandidateScore:
+    """A candidate's score after its full polish: the new scores, with the screening's stages, time and start
+    structure before the polish's; its screened score (no longer marked screened) when the polish failed."""
+    if again.status != "fitted":
+        return replace(screened, screened=False, message=f"full polish failed ({again.message}): screened fit kept")
+    old, new = screened.result, again.result
+    stages = (*(replace(st, name="screening polish") if st.name == "polish" else st for st in old.stages),
+              *(st for st in new.stages if st.name != "start"))
+    result = replace(new, structure=old.structure, stages=stages, seconds=old.seconds + new.seconds,
+                     evaluations=old.evaluations + new.evaluations, history=old.history)
+    message = "; ".join(m for m in (screened.message, again.message) if m)
+    return replace(again, result=result, seconds=screened.seconds + again.seconds, message=message)
 
 
 def _keep_better(scores: list[CandidateScore], again: list[CandidateScore]) -> list[CandidateScore]:
@@ -237,7 +271,8 @@ def _fill_ranking(f, selection: Selection) -> None:
                                            "orders": list(selection.options.orders), "seed": selection.options.seed,
                                            "iterations": selection.options.iterations,
                                            "spread": selection.options.spread, "skip": selection.options.skip,
-                                           "closed_loop": selection.options.closed_loop})})
+                                           "closed_loop": selection.options.closed_loop,
+                                           "screen": selection.options.screen})})
     store_array(g, "name", [x.name for x in s])
     store_array(g, "group", [_key(x) if x.status == "fitted" else "" for x in s])
     store_array(g, "status", [x.status for x in s])
@@ -248,6 +283,7 @@ def _fill_ranking(f, selection: Selection) -> None:
         store_array(g, column, np.array([getattr(x, column) for x in s], dtype=np.int64))
     for column in ("neg2loglik", "aic", "bic", "validation_neg2loglik", "seconds", "worst_validation_fit"):
         store_array(g, column, np.array([getattr(x, column) for x in s], dtype=float))
+    store_array(g, "screened", np.array([int(x.screened) for x in s], dtype=np.int8))
     store_array(g, "white", np.array([-1 if x.white is None else int(x.white) for x in s], dtype=np.int8))
     store_array(g, "validation_fit", [json.dumps(x.validation_fit) for x in s])
 

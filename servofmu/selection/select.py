@@ -36,18 +36,29 @@ from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.residuals import residual_test
 from ..identification.results import Result
+from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate
 from .data import criterion_for, data_kind
 
-__all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "VALIDATION_MARGIN",
-           "DEFAULT_SPREAD"]
+__all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
+           "could_win", "VALIDATION_MARGIN", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 # Validation −2·ln L a candidate may lose to the best one before it is flagged: the 99.9 % quantile of χ²(1),
 # what one parameter's estimation error costs a right model on new data far less often than that.
 VALIDATION_MARGIN = 10.83
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
+# The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
+# simulations take a quarter of the steps they take at the polish's 1e-10, and the residuals err by ~1e-7 of the
+# signal, against noise of 1e-2 (40 dB): the BIC moves by ~0.04, against ln N = 7.6 per parameter.
+SCREEN_RTOL = 1e-7
+# The screening fit's swarm tolerance (the identifier's SEARCH_RTOL is 1e-5): a quarter less time per simulation,
+# and the swarm only ranks its particles, whose costs differ by far more than 1e-4 of the signal.
+SCREEN_SEARCH_RTOL = 1e-4
+# What a candidate's screened BIC, less the Gauss–Newton gain a full polish could still make (screen_bound), may
+# exceed the chosen candidate's final BIC by and still be polished in full: a margin for the gain's linearisation.
+SCREEN_MARGIN = 20.0
 
 
 @dataclass(frozen=True)
@@ -71,6 +82,10 @@ class SelectOptions:
         Seconds left out at the start of every record.
     closed_loop : str, optional
         The controller file of closed-loop records.
+    screen : bool
+        Records: fit every candidate with its polish at SCREEN_RTOL first, and polish again at the identifier's
+        tolerance only the candidates whose screened BIC could still win (docs/selection.md); False: every
+        candidate at the full tolerance.
     """
 
     candidates: tuple[str, ...] | None = None
@@ -80,11 +95,14 @@ class SelectOptions:
     spread: float = DEFAULT_SPREAD
     skip: float = 0.0
     closed_loop: str | None = None
+    screen: bool = True
 
 
 @dataclass(frozen=True)
 class CandidateJob:
-    """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data."""
+    """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
+    "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
+    (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant)."""
 
     candidate: Candidate
     start: Plant
@@ -93,6 +111,7 @@ class CandidateJob:
     options: SelectOptions
     threads: int | None
     provenance: dict
+    mode: str = "full"
 
 
 @dataclass(frozen=True)
@@ -101,7 +120,9 @@ class CandidateScore:
     identification; ``parameters`` p; ``samples`` N; ``neg2loglik``, ``aic``, ``bic`` on the fitted data;
     ``validation_fit`` (%, per signal), ``validation_neg2loglik``; ``white``: the residual tests on the validation
     records passed (None: not tested, stepped-sine data); ``undetermined``: names of parameters the data does not
-    determine; ``flags`` and ``rank`` (1 = chosen) set by :func:`rank`."""
+    determine; ``screened``: the scores are those of the screening fit (polish at SCREEN_RTOL), ``bic_bound`` then
+    the lowest BIC a full polish could reach from it (:func:`screen_bound`); ``flags`` and ``rank`` (1 = chosen)
+    set by :func:`rank`."""
 
     candidate: Candidate
     status: str
@@ -117,6 +138,8 @@ class CandidateScore:
     white: bool | None = None
     undetermined: tuple[str, ...] = ()
     seconds: float = math.nan
+    screened: bool = False
+    bic_bound: float = math.nan
     flags: tuple[str, ...] = ()
     rank: int = 0
 
@@ -197,26 +220,52 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
 
 class _CandidateIdentifier(PSOANNIdentifier):
     """The identifier with the selection's criterion: records simulated within a step budget
-    (data.BoundedSimulator), so that a candidate whose simulation chatters cannot hold up the selection."""
+    (data.BoundedSimulator), so that a candidate whose simulation chatters cannot hold up the selection; no
+    tolerance below ``rtol_floor`` (the screening fit's); with ``from_start`` no search: the polish starts at the
+    structure's own values (a screened fit polished again)."""
+
+    rtol_floor = 0.0
+    from_start = False
 
     def _criterion(self, data):
         self.criterion_ = criterion_for(self.structure, data, self.threads)
+        if hasattr(getattr(self.criterion_, "simulator", None), "rtol_floor"):
+            self.criterion_.simulator.rtol_floor = self.rtol_floor
         return self.criterion_
+
+    def _search(self, cost, lower, upper, y0, seed):
+        if not self.from_start:
+            return super()._search(cost, lower, upper, y0, seed)
+        centre = (lower + upper) / 2  # the prior box's centre: the structure's values
+        c = float(cost(centre[None])[0])
+        return "start", OptimizeResult(position=centre, cost=c, cost_history=np.array([c]),
+                                       position_history=centre[None], evaluations=1, iterations=0,
+                                       stopped_early=False)
 
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
-                               spread=job.options.spread, seed=job.options.seed, threads=job.threads).fit(job.data)
+                               spread=job.options.spread, seed=job.options.seed, threads=job.threads,
+                               **({"search_rtol": SCREEN_SEARCH_RTOL} if job.mode == "screen" else {}))
+    est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
+    est.from_start = job.mode == "refit"
+    est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
-    fitted = _signal_errors(criterion_for(job.start, job.data, job.threads), job.data, theta)
-    neg2, n = _neg2loglik([e for _, e in fitted])
+    crit = criterion_for(job.start, job.data, job.threads)
     crit_v = criterion_for(job.start, job.validation, job.threads)
+    for c in (crit, crit_v):
+        if hasattr(getattr(c, "simulator", None), "rtol_floor"):
+            c.simulator.rtol_floor = est.rtol_floor
+    fitted = _signal_errors(crit, job.data, theta)
+    neg2, n = _neg2loglik([e for _, e in fitted])
     validated = _signal_errors(crit_v, job.validation, theta)
     names = [name for name, _ in crit_v.signals()] if crit_v.blocks is not None else ["harmonics"]
     val_neg2, _ = _neg2loglik([e for _, e in validated])
     p = theta.size
+    bound = screen_bound(crit, theta, [e for _, e in fitted]) + p * math.log(max(n, 1)) \
+        if job.mode == "screen" else math.nan
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
@@ -224,7 +273,39 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         aic=neg2 + 2 * p, bic=neg2 + p * math.log(max(n, 1)),
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),
-        undetermined=_undetermined(result), seconds=time.perf_counter() - start)
+        undetermined=_undetermined(result), seconds=time.perf_counter() - start, screened=job.mode == "screen",
+        bic_bound=bound)
+
+
+def screen_bound(crit, theta: np.ndarray, errors: list[np.ndarray]) -> float:
+    """The lowest −2·ln L a polish could reach from ``theta`` by the Gauss–Newton model: every signal's RSS after
+    one full Gauss–Newton step on the output errors (``errors`` at ``theta``; their Jacobian by central
+    differences at the criterion's tolerance).  At a converged fit it is the fit's own −2·ln L less a fraction of
+    one; far from a minimum, what the linearised model promises there."""
+    if not all(np.all(np.isfinite(e)) for e in errors):
+        return -math.inf  # no Jacobian to bound it by: it could be anything
+    h = 1e-5 * np.maximum(np.abs(theta), 1e-3)
+    rows = np.concatenate([theta + np.diag(h), theta - np.diag(h)])
+    e = np.concatenate(crit.errors(rows, POLISH_RTOL), axis=1)
+    jac = ((e[:theta.size] - e[theta.size:]) / (2 * h[:, None])).T
+    r = np.concatenate(errors)
+    if not np.all(np.isfinite(jac)):
+        return -math.inf
+    step = np.linalg.lstsq(jac, r, rcond=None)[0]
+    left = r - jac @ step
+    sizes = np.cumsum([x.size for x in errors])[:-1]
+    return _neg2loglik(np.split(left, sizes))[0]
+
+
+def could_win(score: CandidateScore, chosen: CandidateScore) -> bool:
+    """Whether a screened candidate could still be chosen over ``chosen`` (the candidate ranked first) once
+    polished in full: ``chosen`` itself, every candidate when ``chosen`` is flagged (a flag another candidate may
+    lose decides before BIC), and every one whose lowest reachable BIC (``bic_bound``) less SCREEN_MARGIN is not
+    above ``chosen``'s BIC."""
+    if not score.screened or score.status != "fitted":
+        return False
+    return score.candidate == chosen.candidate or bool(chosen.flags) or not \
+        score.bic_bound - SCREEN_MARGIN > chosen.bic
 
 
 def _cancelling(result: Result | None, within: float = CANCELLATION) -> bool:

@@ -1,0 +1,135 @@
+"""`servofmu select`'s bounds on a candidate's cost: the step budget of every record's simulation (a candidate that
+chatters is stopped, scored and ranked, never integrated for minutes) and the screening (every candidate fitted
+at SCREEN_RTOL, only those that could still win polished again at the identifier's tolerances)."""
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+import servofmu as sf
+from servofmu.measurement.records import import_records
+from servofmu.model.plant import plant_from_dict
+from servofmu.runtime import RunOptions
+from servofmu.selection.candidates import Candidate
+from servofmu.selection.data import STEPS_PER_SAMPLE, BoundedSimulator, load_selection_data
+from servofmu.selection.select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win,
+                                       fit_candidate, rank)
+from servofmu.simulation.batch import BatchSimulator
+
+DT = 0.01
+
+# A trial step of a polish on scripts/bench_select.py's first record of coulomb1 (candidate coulomb/2z, started at
+# STRUCTURE): a Coulomb level of 2.3e7 N against inputs of 2 N; the friction's tanh switches about zero velocity.
+STRUCTURE = plant_from_dict({"name": "start", "linear": {"poles": [[-4.627, 2.403], [-4.627, -2.403]],
+                                                          "zeros": [[-1.347, 0.0]], "dc_gain": 0.3758},
+                             "friction": {"model": "coulomb", "fc_pos": 0.0323, "fc_neg": 0.647}})
+CHATTERING = STRUCTURE.with_parameters(np.array([-4.0025, 0.17913, -1.13308, 0.57782, 2.25976e7, 0.19576, 0.0,
+                                                 0.001]))
+
+
+def _input(t, seed=1):
+    """scripts/bench_select.py's excitation (its first record's phases with ``seed`` 1)."""
+    ph = np.random.default_rng(seed).uniform(0, 2 * np.pi, 4)
+    return np.where(t < t[-1] / 2, 2 * np.sin(2 * np.pi * t + ph[0]) + 0.6 * np.sin(2 * np.pi * 3.1 * t + ph[1]),
+                    0.7 * np.sin(2 * np.pi * 0.6 * t + ph[2]) + 0.3 * np.sin(2 * np.pi * 4.3 * t + ph[3]))
+
+
+def _record(folder, name, plant, seed):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 20, DT)
+    u = _input(t, seed)
+    v = BatchSimulator(plant).simulate_record(plant.parameter_vector()[None], t, u, rtol=1e-10).v[0]
+    v = v + np.std(v) * 0.01 * rng.standard_normal(v.size)  # 40 dB
+    csv = folder / f"{name}.csv"
+    np.savetxt(csv, np.column_stack([t, u, v]), delimiter=",", header="t,u,v", comments="")
+    import_records([csv], folder / f"{name}.h5", "t", "u", "v")
+    return folder / f"{name}.h5"
+
+
+@pytest.fixture(scope="module")
+def g1_records(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("screen")
+    g1 = sf.load_plant("g1")
+    return {"fit": _record(folder, "fit", g1, 1), "val": _record(folder, "val", g1, 2)}
+
+
+def test_a_chattering_simulation_is_stopped_at_the_step_budget():
+    """The plain simulator needs more than ten times the budget for the chattering plant (it gives NaN even
+    then); the bounded one stops it and counts it, and runs a true plant's record as the plain one does."""
+    t = np.arange(0, 20, DT)
+    u = _input(t)
+    p = CHATTERING.parameter_vector()[None]
+    plain = BatchSimulator(STRUCTURE, threads=1).simulate_record(p, t, u, rtol=1e-10,
+                                                                 max_steps=10 * STEPS_PER_SAMPLE * t.size)
+    assert not np.all(np.isfinite(plain.v))
+    bounded = BoundedSimulator(STRUCTURE, threads=1)
+    assert not np.all(np.isfinite(bounded.simulate_record(p, t, u, rtol=1e-10).v))
+    assert bounded.stopped == 1
+    g1 = sf.load_plant("g1")
+    q = g1.parameter_vector()[None]
+    ok = BoundedSimulator(g1, threads=1)
+    v = ok.simulate_record(q, t, u, rtol=1e-10).v
+    assert ok.stopped == 0
+    np.testing.assert_array_equal(v, BatchSimulator(g1, threads=1).simulate_record(q, t, u, rtol=1e-10).v)
+
+
+def test_a_candidate_that_chatters_is_stopped_scored_and_ranked(g1_records):
+    """A polish started at the chattering plant returns (its runs stopped at the budget, said in its message),
+    and the candidate is ranked: after a candidate fitted as usual."""
+    data, _ = load_selection_data([g1_records["fit"]])
+    validation, _ = load_selection_data([g1_records["val"]])
+    options = SelectOptions(iterations=5)
+    job = CandidateJob(Candidate("coulomb", 2, 1), CHATTERING, data, validation, options, 1, {}, mode="refit")
+    stuck = fit_candidate(None, job)
+    assert stuck.status in ("fitted", "failed")
+    assert "step budget" in stuck.message
+    g1 = sf.load_plant("g1")
+    fine = fit_candidate(None, CandidateJob(Candidate("coulomb", 1), g1, data, validation, options, 1, {},
+                                            mode="refit"))
+    assert fine.status == "fitted" and not fine.message
+    assert [s.name for s in rank([stuck, fine])] == ["coulomb/1", "coulomb/2z"]
+
+
+def _screened(name, bic, bound, flags=()):
+    law, order = name.split("/")
+    return CandidateScore(Candidate(law, int(order[0]), int(order.endswith("z"))), "fitted", bic=bic,
+                          screened=True, bic_bound=bound, flags=flags)
+
+
+def test_a_screened_candidate_is_refitted_while_its_bound_could_beat_the_first():
+    first = replace_flags(_screened("coulomb/1", -1000.0, -1001.0), ())
+    assert could_win(first, first)  # the first itself, while screened
+    assert could_win(_screened("stribeck/1", -900.0, -1000.0 + SCREEN_MARGIN), first)  # bound ties
+    assert not could_win(_screened("stribeck/1", -990.0, -1000.0 + SCREEN_MARGIN + 0.1), first)
+    assert could_win(_screened("lugre/1", -500.0, -math.inf), first)  # no bound: it could be anything
+    assert could_win(_screened("lugre/2", -10.0, -20.0), replace_flags(first, ("undetermined",)))
+    done = CandidateScore(Candidate("coulomb", 3), "fitted", bic=-2000.0)  # polished in full already
+    assert not could_win(done, first)
+
+
+def replace_flags(score, flags):
+    from dataclasses import replace
+
+    return replace(score, flags=flags)
+
+
+def test_screening_chooses_and_fits_as_the_full_selection(g1_records, tmp_path):
+    """g1's records: a screened selection chooses what every candidate fitted in full chooses, its chosen fit is
+    the full tolerance's (not screened, within its intervals of the full selection's), and no candidate left
+    screened could have beaten it by the rule."""
+    options = SelectOptions(candidates=("coulomb/1", "coulomb/2", "stribeck/1"), iterations=15)
+    full = sf.select_files([g1_records["fit"]], g1_records["val"], tmp_path / "full.h5",
+                           SelectOptions(**{**options.__dict__, "screen": False}), RunOptions(workers=0))
+    fast = sf.select_files([g1_records["fit"]], g1_records["val"], tmp_path / "fast.h5", options,
+                           RunOptions(workers=0))
+    assert not any(s.screened for s in full.scores)
+    assert fast.chosen.name == full.chosen.name == "coulomb/1"
+    assert not fast.chosen.screened
+    a, b = fast.chosen.result, full.chosen.result
+    half = (b.intervals[:, 1] - b.intervals[:, 0]) / 2
+    assert np.all(np.abs(a.theta - b.theta) <= half)
+    assert abs(fast.chosen.bic - full.chosen.bic) < 1.0
+    assert not any(could_win(s, fast.scores[0]) for s in fast.scores)
+    with h5py.File(tmp_path / "fast.h5") as f:
+        assert list(f["selection/screened"][()]) == [int(s.screened) for s in fast.scores]
