@@ -45,6 +45,7 @@ SEARCH_RTOL = 1e-5
 POLISH_RTOL = 1e-10
 JACOBIAN_RTOL = 1e-9
 JACOBIAN_STEP = 1e-5
+SEGMENT_GRIDS = 4  # grids of segments (offset by a quarter segment) whose Newey–West estimates are averaged
 
 
 # ---------------------------------------------------------------------------
@@ -439,7 +440,9 @@ def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice],
 
     The scores are taken on the residuals each segment of L+1 samples (all the group's signals) would have had
     in a fit without it, r_S + J_S (JᵀJ − J_SᵀJ_S)⁻¹ J_Sᵀ r_S: the leave-one-segment-out residuals (the jackknife's,
-    the time-series counterpart of HC3).  A fit absorbs the part of the noise that its parameters can explain;
+    the time-series counterpart of HC3), averaged over :data:`SEGMENT_GRIDS` grids of segments offset by a
+    fraction of a segment (where the segments begin is arbitrary, and one event — a fast move, a reversal — split
+    or not changes a single grid's estimate).  A fit absorbs the part of the noise that its parameters can explain;
     for white noise that is p of n samples' worth, but coloured noise has few degrees of freedom where its power
     is (a closed loop's position error is noise filtered to the loop's bandwidth), and the parameters may take up
     much of it — in the fit's own residuals the scores then look up to 3 times smaller than they are
@@ -452,18 +455,22 @@ def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice],
         n = parts[0].stop - parts[0].start
         lags = max(bartlett_lags(r[b]) for b in parts)
         span = lags + 1
-        g = 0.0
+        plain = 0.0
         for b in parts:
-            g = g + jac[b] * r[b, None]
-        for start in range(0, n, span):  # the scores on the leave-one-segment-out residuals
-            rows = np.concatenate([np.arange(b.start + start, min(b.start + start + span, b.stop)) for b in parts])
-            js = jac[rows]
-            shift = js @ (np.linalg.pinv(gram - js.T @ js) @ (js.T @ r[rows]))
-            for k, b in enumerate(parts):
-                m = min(span, n - start)
-                g[start:start + m] += jac[b.start + start:b.start + start + m] * shift[k * m:(k + 1) * m, None]
-        omega += g.T @ g
-        for lag in range(1, lags + 1):
-            gamma = g[lag:].T @ g[:-lag]
-            omega += (1 - lag / (lags + 1)) * (gamma + gamma.T)
+            plain = plain + jac[b] * r[b, None]
+        offsets = sorted({k * span // SEGMENT_GRIDS for k in range(SEGMENT_GRIDS)})
+        for offset in offsets:
+            g = plain.copy()  # the scores on the leave-one-segment-out residuals of this grid of segments
+            edges = [0] + list(range(offset or span, n, span)) + [n]
+            for start, stop in zip(edges[:-1], edges[1:]):
+                rows = np.concatenate([np.arange(b.start + start, b.start + stop) for b in parts])
+                js = jac[rows]
+                shift = (js @ (np.linalg.pinv(gram - js.T @ js) @ (js.T @ r[rows]))).reshape(len(parts), -1)
+                for b, d in zip(parts, shift):
+                    g[start:stop] += jac[b.start + start:b.start + stop] * d[:, None]
+            weight = 1 / len(offsets)
+            omega += weight * (g.T @ g)
+            for lag in range(1, lags + 1):
+                gamma = g[lag:].T @ g[:-lag]
+                omega += weight * (1 - lag / (lags + 1)) * (gamma + gamma.T)
     return bread @ omega @ bread
