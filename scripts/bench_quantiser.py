@@ -39,7 +39,10 @@ from servofmu.runtime import available_cores
 
 SNR_DB = 40.0
 Q = 1e-6  # the encoder's quantum (m)
-CASES = ("stribeck_axis", "drive_axis")
+CASES = ("stribeck_axis", "drive_axis", "drive_axis_long", "drive_axis_rest")
+# Longer logs of the drive axis (its reference as it is, 12 s; or 2 s at rest first, 5.5 s), fitted with the
+# quantiser left out only (on this axis it hardly matters): (duration, rest) of drive_reference.
+DRIVE_LOGS = {"drive_axis": (4.0, 0.5), "drive_axis_long": (12.0, 0.5), "drive_axis_rest": (5.5, 2.0)}
 
 # The drive-log axis of tests/test_drive_logs.py, in newtons (35 N/V: velocity P 60 V per m/s, ±10 V, 5 V pulses).
 DRIVE = {"name": "volt_drive", "sample_time": 1e-3, "delay": 1, "position": {"kp": 40.0},
@@ -59,7 +62,7 @@ def drive_reference(duration: float = 4.0, ts: float = 1e-3, rest: float = 0.5):
     rng = np.random.default_rng(1)
     t = np.arange(0.0, duration, ts)
     s = np.maximum(t - rest, 0.0)
-    move = 0.03 / (1 + np.exp(-(t - duration / 2) / 0.008))
+    move = 0.015 * (1 + np.tanh((t - duration / 2) / 0.016))  # 0.03 / (1 + exp(−(t − T/2)/0.008)), no overflow
     x = 0.015 * (1 - np.cos(2 * np.pi * 0.8 * s)) + 0.004 * (1 - np.cos(2 * np.pi * 2.4 * s)) + move - move[0]
     pulses, start = np.zeros_like(t), int(0.1 / ts)
     while start < t.size:
@@ -75,7 +78,13 @@ def case(name: str):
         controller = load_controller("axis_controller")
         t, x = reference_trajectories(controller.sample_time)["identify"]
         return load_plant("stribeck_axis"), controller, t, x, None
-    return plant_from_dict(DRIVE_AXIS), controller_from_dict(DRIVE), *drive_reference()
+    duration, rest = DRIVE_LOGS[name]
+    return plant_from_dict(DRIVE_AXIS), controller_from_dict(DRIVE), *drive_reference(duration, rest=rest)
+
+
+def kinds(name: str) -> tuple[str, ...]:
+    """The fits a case makes: with the quantiser left out and modelled, or left out only (the longer logs)."""
+    return ("left out",) if name in ("drive_axis_long", "drive_axis_rest") else ("left out", "modelled")
 
 
 def run_case(name: str, seeds: int) -> dict:
@@ -105,7 +114,7 @@ def run_case(name: str, seeds: int) -> dict:
             return est, time.perf_counter() - t0
 
     out = {"names": identified_names(plant), "truth": truth, "force_noise": force_noise}
-    for kind, resolution in (("left out", 0.0), ("modelled", Q)):
+    for kind, resolution in [(k, {"left out": 0.0, "modelled": Q}[k]) for k in kinds(name)]:
         errors, covered, seconds = [], [], []
         for seed in range(seeds):
             est, s = fit(data(force_noise, seed, resolution), seed)
@@ -122,11 +131,13 @@ def run_case(name: str, seeds: int) -> dict:
 def table(name: str, res: dict, seeds: int) -> list[str]:
     """The page's lines for one case."""
     names = res["names"]
-    lines = [f"### {name}", "", f"Actuator noise {res['force_noise']:.3g} N RMS; truth: "
+    log = f"; a log of {DRIVE_LOGS[name][0]:g} s, {DRIVE_LOGS[name][1]:g} s of it at rest first" \
+        if name in DRIVE_LOGS else ""
+    lines = [f"### {name}", "", f"Actuator noise {res['force_noise']:.3g} N RMS{log}; truth: "
              + ", ".join(f"{n} {v:g}" for n, v in zip(names, res["truth"])) + ".", "",
              "| the quantiser in the fit | worst rel. error | median worst | intervals covering the truth | "
              "lowest per parameter | s per fit |", "|---|---|---|---|---|---|"]
-    for kind in ("left out", "modelled"):
+    for kind in kinds(name):
         errors, covered, seconds = res[kind]
         worst = np.max(np.abs(errors), axis=1)
         lines.append(f"| {kind} | {100 * worst.max():.3f} % | {100 * np.median(worst):.3f} % | "
@@ -135,11 +146,11 @@ def table(name: str, res: dict, seeds: int) -> list[str]:
     lines += ["", f"Mean relative error of each parameter in % (in brackets: how often its 95 % interval covers the "
               f"truth, of {seeds} seeds); last rows: one run with the quantiser alone (no actuator noise).", "",
               "| the quantiser in the fit | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
-    for kind in ("left out", "modelled"):
+    for kind in kinds(name):
         errors, covered, _ = res[kind]
         lines.append(f"| {kind} | " + " | ".join(f"{100 * e:+.3f} ({100 * c:.0f} %)" for e, c in
                                                  zip(errors.mean(axis=0), covered.mean(axis=0))) + " |")
-    for kind in ("left out", "modelled"):
+    for kind in kinds(name):
         lines.append(f"| {kind}, quantiser alone | "
                      + " | ".join(f"{100 * e:+.3f}" for e in res[kind + ", quantiser alone"]) + " |")
     return lines + [""]
