@@ -113,6 +113,17 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
             "slowest": max((s.seconds, s.name) for s in sel.scores)}
 
 
+def _median(rows: list[dict], key: str) -> str:
+    values = [r[key] for r in rows if key in r]
+    return f"{np.median(values):.1f}" if values else "—"
+
+
+def _loads(rows: list[dict]) -> str:
+    """The range of the 1-minute load averages at the selections' starts and ends."""
+    values = [x for r in rows for x in r.get("load", [])]
+    return f"{min(values):.1f}–{max(values):.1f}" if values else "—"
+
+
 def report(rows: list[dict], args) -> str:
     lines = ["# Structure selection: the true structure ranked first?", "",
              f"Made by `scripts/bench_select.py --seeds {args.seeds}` on 2 shared cores (`nice -n 10`, other work "
@@ -122,7 +133,8 @@ def report(rows: list[dict], args) -> str:
              f"swarm iterations: {args.iterations or 50}). A plant with viscous friction has as its truth its law "
              "and order (fv is absorbed by G exactly: docs/selection.md).", "",
              "| plant | truth | seeds | truth ranked first | more parameters than the truth chosen | "
-             "chosen instead | failed fits | seconds per selection (median) |", "|---|---|---|---|---|---|---|---|"]
+             "chosen instead | failed fits | seconds per selection (median) | CPU seconds (median) | load |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name in dict.fromkeys(r["plant"] for r in rows):
         rs = [r for r in rows if r["plant"] == name]
         first = sum(r["chosen"] == r["truth"] for r in rs)
@@ -130,7 +142,8 @@ def report(rows: list[dict], args) -> str:
         others = sorted({r["chosen"] or "none" for r in rs if r["chosen"] != r["truth"]})
         lines.append(f"| {name} | {rs[0]['truth']} | {len(rs)} | {first} ({100 * first / len(rs):.0f} %) | "
                      f"{over} ({100 * over / len(rs):.0f} %) | {', '.join(others) or '—'} | "
-                     f"{sum(r['failed'] for r in rs)} | {np.median([r['seconds'] for r in rs]):.1f} |")
+                     f"{sum(r['failed'] for r in rs)} | {np.median([r['seconds'] for r in rs]):.1f} | "
+                     f"{_median(rs, 'cpu_seconds')} | {_loads(rs)} |")
     first = sum(r["chosen"] == r["truth"] for r in rows)
     over = sum(r["more_parameters"] for r in rows)
     lines += ["", f"All: truth first in {first} of {len(rows)} selections ({100 * first / len(rows):.1f} %), more "
@@ -141,6 +154,7 @@ def report(rows: list[dict], args) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--plants", default=",".join(PLANTS))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int)
@@ -157,7 +171,7 @@ def main() -> None:
         return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             for name in args.plants.split(","):
                 rows.append(one(name, seed, Path(tmp), args.workers, args.iterations, not args.no_screen))
                 print(json.dumps(rows[-1]), file=sys.stderr, flush=True)

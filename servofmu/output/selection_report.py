@@ -75,6 +75,7 @@ def _ranking_rows(selection: Selection) -> list[list[str]]:
             continue
         white = "—" if s.white is None else ("yes" if s.white else "no")
         flags = ", ".join(s.flags) + (f" ({', '.join(s.undetermined)})" if s.undetermined else "")
+        flags = "; ".join(x for x in (flags, "screened" if s.screened else "", s.message) if x)
         rows.append([str(s.rank), s.name, str(s.parameters), number(s.bic, ".6g"), number(s.bic - best_bic, ".1f"),
                      number(s.worst_validation_fit, ".3f"), number(s.validation_neg2loglik - best_val, ".1f"), white,
                      flags or "—"])

@@ -313,6 +313,7 @@ def selection_text(selection: Selection) -> str:
             continue
         white = "-" if s.white is None else ("yes" if s.white else "no")
         flags = ", ".join(s.flags) + (f" ({', '.join(s.undetermined)})" if s.undetermined else "")
+        flags = "; ".join(x for x in (flags, "screened" if s.screened else "", s.message) if x)
         lines.append(f"{s.rank:>4}  {s.name:<22}{s.parameters:>3}{s.bic:>13.6g}{s.bic - best_bic:>10.1f}"
                      f"{s.worst_validation_fit:>12.3f}{s.validation_neg2loglik - best_val:>9.1f}{white:>7}  {flags}")
     chosen = selection.chosen
