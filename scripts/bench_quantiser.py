@@ -6,17 +6,19 @@ Two axes in their drives' loops, each with a 1 µm encoder and actuator noise 40
 - stribeck_axis (fmu_models/) with axis_controller, on the demo's 16 s identification reference;
 - the axis of tests/test_drive_logs.py — 25 kg, viscous damping, Stribeck friction, a constant load force (an
   incline) — with its drive (position P, velocity P on a two-sample moving average, a 350 N output limit) and
-  ±175 N test pulses injected after the limit, on a 4 s reference with reversals and a fast move.
+  ±175 N test pulses injected after the limit, on a 4 s reference with reversals and a fast move; and on two
+  longer logs of it (12 s; 2 s at rest first, 5.5 s), fitted with the quantiser left out only.
 
 The records come from the loop simulator with the controller's own quantiser and actuator noise (the law the
 controller FMU runs: docs/bench-closed-loop.md, section 1, has it equal to libcosim's co-simulation to 1e-12); the
 encoder reading is logged.  Every seed is fitted twice: with the quantiser left out of the fit (the criterion as
 before: encoder resolution 0 in the data) and modelled (ENCODER_REALISATIONS white uniform error sequences in
 antithetic pairs, fed back through the loop, common to every candidate).  Without a quantiser in the data nothing
-changes: a fit of records without one simulates a single loop without error.
+changes: a fit of records without one simulates a single loop without error.  What the page holds after its
+generated part (from a line "## History" on) is kept when it is written again.
 
 Usage: nice -n 10 python scripts/bench_quantiser.py [--seeds 20] [--out docs/bench-quantiser.md]
-       (or each case alone, e.g. in parallel: --case stribeck_axis, --case drive_axis; then --join)
+       (or each case alone, e.g. in parallel: --case stribeck_axis, --case drive_axis, ...; then --join)
 """
 from __future__ import annotations
 
@@ -179,8 +181,12 @@ def main() -> None:
              "*Left out*: the fit simulates the loop without the quantiser (what identify did before).  "
              f"*Modelled*: the quantiser's error, white and uniform on ±q/2, fed back through the loop in "
              f"{ENCODER_REALISATIONS} sequences (antithetic pairs) common to every candidate, the candidate's loops averaged "
-             "(servofmu.identification.closed_loop).", "", *body]
-    Path(args.out).write_text("\n".join(lines))
+             "(servofmu.identification.closed_loop).  The intervals: Newey–West on leave-one-segment-out "
+             "residuals, a record's position and command together "
+             "(servofmu.identification.criterion.newey_west_covariance).", "", *body]
+    out = Path(args.out)
+    kept = out.read_text().partition("\n## History\n") if out.exists() else ("", "", "")
+    out.write_text("\n".join(lines) + (kept[1] + kept[2] if kept[1] else ""))
     print(f"wrote {args.out}")
 
 
