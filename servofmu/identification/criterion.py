@@ -12,7 +12,9 @@ A candidate plant is simulated under the data's own conditions and compared with
 The fitness is the RMS of the residuals (:func:`rms`).  The 95 % intervals of a fit come from the Gauss–Newton
 covariance of these residuals (:func:`intervals_from_jacobian`); for records with a heteroscedasticity- and
 autocorrelation-consistent (Newey–West) estimate, so that residuals that are not white (a filtered signal, a
-small model error) do not make the intervals too narrow.
+small model error, a closed loop's noise) do not make the intervals too narrow: on the residuals a fit without
+each segment of the record would have left (the noise the parameters absorbed given back), the signals sampled
+together (a closed loop's position and command) taken jointly, with the degrees of freedom of the estimate.
 """
 from __future__ import annotations
 
