@@ -151,12 +151,30 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
-            scores = _fit_all(pool, job, _starts(load_candidates(first.candidate), data, files), run, scores)
+            scores = _fit_all(pool, job, {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)},
+                              run, scores)
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
     return _write(selection, outputs)
+
+
+def _with_load(plant, candidate: Candidate):
+    """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks, at their starting values
+    (zero force): the second stage starts where its parent fits, so that a load term can only lower its criterion."""
+    import tomllib
+
+    from ..model.plant import plant_from_dict
+    from .candidates import LOAD_TERMS
+
+    data = tomllib.loads(plant.to_toml())
+    load = data.setdefault("load", {})
+    for term in candidate.load:
+        for key, value in LOAD_TERMS[term].items():
+            load.setdefault(key, value)
+    data["name"] = "candidate"
+    return plant_from_dict(data, source=f"candidate {candidate.name}")
 
 
 def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float) -> dict:
@@ -296,7 +314,8 @@ def selection_json(selection: Selection) -> dict:
                             "parameters": s.parameters, "samples": s.samples, "bic": s.bic, "aic": s.aic,
                             "neg2loglik": s.neg2loglik, "validation_fit_percent": s.validation_fit,
                             "validation_neg2loglik": s.validation_neg2loglik, "white": s.white,
-                            "undetermined": list(s.undetermined), "flags": list(s.flags), "seconds": s.seconds}
+                            "undetermined": list(s.undetermined), "flags": list(s.flags), "seconds": s.seconds,
+                            "screened": s.screened}
                            for s in selection.scores]}
 
 

@@ -221,8 +221,8 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
 class _CandidateIdentifier(PSOANNIdentifier):
     """The identifier with the selection's criterion: records simulated within a step budget
     (data.BoundedSimulator), so that a candidate whose simulation chatters cannot hold up the selection; no
-    tolerance below ``rtol_floor`` (the screening fit's); with ``from_start`` no search: the polish starts at the
-    structure's own values (a screened fit polished again)."""
+    tolerance below ``rtol_floor`` (the screening fit's); the structure's own values (the start) are the swarm's
+    first particle; with ``from_start`` no search: the polish starts there (a screened fit polished again)."""
 
     rtol_floor = 0.0
     from_start = False
@@ -234,9 +234,9 @@ class _CandidateIdentifier(PSOANNIdentifier):
         return self.criterion_
 
     def _search(self, cost, lower, upper, y0, seed):
-        if not self.from_start:
-            return super()._search(cost, lower, upper, y0, seed)
         centre = (lower + upper) / 2  # the prior box's centre: the structure's values
+        if not self.from_start:  # the start itself one of the swarm's particles: the search ends no worse
+            return super()._search(cost, lower, upper, centre if y0 is None else y0, seed)
         c = float(cost(centre[None])[0])
         return "start", OptimizeResult(position=centre, cost=c, cost_history=np.array([c]),
                                        position_history=centre[None], evaluations=1, iterations=0,
