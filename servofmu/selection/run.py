@@ -147,12 +147,13 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
         reduced = _reduced_starts(scores, candidates, data_bandwidth(estimation_series(data, files)))
         if reduced:  # a smaller candidate again, from a larger one's fit without its roots beyond the data
-            scores = _keep_better(scores, _fit_all(pool, job, reduced, run, []))
+            scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), reduced, run, []))
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
-            scores = _fit_all(pool, job, {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)},
-                              run, scores)
+            scores = _fit_all(pool, replace(job, seeded=True),
+                              {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}, run,
+                              scores)
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),

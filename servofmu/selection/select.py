@@ -102,7 +102,8 @@ class SelectOptions:
 class CandidateJob:
     """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
     "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
-    (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant)."""
+    (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
+    start is a fit, made the swarm's first particle."""
 
     candidate: Candidate
     start: Plant
@@ -112,6 +113,7 @@ class CandidateJob:
     threads: int | None
     provenance: dict
     mode: str = "full"
+    seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
 
 
 @dataclass(frozen=True)
@@ -221,11 +223,13 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
 class _CandidateIdentifier(PSOANNIdentifier):
     """The identifier with the selection's criterion: records simulated within a step budget
     (data.BoundedSimulator), so that a candidate whose simulation chatters cannot hold up the selection; no
-    tolerance below ``rtol_floor`` (the screening fit's); the structure's own values (the start) are the swarm's
-    first particle; with ``from_start`` no search: the polish starts there (a screened fit polished again)."""
+    tolerance below ``rtol_floor`` (the screening fit's); with ``seeded`` the structure's own values (a fit) are
+    the swarm's first particle; with ``from_start`` no search: the polish starts there (a screened fit polished
+    again)."""
 
     rtol_floor = 0.0
     from_start = False
+    seeded = False
 
     def _criterion(self, data):
         self.criterion_ = criterion_for(self.structure, data, self.threads)
@@ -235,8 +239,8 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
     def _search(self, cost, lower, upper, y0, seed):
         centre = (lower + upper) / 2  # the prior box's centre: the structure's values
-        if not self.from_start:  # the start itself one of the swarm's particles: the search ends no worse
-            return super()._search(cost, lower, upper, centre if y0 is None else y0, seed)
+        if not self.from_start:  # a start that is a fit is a particle: the search ends no worse than the fit
+            return super()._search(cost, lower, upper, centre if self.seeded and y0 is None else y0, seed)
         c = float(cost(centre[None])[0])
         return "start", OptimizeResult(position=centre, cost=c, cost_history=np.array([c]),
                                        position_history=centre[None], evaluations=1, iterations=0,
@@ -250,6 +254,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
                                **({"search_rtol": SCREEN_SEARCH_RTOL} if job.mode == "screen" else {}))
     est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
     est.from_start = job.mode == "refit"
+    est.seeded = job.seeded
     est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
