@@ -33,7 +33,8 @@ from .student_t import t_quantile
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure",
            "record_errors", "fit_percent", "newey_west_covariance", "bartlett_lags", "long_run_dof", "sine_residuals", "sine_residual_jacobian",
            "SineCriterion", "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options",
-           "central_jacobian", "intervals_from_jacobian", "undetermined", "output_error_fitness", "SEARCH_RTOL",
+           "central_jacobian", "intervals_from_jacobian", "covariance_from_jacobian",
+           "intervals_from_covariance", "undetermined", "output_error_fitness", "SEARCH_RTOL",
            "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
 # Integrator tolerances (relative): the swarm only needs to rank candidates; the polish's residuals must be far
@@ -376,19 +377,35 @@ def central_jacobian(crit: SineCriterion | RecordCriterion, theta: np.ndarray) -
 def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95,
                             blocks: list[slice] | None = None,
                             concurrent: list[tuple[int, ...]] | None = None) -> np.ndarray:
-    """(p, 2) intervals with a Student t quantile, from the Gauss–Newton covariance s²(JᵀJ)⁻¹ or, with ``blocks``
-    (the residuals of each signal, consecutive samples), from :func:`newey_west_covariance` (``concurrent``: the
-    blocks sampled at the same instants, e.g. a closed-loop record's position and command) with the degrees of
-    freedom of its long-run covariance, 1.5·n/L per group of n samples and bandwidth L (at most n − p)."""
-    p = theta.size
+    """(p, 2) intervals with a Student t quantile, from :func:`covariance_from_jacobian` (the Gauss–Newton
+    covariance s²(JᵀJ)⁻¹ or, with ``blocks``, the Newey–West sandwich and its degrees of freedom)."""
+    cov, dof = covariance_from_jacobian(r, jac, blocks, concurrent)
+    return intervals_from_covariance(theta, cov, dof, jac, level)
+
+
+def covariance_from_jacobian(r: np.ndarray, jac: np.ndarray, blocks: list[slice] | None = None,
+                             concurrent: list[tuple[int, ...]] | None = None) -> tuple[np.ndarray, int]:
+    """The estimates' (p, p) covariance and its degrees of freedom: s²(JᵀJ)⁻¹ with n − p, or with ``blocks`` (the
+    residuals of each signal, consecutive samples) :func:`newey_west_covariance` (``concurrent``: the blocks sampled
+    at the same instants, e.g. a closed-loop record's position and command) with the degrees of freedom of its
+    long-run covariance, 1.5·n/L per group of n samples and bandwidth L (at most n − p).  NaN for residuals or a
+    Jacobian that are not finite."""
+    p = jac.shape[1]
     dof = max(r.size - p, 1)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
-        return np.full((p, 2), np.nan)
+        return np.full((p, p), np.nan), dof
     if blocks is None:
-        cov = float(r @ r) / dof * np.linalg.pinv(jac.T @ jac)
-    else:
-        cov = newey_west_covariance(r, jac, blocks, concurrent) * r.size / dof
-        dof = min(dof, long_run_dof(r, blocks, concurrent))
+        return float(r @ r) / dof * np.linalg.pinv(jac.T @ jac), dof
+    cov = newey_west_covariance(r, jac, blocks, concurrent) * r.size / dof
+    return cov, min(dof, long_run_dof(r, blocks, concurrent))
+
+
+def intervals_from_covariance(theta: np.ndarray, cov: np.ndarray, dof: int, jac: np.ndarray,
+                              level: float = 0.95) -> np.ndarray:
+    """(p, 2) intervals θ ± t(level, dof)·√diag(cov), unbounded for the parameters :func:`undetermined` by ``jac``
+    (NaN when ``cov`` is)."""
+    if not np.all(np.isfinite(cov)):
+        return np.full((theta.size, 2), np.nan)
     half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
     half[undetermined(jac)] = np.inf
     return np.stack([theta - half, theta + half], axis=1)

@@ -38,11 +38,13 @@ from .criterion import (
     SineData,
     central_jacobian,
     check_structure,
-    intervals_from_jacobian,
+    covariance_from_jacobian,
+    intervals_from_covariance,
     record_data,
     rms,
     sine_data,
 )
+from .confounding import with_free_directions
 from .features import ann_features, feature_names, from_targets, prior_box, target_jacobian
 from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from .methods import METHODS, NEEDS_ANN, SEARCH_NAMES
@@ -59,7 +61,7 @@ MAX_POLISH_ITERATIONS = 20
 @dataclass(frozen=True, eq=False)
 class _Fit:
     """One search and its polish: parameters, search coordinates, residuals, fitness, the search's history and the
-    95 % intervals."""
+    95 % intervals with the covariance they come from."""
 
     theta: np.ndarray
     y: np.ndarray
@@ -67,6 +69,7 @@ class _Fit:
     fitness: float
     history: np.ndarray
     intervals: np.ndarray
+    covariance: np.ndarray
 
 
 def check_method(method: str) -> None:
@@ -124,6 +127,9 @@ class PSOANNIdentifier:
         For records: the fit of every record (%), as MATLAB's ``compare`` defines it, by record (and signal).
     intervals_ : ndarray, shape (p, 2)
         95 % intervals.
+    covariance_ : ndarray, shape (p, p)
+        The estimates' covariance the intervals come from (servofmu.identification.confounding names the
+        parameter directions it shows the data does not separate).
     stages_ : list of Stage
         Outcome of each stage.
     history_ : ndarray
@@ -254,6 +260,7 @@ class PSOANNIdentifier:
         fits = [self._search_and_polish(crit, cost, lower, upper, y0, self.seed, stages)]
         chosen = self._restart_while_above_floor(crit, cost, data, fits, (lower, upper), y0, stages)
         self.intervals_ = chosen.intervals
+        self.covariance_ = chosen.covariance
         self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
         self.theta_ = chosen.theta
         self.fitness_ = chosen.fitness
@@ -288,9 +295,10 @@ class PSOANNIdentifier:
             theta, fitness = stages[-1].theta, stages[-1].fitness
             r = crit.residuals(theta, POLISH_RTOL)[0]
             jac = central_jacobian(crit, theta)
+        cov, dof = covariance_from_jacobian(r, jac, crit.blocks, getattr(crit, "concurrent", None))
         return _Fit(theta=theta, y=y_best, r=r, fitness=fitness, history=result.cost_history,
-                    intervals=intervals_from_jacobian(theta, r, jac, blocks=crit.blocks,
-                                                        concurrent=getattr(crit, "concurrent", None)))
+                    intervals=intervals_from_covariance(theta, cov, dof, jac),
+                    covariance=with_free_directions(cov, jac))
 
     def _restart_while_above_floor(self, crit, cost, data, fits: list, box, y0, stages: list) -> "_Fit":
         """Search again while the best fit is above the noise floor (servofmu.identification.restarts), until a

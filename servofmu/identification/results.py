@@ -10,12 +10,13 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import MAX_MAGNITUDE, UserError
 from ..fileio import check_values, claim_output, hdf5_attr, output_mode, read_hdf5, store_array, write_hdf5
 from ..measurement.datafile import DataFile, read_data_file
-from ..model.plant import Plant, plant_from_dict
+from ..model.plant import Plant, parameter_info, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
 from ..version import __version__
+from .confounding import Confounded, confounded_groups
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
@@ -61,6 +62,13 @@ class Result:
     provenance: dict
     fit_percent: dict | None = None  # records: record name -> fit (%), as MATLAB's compare defines it
     sha256: str = ""  # of the bytes of the file it was read from ("" for one not read from a file)
+    covariance: np.ndarray | None = None  # (p, p) the estimates' covariance the intervals come from (None: unknown)
+
+    def confounded(self) -> list[Confounded]:
+        """The groups of parameters the data does not separate, with the combinations it determines
+        (servofmu.identification.confounding; none without a covariance)."""
+        units = {n: parameter_info(n, self.structure)[0] for n in self.names}
+        return confounded_groups(self.names, self.theta, self.covariance, self.intervals, units)
 
 
 def result_from_estimator(est, method: str, provenance: dict) -> Result:
@@ -73,6 +81,7 @@ def result_from_estimator(est, method: str, provenance: dict) -> Result:
                   seconds=float(est.seconds_), evaluations=int(est.evaluations_),
                   stages=tuple(est.stages_),
                   fit_percent=getattr(est, "fit_percent_", None),
+                  covariance=getattr(est, "covariance_", None),
                   history=np.asarray(est.history_), provenance=provenance)
 
 
@@ -120,9 +129,13 @@ def parameters_json(plant: Plant) -> dict:
 
 def to_json(result: Result) -> dict:
     """A result as JSON-ready data (the ``--json`` output of identify): method, the identified plant
-    (:func:`parameters_json`), fitness, time (s), 95 % intervals by parameter, evaluations, the stages and, for
-    records, the fit % of each."""
-    return {"method": result.method, "parameters": parameters_json(result.plant), "fitness": result.fitness,
+    (:func:`parameters_json`), fitness, time (s), 95 % intervals by parameter, evaluations, the stages, for
+    records the fit % of each, and — for a result with its covariance — ``names``, ``covariance`` (rows and
+    columns in that order) and ``not_separated``, the groups of parameters the data does not separate
+    (servofmu.identification.confounding.Confounded.to_json; empty when it separates them all)."""
+    extra = {"names": list(result.names), "covariance": result.covariance.tolist(),
+             "not_separated": [g.to_json() for g in result.confounded()]} if result.covariance is not None else {}
+    return {**extra, "method": result.method, "parameters": parameters_json(result.plant), "fitness": result.fitness,
             "seconds": result.seconds,
             "intervals": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(result.names, result.intervals)},
             "evaluations": result.evaluations,
@@ -189,6 +202,7 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
         lines.append(restarts_line(result.provenance))
     lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
                                               for n, (lo, hi) in zip(result.names, result.intervals)))
+    lines += [group.line() for group in result.confounded()]
     return "\n".join(lines)
 
 
@@ -204,6 +218,9 @@ def _fill(group, result: Result) -> None:
     store_array(group, "names", list(result.names))
     store_array(group, "theta", result.theta)
     store_array(group, "intervals", result.intervals)
+    cov = result.covariance
+    if cov is not None and np.all(np.abs(cov[np.isfinite(cov)]) <= MAX_MAGNITUDE):  # optional (older files lack it)
+        store_array(group, "covariance", cov)
     store_array(group, "history", result.history)
     st = group.create_group("stages")
     store_array(st, "name", [s.name for s in result.stages])
@@ -272,12 +289,14 @@ def _read(group, path: Path) -> Result:
                         "or foreign file)")
     intervals = check_values(path, "intervals", group["intervals"][()], (len(names), 2), finite=False)
     history = check_values(path, "history", group["history"][()], (None,), finite=False)
+    covariance = check_values(path, "covariance", group["covariance"][()], (len(names), len(names)),
+                              finite=False).astype(float) if "covariance" in group else None
     fitness = float(check_values(path, "fitness", a["fitness"], (), finite=False))
     return Result(method=str(a["method"]), structure=structure, plant=structure.with_parameters(full[0]), names=names,
                   theta=theta, intervals=intervals, fitness=fitness, seconds=float(a["seconds"]),
                   evaluations=int(a["evaluations"]), stages=stages, history=history,
                   provenance=json.loads(a["provenance"]),
-                  fit_percent=json.loads(a["fit_percent"]) if "fit_percent" in a else None)
+                  fit_percent=json.loads(a["fit_percent"]) if "fit_percent" in a else None, covariance=covariance)
 
 
 def read_results(path: str | Path) -> dict[str, Result]:
