@@ -22,6 +22,8 @@ from servofmu.identification.criterion import (RecordData, RecordSeries, SineDat
                                                intervals_from_covariance)
 from servofmu.identification.results import read_result, result_from_estimator, table_text, to_json, write_result
 from servofmu.model.plant import load_plant, plant_from_dict
+from servofmu.output.report import separation_html
+from servofmu.output.report_entries import Entry
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 
 NAMES = ["pole1", "fc_pos", "fc_neg", "offset"]
@@ -139,6 +141,10 @@ def test_a_load_that_never_stops_is_named_with_the_combinations_the_records_dete
     old = read_result(path)
     assert old.covariance is None and old.confounded() == [] and "not_separated" not in to_json(old)
     json.dumps(to_json(back))
+    # the report's paragraph (servofmu report) says the same
+    (html,) = separation_html([Entry("pso", back)])
+    assert "Not separated by the data" in html and "fc_pos − 1.00·offset = 0.35" in html
+    assert separation_html([Entry("pso", old)]) == []
 
 
 def test_stepped_sines_of_g1_name_no_group():

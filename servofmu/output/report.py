@@ -96,6 +96,19 @@ def parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
     return table("parameters", head, rows, numeric_from=2)
 
 
+def separation_html(entries: Sequence[Entry]) -> list[str]:
+    """A paragraph per group of parameters the data does not separate (Result.confounded), with what it
+    determines; nothing for results without a covariance (older files) or whose data separates every parameter."""
+    out = []
+    for e in entries:
+        who = f" ({escape(e.label)})" if len(entries) > 1 else ""
+        for g in e.result.confounded():
+            out.append(f"<p><b>Not separated by the data{who}</b>: {escape(g.line().split(': ', 1)[1])}. Each of "
+                       "these parameters alone is only known to its wide interval; the combinations listed are what "
+                       "the data determines (docs/identification.md, “Parameters the data does not separate”).</p>")
+    return out
+
+
 def _factors(roots: Sequence[complex]) -> list[str]:
     """The factors of a polynomial with these roots, as HTML: s, (s + a), (s² + b·s + c) for a conjugate pair."""
     out = []
@@ -295,7 +308,7 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
               '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit, written as the '
               "value ± the half-width (two significant digits; the value to the half-width's last digit, so that "
               "the bounds differ), or as [low, high] when not centred on the value. Parameters not listed keep the "
-              "structure file's values.</p>",
+              "structure file's values.</p>", *separation_html(entries),
               "<h2>The identified G(s)</h2>",
               *[transfer_function_html(e.result.plant, e.label if len(entries) > 1 else "") for e in entries],
               "<h2>The paper's table layout</h2>", paper_table(entries, truth)]
