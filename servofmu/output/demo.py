@@ -209,6 +209,8 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     report("identified inclined_linear_axis in the loop from its log: "
            + ", ".join(f"{n} {v:.6g} (true {t:g})" for n, v, t in zip(est.names_, est.theta_, true))
            + f"; worst relative error {np.max(np.abs(est.theta_ / true - 1)):.2e}")
+    for group in result.confounded():  # the gravity force against the friction levels: what the log determines
+        report(group.line())
     check = validate(result, runs["validate"], controller=controller)
     report("validated on the second log: " + ", ".join(f"{r.output} fit {r.fit:.3f} %" for r in check.records)
            + ("; residuals independent of the reference" if check.passed else "; verdict FAILED"))
