@@ -156,6 +156,34 @@ def test_a_script_that_starts_workers_must_guard_its_main(tmp_path, guarded):
         assert "bootstrapping" not in proc.stderr  # refused before a worker started
 
 
+WARNING_SCRIPT = """\
+import warnings
+from servofmu.errors import ServofmuWarning
+from servofmu.runtime import show_warnings
+from servofmu.simulation.parallel import Workers
+
+
+def task(_, k):
+    warnings.warn(f"item {{k % 2}} is odd", ServofmuWarning)
+    return k
+
+
+if __name__ == "__main__":
+    with show_warnings(), Workers(workers={workers}) as pool:
+        print(sorted(r for _, r in pool.imap(task, [1, 2, 3])))
+"""
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_warnings_of_worker_processes_show_as_in_the_main_process(tmp_path, workers):
+    """A warning a task issues in a worker process reaches the main process and shows there as it would had the
+    task run there: one line each, repeated ones once — not Python's file, line and source, printed by the worker."""
+    (tmp_path / "work.py").write_text(WARNING_SCRIPT.format(workers=workers))
+    proc = python("work.py", cwd=tmp_path)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[1, 2, 3]", proc.stderr
+    assert sorted(proc.stderr.splitlines()) == ["warning: item 0 is odd", "warning: item 1 is odd"], proc.stderr
+
+
 def test_a_package_main_needs_no_guard(tmp_path):
     """python -m package: multiprocessing does not run a package's __main__ again in the workers."""
     package = tmp_path / "job"

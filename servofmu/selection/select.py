@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -255,7 +256,9 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
     est.from_start = job.mode == "refit"
     est.seeded = job.seeded
-    est.fit(job.data)
+    with warnings.catch_warnings(record=True) as caught:  # about this candidate's fit: its row says them
+        warnings.simplefilter("always")
+        est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
     crit = criterion_for(job.start, job.data, job.threads)
@@ -274,7 +277,8 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
-        message=f"{stopped} simulations stopped at the step budget or failed" if stopped else "",
+        message="; ".join([f"{stopped} simulations stopped at the step budget or failed"] * bool(stopped)
+                          + sorted({str(w.message).splitlines()[0] for w in caught})),
         aic=neg2 + 2 * p, bic=neg2 + p * math.log(max(n, 1)),
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),

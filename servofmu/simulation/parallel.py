@@ -29,6 +29,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -81,6 +82,21 @@ def _resource(resource: WorkerResource | None):
 
 def _call(task, resource, item):
     return task(_resource(resource), item)
+
+
+def _call_relaying_warnings(task, resource, item):
+    """_call in a worker process: (result, the warnings it issued as (text, category)), for the main process to
+    issue again — there the command line shows each as one line, where a worker would print Python's own
+    two-line form (file, line and source) straight to the terminal."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        result = _call(task, resource, item)
+    return result, [(str(w.message), w.category) for w in caught]
+
+
+def _issue(relayed: list[tuple[str, type]]) -> None:
+    for text, category in relayed:
+        warnings.warn(text, category, stacklevel=2)
 
 
 def _worker_setup(parent: int, reports) -> None:
@@ -205,7 +221,8 @@ class Workers:
             self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=context,
                                              initializer=_worker_setup, initargs=(os.getpid(), self._reports))
         with signals_deferred():  # submit() starts the worker processes
-            futures = {self._pool.submit(_call, task, resource, item): i for i, item in enumerate(items)}
+            futures = {self._pool.submit(_call_relaying_warnings, task, resource, item): i
+                       for i, item in enumerate(items)}
         # Tasks left when the caller stops early are cancelled by the pool's shutdown (__exit__), which also
         # forgets them; cancelled here, they would stay in the pool's books and break its end.
         pending = set(futures)
@@ -215,9 +232,10 @@ class Workers:
             self._deliver_reports()
             for fut in sorted(done, key=futures.get):
                 try:
-                    result = fut.result()
+                    result, relayed = fut.result()
                 except BrokenProcessPool as exc:
                     raise UserError("a local worker process died (killed, or out of memory?)") from exc
+                _issue(relayed)
                 yield futures[fut], result
 
     def _imap_dask(self, task, items, resource):
@@ -225,15 +243,16 @@ class Workers:
 
         client = self._client
         res = client.scatter(resource, broadcast=True, hash=False) if resource is not None else None
-        futures = [client.submit(_call, task, res, item, pure=False) for item in items]
+        futures = [client.submit(_call_relaying_warnings, task, res, item, pure=False) for item in items]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut in as_completed(futures):
                 try:
-                    result = fut.result()
+                    result, relayed = fut.result()
                 except ImportError as exc:  # a worker without servofmu (or without one of its dependencies)
                     raise UserError(f"Dask scheduler {self.scheduler}: a worker cannot import what the task needs "
                                     f"({exc}); install servofmu on the workers") from exc
+                _issue(relayed)
                 yield index[fut.key], result
         finally:
             client.cancel(futures)
