@@ -31,7 +31,8 @@ from .prior import full_vectors
 from .student_t import t_quantile
 
 __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data", "fitted_samples", "check_structure",
-           "record_errors", "fit_percent", "newey_west_covariance", "bartlett_lags", "long_run_dof", "sine_residuals", "sine_residual_jacobian",
+           "record_errors", "fit_percent", "newey_west_covariance", "bartlett_lags", "long_run_dof",
+           "sine_residuals", "sine_residual_jacobian",
            "SineCriterion", "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options",
            "central_jacobian", "intervals_from_jacobian", "covariance_from_jacobian",
            "intervals_from_covariance", "undetermined", "output_error_fitness", "SEARCH_RTOL",
