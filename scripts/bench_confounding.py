@@ -1,13 +1,14 @@
 """Parameters the data does not separate: do the combinations a result says its data determines cover the truth?
 
 On the drive-log axis of scripts/bench_quantiser.py (an incline's constant load force, Stribeck friction; a 1 µm
-encoder and actuator noise 40 dB below the force command in the drive's loop), for each noise seed: the records
+encoder and actuator noise 40 dB below the force command in the drive's loop) — its 4 s log, and a 5.5 s log that
+rests 2 s first —, for each noise seed: the records
 simulated as that benchmark makes them, fitted in the loop with the quantiser left out (on this axis it hardly
 matters), the groups of parameters the result names as not separated (servofmu.identification.confounding), and for
 each combination it calls determined, whether the truth's value of that combination lies within the printed ±.
 Beside it, the coverage of the single parameters' own 95 % intervals over the same fits.
 
-Usage: nice -n 10 python scripts/bench_confounding.py [--case drive_axis] [--seeds 20]
+Usage: nice -n 10 python scripts/bench_confounding.py [--cases drive_axis,drive_axis_rest] [--seeds 20]
        [--out docs/bench-confounding.md]
 """
 from __future__ import annotations
@@ -74,13 +75,18 @@ def run(name: str, seeds: int) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", choices=CASES, default="drive_axis")
+    ap.add_argument("--cases", default="drive_axis,drive_axis_rest",
+                    help=f"comma-separated, of {', '.join(CASES)} (scripts/bench_quantiser.py)")
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--out", default="docs/bench-confounding.md")
     args = ap.parse_args()
     lines = ["# Parameters the data does not separate: the determined combinations against the truth", "",
              f"Made by `scripts/bench_confounding.py` on {available_cores()} cores. "
-             + " ".join(__doc__.split("\n\n")[1].split()), "", *run(args.case, args.seeds)]
+             + " ".join(__doc__.split("\n\n")[1].split()), ""]
+    for name in args.cases.split(","):
+        if name not in CASES:
+            raise SystemExit(f"--cases: {name!r} is none of {', '.join(CASES)}")
+        lines += run(name, args.seeds)
     Path(args.out).write_text("\n".join(lines))
     print(f"wrote {args.out}")
 
