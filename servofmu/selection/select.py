@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -213,8 +213,12 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
     others)."""
     start = time.perf_counter()
     try:
-        with np.errstate(all="ignore"):  # candidates far off the data overflow on their way out of the search
-            return _fitted(job, start)
+        # warnings are about this candidate's fit: its row says them (a selection's output is the table)
+        with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            score = _fitted(job, start)
+        said = sorted({str(w.message).splitlines()[0] for w in caught})
+        return replace(score, message="; ".join([score.message] * bool(score.message) + said))
     except Exception as exc:  # noqa: BLE001 — one candidate's failure, whatever it is, must not stop the others
         text = " ".join(str(exc).split()) or type(exc).__name__
         return CandidateScore(candidate=job.candidate, status="failed", message=f"{type(exc).__name__}: {text}"
@@ -256,9 +260,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
     est.from_start = job.mode == "refit"
     est.seeded = job.seeded
-    with warnings.catch_warnings(record=True) as caught:  # about this candidate's fit: its row says them
-        warnings.simplefilter("always")
-        est.fit(job.data)
+    est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
     crit = criterion_for(job.start, job.data, job.threads)
@@ -277,8 +279,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
-        message="; ".join([f"{stopped} simulations stopped at the step budget or failed"] * bool(stopped)
-                          + sorted({str(w.message).splitlines()[0] for w in caught})),
+        message=f"{stopped} simulations stopped at the step budget or failed" if stopped else "",
         aic=neg2 + 2 * p, bic=neg2 + p * math.log(max(n, 1)),
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),
@@ -328,8 +329,6 @@ def _cancelling(result: Result | None, within: float = CANCELLATION) -> bool:
 
 def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
     """The candidates in rank order with their flags and ranks set (see the module's docstring)."""
-    from dataclasses import replace
-
     fitted = [s for s in scores if s.status == "fitted" and np.isfinite(s.bic)]
     best_val = min((s.validation_neg2loglik for s in fitted), default=math.nan)
     any_white = any(s.white for s in fitted)
