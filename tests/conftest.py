@@ -4,6 +4,7 @@ from __future__ import annotations
 import gc
 import os
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -17,6 +18,13 @@ SESSION_TMP = Path(tempfile.mkdtemp(prefix="servofmu-tests-"))
 
 
 def pytest_configure(config):
+    import importlib.util
+
+    missing = [m for m in ("servofmu", "h5py", "numpy", "scipy", "casadi", "fmpy")
+               if importlib.util.find_spec(m) is None]
+    if missing:  # a bare `pytest` outside the environment the test command makes
+        raise pytest.UsageError(f"{', '.join(missing)} not importable by {sys.executable}: run the test command, "
+                                "`bash scripts/test.sh` (it makes .venv with everything the suite needs)")
     os.environ["TMPDIR"] = str(SESSION_TMP)
     tempfile.tempdir = None
 
