@@ -18,13 +18,17 @@ TS = 1e-3
 Q = 1e-6
 
 
+def exact_loop(name: str, seconds: float, hertz: float):
+    """(plant, the example drive with an exact encoder, t, a raised-cosine reference of 1 cm, its loop simulator)."""
+    plant = sf.load_plant(name)
+    law = load_controller("axis_controller").with_values(encoder_resolution=0.0)
+    t = np.arange(0.0, seconds, TS)
+    return plant, law, t, 0.01 * (1 - np.cos(2 * np.pi * hertz * t)), LoopSimulator(plant, threads=1)
+
+
 def test_a_constant_encoder_error_is_the_reference_shifted_the_other_way():
     """The law reads x + c: it holds x + c on the reference, the loop of reference r − c without error."""
-    plant = sf.load_plant("stribeck_axis")
-    law = load_controller("axis_controller").with_values(encoder_resolution=0.0)
-    t = np.arange(0.0, 1.0, TS)
-    r = 0.01 * (1 - np.cos(2 * np.pi * 1.5 * t))
-    sim = LoopSimulator(plant, threads=1)
+    plant, law, t, r, sim = exact_loop("stribeck_axis", 1.0, 1.5)
     p = plant.parameter_vector()[None]
     c = 3e-6
     shifted = sim.simulate_loop(p, t, r, law, rtol=1e-10, encoder_error=np.full(t.size, c))
@@ -37,11 +41,7 @@ def test_a_constant_encoder_error_is_the_reference_shifted_the_other_way():
 
 def test_without_a_quantiser_one_loop_is_simulated_with_no_error():
     """Records of an exact encoder: the criterion's errors are the plain loop's (what they were before the model)."""
-    plant = sf.load_plant("linear_axis")
-    law = load_controller("axis_controller").with_values(encoder_resolution=0.0)
-    t = np.arange(0.0, 0.5, TS)
-    r = 0.01 * (1 - np.cos(2 * np.pi * 2.0 * t))
-    sim = LoopSimulator(plant, threads=1)
+    plant, law, t, r, sim = exact_loop("linear_axis", 0.5, 2.0)
     truth = plant.parameter_vector()[identified_mask(plant)]
     loop = sim.simulate_loop(full_vectors(plant, truth[None]), t, r, law, rtol=1e-10)
     fitted = np.ones(t.size, dtype=bool)
