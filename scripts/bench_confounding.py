@@ -19,35 +19,23 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from bench_quantiser import CASES, Q, SNR_DB, case
+from bench_quantiser import CASES, log_maker
 
-from servofmu.identification.closed_loop import ClosedLoopData, ClosedLoopSeries, LoopSimulator
 from servofmu.identification.confounding import confounded_groups
 from servofmu.identification.identifier import PSOANNIdentifier
-from servofmu.identification.prior import full_vectors, identified_mask, identified_names
+from servofmu.identification.prior import identified_names
 from servofmu.runtime import available_cores
 
 
 def run(name: str, seeds: int) -> list[str]:
     """The page's lines for one case."""
-    plant, controller, t, ref, dist = case(name)
-    truth = plant.parameter_vector()[identified_mask(plant)]
+    plant, truth, force_noise, data = log_maker(name)
     names = identified_names(plant)
-    sim = LoopSimulator(plant, threads=1)
-    full = full_vectors(plant, truth[None])
-    law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
-    clean = sim.simulate_loop(full, t, ref, law, rtol=1e-10, disturbance=dist)
-    force_noise = float(np.std(clean.command[0])) / 10 ** (SNR_DB / 20)
     covered, single, members, rows = [], [], collections.Counter(), []
     for seed in range(seeds):
-        loop = sim.simulate_loop(full, t, ref, controller.with_values(force_noise=force_noise, noise_seed=seed),
-                                 rtol=1e-10, disturbance=dist)
-        encoder = Q * np.floor(loop.position[0] / Q + 0.5)
-        series = ClosedLoopSeries("log", t, ref, encoder, loop.command[0], np.ones(t.size, dtype=bool), dist)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            est = PSOANNIdentifier(plant, method="pso", seed=seed, threads=1).fit(
-                ClosedLoopData((series,), law, "simulated", encoder_resolution=0.0))
+            est = PSOANNIdentifier(plant, method="pso", seed=seed, threads=1).fit(data(force_noise, seed, 0.0))
         single.append((est.intervals_[:, 0] <= truth) & (truth <= est.intervals_[:, 1]))
         groups = confounded_groups(names, est.theta_, est.covariance_, est.intervals_)
         for group in groups:

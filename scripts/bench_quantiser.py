@@ -89,9 +89,10 @@ def kinds(name: str) -> tuple[str, ...]:
     return ("left out",) if name in ("drive_axis_long", "drive_axis_rest") else ("left out", "modelled")
 
 
-def run_case(name: str, seeds: int) -> dict:
-    """Per fit kind ("left out", "modelled"): relative errors (seeds, parameters), coverage, seconds per fit; and
-    the errors of one noise-free run with the quantiser alone."""
+def log_maker(name: str):
+    """(plant, truth, force noise 40 dB below the command, data(noise, seed, resolution)): the case's drive logs
+    (the loop simulated with the controller's quantiser and actuator noise, the encoder's reading logged) as
+    closed-loop data whose fit models the quantiser of ``resolution`` (0: left out)."""
     plant, controller, t, ref, dist = case(name)
     truth = plant.parameter_vector()[identified_mask(plant)]
     sim = LoopSimulator(plant, threads=1)
@@ -107,6 +108,14 @@ def run_case(name: str, seeds: int) -> dict:
         encoder = Q * np.floor(loop.position[0] / Q + 0.5)  # the reading the law used, as the drive logs it
         series = ClosedLoopSeries("log", t, ref, encoder, loop.command[0], fitted, dist)
         return ClosedLoopData((series,), law, "simulated", encoder_resolution=resolution)
+
+    return plant, truth, force_noise, data
+
+
+def run_case(name: str, seeds: int) -> dict:
+    """Per fit kind ("left out", "modelled"): relative errors (seeds, parameters), coverage, seconds per fit; and
+    the errors of one noise-free run with the quantiser alone."""
+    plant, truth, force_noise, data = log_maker(name)
 
     def fit(d: ClosedLoopData, seed: int):
         with warnings.catch_warnings():
