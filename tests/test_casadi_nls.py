@@ -48,6 +48,22 @@ def test_residuals_equal_sine_criterion_and_vanish_at_the_truth(g1_data):
         assert np.max(np.abs(r - batch.residuals(theta, 1e-10)[0])) < 1e-7
 
 
+def test_a_symmetric_structure_ties_fc_neg_to_fc_pos_in_both_implementations(g1_data):
+    """g1 fitted as symmetric (one level): the CasADi model and the batch simulator see the same plant at any
+    (pole1, dc_gain, fc_pos) — fc_neg follows fc_pos, not the structure's value."""
+    from dataclasses import replace
+
+    symmetric = replace(G1, friction=replace(G1.friction, symmetric=True, fc_neg=G1.friction.fc_pos))
+    crit = CasadiCriterion(symmetric, g1_data, NlsOptions(rtol=1e-10))
+    batch = SineCriterion(symmetric, g1_data, BatchSimulator(symmetric, threads=1))
+    assert crit.steady.names == ["pole1", "dc_gain", "fc_pos"]
+    for theta in ([-10.0, 1.0, 0.3], [-9.0, 1.1, 0.6]):
+        r = crit.residuals(np.array(theta))
+        assert np.max(np.abs(r - batch.residuals(np.array(theta), 1e-10)[0])) < 1e-7
+        assert np.max(np.abs(r - CasadiCriterion(G1, g1_data, NlsOptions(rtol=1e-10)).residuals(
+            np.array(theta + [theta[2]])))) < 1e-7  # the asymmetric structure at fc_neg = fc_pos
+
+
 def test_jacobian_matches_central_differences(g1_data):
     crit = CasadiCriterion(G1, g1_data, NlsOptions(rtol=1e-12))
     theta = start_near_truth(1)

@@ -99,20 +99,28 @@ def test_three_parameters_whose_sum_alone_is_seen_form_one_group_though_no_pair_
     assert coef["b"] == pytest.approx(coef["a"], rel=1e-2) and coef["c"] == pytest.approx(coef["a"], rel=1e-2)
 
 
-def unstopping_fit():
-    """Velocity records (1 % noise) of G = 10/(s + 10) with Coulomb friction and a constant load 0.15 N, driven so
-    that it never stops (it reverses through zero without sticking): only fc_pos − offset and fc_neg + offset act."""
-    truth = plant_from_dict({"name": "t", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
-                             "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": {"offset": 0.15}})
+def unstopping_fit(friction=(0.5, 0.4), symmetric=False, fixed=()):
+    """Velocity records (1 % noise) of G = 10/(s + 10) with Coulomb friction ``friction`` (fc_pos, fc_neg) and a
+    constant load 0.15 N, driven so that it never stops (it reverses through zero without sticking): only
+    fc_pos − offset and fc_neg + offset act.  Fitted from a structure 1.2 × the truth (the offset 0 unless
+    ``fixed``; the friction ``symmetric`` or not)."""
+    def axis(values, symmetric=False, fixed=()):
+        return plant_from_dict({"name": "t", "fixed": list(fixed),
+                                "linear": {"poles": [[values["pole1"], 0.0]], "dc_gain": values["dc_gain"]},
+                                "friction": {"model": "coulomb", "symmetric": symmetric, "fc_pos": values["fc_pos"],
+                                             "fc_neg": values["fc_neg"]}, "load": {"offset": values["offset"]}})
+
+    truth = axis({"pole1": -10.0, "dc_gain": 1.0, "fc_pos": friction[0], "fc_neg": friction[1], "offset": 0.15})
     t = np.arange(0.0, 6.0 + 0.005, 0.01)
     u = 2.0 * np.sin(2 * np.pi * 0.5 * t) + 0.8 * np.sin(2 * np.pi * 1.7 * t)
     v = BatchSimulator(truth).simulate_record(truth.parameter_vector()[None], t, u).v[0]
     assert np.abs(v[t >= 0.5]).min() > 1e-5 and np.sum(np.diff(np.sign(v[t >= 0.5])) != 0) >= 4
     y = v + 0.01 * np.std(v) * np.random.default_rng(0).standard_normal(v.size)
     data = RecordData((RecordSeries("v", t, u, y, "v", "zoh", t >= 0.5),), "records")
-    start = truth.with_parameters([0.0 if n == "offset" else 1.2 * x if n != "v_smooth" else x
-                                   for n, x in truth.parameters().items()])
-    est = sf.PSOANNIdentifier(start, method="pso", seed=1).fit(data)
+    start = {n: x if n in fixed else 0.0 if n == "offset" else 1.2 * x for n, x in truth.parameters().items()}
+    start["fc_neg"] = start["fc_pos"] if symmetric else start["fc_neg"]
+    structure = axis(start, symmetric, fixed)
+    est = sf.PSOANNIdentifier(structure, method="pso", seed=1).fit(data)
     return result_from_estimator(est, "pso", {})
 
 
@@ -145,6 +153,27 @@ def test_a_load_that_never_stops_is_named_with_the_combinations_the_records_dete
     (html,) = separation_html([Entry("pso", back)])
     assert "Not separated by the data" in html and "fc_pos − 1.00·offset = 0.35" in html
     assert separation_html([Entry("pso", old)]) == []
+
+
+@pytest.mark.parametrize("keys", [{"symmetric": True}, {"fixed": ("offset",)}])
+def test_a_structure_that_says_more_separates_the_offset(keys):
+    """The same records of an axis whose friction is the same both ways (0.45 N): fitted with a symmetric friction,
+    or with the offset held at its known value, nothing is confounded and every estimate is as close to the truth as
+    the combinations were; the asymmetric structure with a free offset names the group."""
+    loose = unstopping_fit((0.45, 0.45))
+    assert {"fc_pos", "fc_neg", "offset"} <= set(loose.confounded()[0].names)
+    result = unstopping_fit((0.45, 0.45), **keys)
+    assert result.confounded() == []
+    truth = {"pole1": -10.0, "dc_gain": 1.0, "fc_pos": 0.45, "fc_neg": 0.45, "offset": 0.15}
+    expected = [n for n in truth if not (n == "fc_neg" and "symmetric" in keys) and n not in keys.get("fixed", ())]
+    assert list(result.names) == expected
+    t = np.array([truth[n] for n in expected])
+    assert np.all((result.intervals[:, 0] <= t) & (t <= result.intervals[:, 1])), (result.theta, result.intervals)
+    widths = dict(zip(result.names, result.intervals[:, 1] - result.intervals[:, 0]))
+    loose_widths = dict(zip(loose.names, loose.intervals[:, 1] - loose.intervals[:, 0]))
+    assert widths["fc_pos"] < loose_widths["fc_pos"] / 50
+    fitted = result.plant.parameters()
+    assert fitted["fc_neg"] == fitted["fc_pos"] if "symmetric" in keys else fitted["offset"] == 0.15
 
 
 def test_stepped_sines_of_g1_name_no_group():

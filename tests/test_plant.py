@@ -1,4 +1,6 @@
 """Plant files: the paper's plants read correctly, every malformed file is refused naming file and key."""
+import tomllib
+
 import numpy as np
 import pytest
 
@@ -81,6 +83,11 @@ def test_model_realises_g_exactly():
     (with_changes("friction", model="lugre", fs_pos=0.6, fs_neg=0.5, vs=0.1), "friction.sigma0"),
     (with_changes("linear", poles="oops"), "linear.poles"),
     (with_changes("friction", fc_neg="big"), "friction.fc_neg"),
+    (with_changes("friction", symmetric="yes"), "friction.symmetric"),
+    (with_changes("friction", symmetric=True), "friction.fc_neg"),           # 0.4, not fc_pos's 0.5
+    (with_changes(None, fixed="offset"), "fixed"),
+    (with_changes(None, fixed=["offset"]), "fixed"),                          # g1 has no offset
+    (with_changes(None, fixed=["fc_pos", "fc_pos"]), "fixed"),
 ])
 def test_bad_plant_names_file_and_key(data, key):
     with pytest.raises(PlantError) as err:
@@ -88,6 +95,23 @@ def test_bad_plant_names_file_and_key(data, key):
     message = str(err.value)
     assert message.startswith(f"bad.toml: {key}:"), message
     assert "\n" not in message
+
+
+def test_a_symmetric_friction_and_fixed_parameters_read_back_and_hold():
+    """`symmetric = true` fills the levels for v < 0 from those for v > 0 and keeps them equal in any parameter
+    vector; `fixed` names parameters; both survive the plant file's round trip."""
+    data = with_changes("friction", model="stribeck", symmetric=True, fs_pos=0.7, vs=0.1)
+    del data["friction"]["fc_neg"]
+    data["fixed"] = ["fs_pos"]
+    plant = plant_from_dict(data)
+    p = plant.parameters()
+    assert (p["fc_neg"], p["fs_neg"]) == (p["fc_pos"], p["fs_pos"]) == (0.5, 0.7) and plant.fixed == ("fs_pos",)
+    assert plant_from_dict(tomllib.loads(plant.to_toml())) == plant
+    names = plant.parameter_names()
+    vector = plant.parameter_vector()
+    vector[names.index("fc_pos")], vector[names.index("fc_neg")] = 0.9, 0.1
+    moved = plant.with_parameters(vector).parameters()
+    assert moved["fc_pos"] == moved["fc_neg"] == 0.9
 
 
 def test_not_toml(tmp_path):

@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import UserError
 from ..identification.criterion import SineData, output_error_fitness, sine_residual_jacobian, sine_residuals
-from ..identification.prior import full_vectors, identified_mask, identified_names
+from ..identification.prior import full_entries, full_vectors, identified_mask, identified_names
 from ..model.plant import Plant
 from ..model.symbolic import build_model
 from ..runtime import Progress
@@ -129,8 +129,7 @@ class PeriodicSteadyState:
         xs, tau = ca.SX.sym("xs", self.nx), ca.SX.sym("tau")
         theta = ca.SX.sym("theta", self.n_theta)
         m, f, a = ca.SX.sym("m"), ca.SX.sym("f"), ca.SX.sym("a")
-        nominal, mask, it = structure.parameter_vector(), identified_mask(structure), iter(range(self.n_theta))
-        p_full = ca.vertcat(*[theta[next(it)] if free else float(val) for val, free in zip(nominal, mask)], m, f)
+        p_full = ca.vertcat(*full_entries(structure, theta), m, f)
         x_full, j = [], iter(range(self.nx))
         for name in model.state_names:
             x_full.append(0.0 if name == "position" and not with_position else a * xs[next(j)])

@@ -85,6 +85,9 @@ def fit_chen2002(structure: Plant, data: SineData) -> BaselineResult:
     if structure.friction.model != "coulomb":
         raise UserError(f"the Chen 2002 method identifies Coulomb friction only; {structure.name} has "
                         f"{structure.friction.model} friction")
+    if structure.friction.symmetric:
+        raise UserError(f"the Chen 2002 method estimates fc_pos and fc_neg apart; {structure.name}'s friction is "
+                        "symmetric (friction.symmetric = true)")
     groups = _groups(data)
     names = identified_names(structure)
     n_linear = len(names) - 2  # poles, zeros, gain; then fc_pos, fc_neg

@@ -18,7 +18,7 @@ from ..errors import UserError, check_int
 from ..identification import methods as identifier_methods
 from ..identification.criterion import POLISH_RTOL, SineCriterion, central_jacobian, intervals_from_jacobian
 from ..identification.identifier import PSOANNIdentifier
-from ..identification.prior import identified_mask, identified_names
+from ..identification.prior import full_vectors, identified_mask, identified_names
 from ..identification.results import Result, Stage, paper_rows, result_from_estimator, to_json
 from ..model.plant import Plant
 from ..runtime import Progress
@@ -105,8 +105,7 @@ def run_methods(structure: Plant, data, methods: list[str], ann=None, seed: int 
         r = crit.residuals(theta, POLISH_RTOL)[0]
         intervals = intervals_from_jacobian(theta, r, central_jacobian(crit, theta)) if np.all(np.isfinite(r)) \
             else np.full((theta.size, 2), np.nan)
-        full = structure.parameter_vector().copy()
-        full[identified_mask(structure)] = theta
+        full = full_vectors(structure, theta)[0]
         # a baseline may return a physically invalid plant (e.g. negative friction): reported as it is
         out[method] = Result(method=method, structure=structure, plant=structure.with_parameters(full),
                              names=tuple(base.names), theta=theta, intervals=intervals, fitness=float(base.fitness),

@@ -6,7 +6,8 @@ and `fs_pos`, `fs_neg`, `vs`, `sigma0`, `sigma1` where the model has them).  Fix
 1/G(jω), which a G with free poles and zeros absorbs exactly — G/(1 + fv·G) has as many poles and zeros as G —
 so fv cannot be told apart from G by any input-output data and is taken from the structure file.  A spring's rest
 position x0 is fixed too when the load also has an offset: k·(x0 − x) = k·x0 − k·x, and the constant k·x0 is an
-offset.
+offset.  A symmetric friction (``symmetric = true``, docs/plant-format.md) has one level per kind: fc_neg and
+fs_neg are not estimated but equal fc_pos and fs_pos in every parameter vector (:func:`full_vectors`).
 
 The prior (docs/identification.md): around the structure's nominal plant, every identified quantity is scaled by
 an independent log-uniform factor in [1/(1+spread), 1+spread]:
@@ -32,8 +33,8 @@ import numpy as np
 from ..errors import UserError
 from ..model.plant import Plant
 
-__all__ = ["identified_names", "identified_mask", "full_vectors", "canonical_order", "sample_identified",
-           "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale", "PERIOD_SHARE", "log_width"]
+__all__ = ["identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
+           "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale", "PERIOD_SHARE", "log_width"]
 
 FIXED_PARAMETERS = ("fv", "v_smooth")
 # Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).
@@ -64,30 +65,47 @@ def additive_scale(structure: Plant, name: str) -> float:
 
 
 def fixed_names(structure: Plant) -> tuple[str, ...]:
-    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth, and a spring's x0 when
-    the load also has an offset (the spring's force k·(x0 − x) holds the constant k·x0, which the offset is)."""
+    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth, a spring's x0 when
+    the load also has an offset (the spring's force k·(x0 − x) holds the constant k·x0, which the offset is), and
+    those the structure file's ``fixed`` list names."""
     names = structure.parameter_names()
-    return FIXED_PARAMETERS + (("x0",) if "offset" in names else ())
+    implied = FIXED_PARAMETERS + (("x0",) if "offset" in names else ())
+    return implied + tuple(n for n in structure.fixed if n not in implied)
 
 
 def identified_names(structure: Plant) -> list[str]:
-    """The names of the parameters a fit identifies: all of the structure's but the fixed ones (fixed_names)."""
-    fixed = fixed_names(structure)
-    return [n for n in structure.parameter_names() if n not in fixed]
+    """The names of the parameters a fit identifies: all of the structure's but the fixed ones (fixed_names) and
+    a symmetric friction's levels for v < 0 (they equal those for v > 0)."""
+    left_out = set(fixed_names(structure)) | set(structure.friction.mirrored())
+    return [n for n in structure.parameter_names() if n not in left_out]
 
 
 def identified_mask(structure: Plant) -> np.ndarray:
     """Boolean mask over ``structure.parameter_names()``: True for the identified parameters."""
-    fixed = fixed_names(structure)
-    return np.array([n not in fixed for n in structure.parameter_names()])
+    identified = set(identified_names(structure))
+    return np.array([n in identified for n in structure.parameter_names()])
 
 
 def full_vectors(structure: Plant, theta: np.ndarray) -> np.ndarray:
-    """Complete parameter vectors (all of parameter_names) from identified ones (rows of ``theta``)."""
+    """Complete parameter vectors (all of parameter_names) from identified ones (rows of ``theta``): the fixed
+    parameters at the structure's values, a symmetric friction's levels for v < 0 equal to those for v > 0."""
     theta = np.atleast_2d(theta)
     full = np.tile(structure.parameter_vector(), (theta.shape[0], 1))
     full[:, identified_mask(structure)] = theta
+    names = structure.parameter_names()
+    for neg, pos in structure.friction.mirrored().items():
+        full[:, names.index(neg)] = full[:, names.index(pos)]
     return full
+
+
+def full_entries(structure: Plant, theta) -> list:
+    """The entries of a complete parameter vector from an indexable ``theta`` of identified parameters (e.g. a
+    CasADi symbol): as :func:`full_vectors`, for one vector of any element type."""
+    names, nominal = structure.parameter_names(), structure.parameter_vector()
+    index = {n: i for i, n in enumerate(identified_names(structure))}
+    mirrored = structure.friction.mirrored()
+    return [theta[index[mirrored.get(n, n)]] if mirrored.get(n, n) in index else float(value)
+            for n, value in zip(names, nominal)]
 
 
 def canonical_order(structure: Plant, theta: np.ndarray) -> np.ndarray:

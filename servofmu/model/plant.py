@@ -36,6 +36,8 @@ _FRICTION_KEYS = {
     "lugre": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "sigma0", "sigma1", "fv"),  # no tanh: no v_smooth
 }
 _FRICTION_DEFAULTS = {"fv": 0.0, "v_smooth": 1e-3}
+# A symmetric friction's levels for v < 0, each equal to its level for v > 0.
+_MIRRORED = {"fc_neg": "fc_pos", "fs_neg": "fs_pos"}
 # Keys of the [load] section, in parameter-vector order: a constant force, a linear spring about x0 and a
 # sinusoidal ripple in the position (docs/plant-format.md); only the keys a file gives (or implies) are parameters.
 LOAD_KEYS = ("offset", "stiffness", "x0", "ripple_amplitude", "ripple_period", "ripple_phase")
@@ -74,7 +76,8 @@ class Friction:
     """The friction of a plant: its model ("coulomb", "stribeck", "lugre") and values (docs/plant-format.md):
     Coulomb and static levels fc±, fs± (N), Stribeck velocity vs (m/s), viscous fv (N·s/m), the tanh sign's
     velocity scale v_smooth (m/s) and LuGre's bristle stiffness sigma0 (N/m) and damping sigma1 (N·s/m); the
-    values a model does not use are None."""
+    values a model does not use are None.  ``symmetric``: the levels are the same in both directions (fc_neg =
+    fc_pos, fs_neg = fs_pos), and an identification estimates one level each (servofmu.identification.prior)."""
 
     model: str
     fc_pos: float
@@ -86,6 +89,7 @@ class Friction:
     vs: float | None = None
     sigma0: float | None = None
     sigma1: float | None = None
+    symmetric: bool = False
 
     def keys(self) -> tuple[str, ...]:
         """The names of the model's parameters, in parameter-vector order."""
@@ -94,6 +98,10 @@ class Friction:
     def values(self) -> dict[str, float]:
         """The model's parameters by name (units as in the class docstring)."""
         return {k: float(getattr(self, k)) for k in self.keys()}
+
+    def mirrored(self) -> dict[str, str]:
+        """For a symmetric friction, each level for v < 0 with the level for v > 0 it equals; otherwise empty."""
+        return {neg: pos for neg, pos in _MIRRORED.items() if self.symmetric and neg in self.keys()}
 
 
 @dataclass(frozen=True)
@@ -154,6 +162,9 @@ class Plant:
         The friction model and its values.
     load : Load
         Forces on the load besides friction (offset, spring, ripple); none by default.
+    fixed : tuple of str
+        Parameters an identification keeps at this plant's values (known from elsewhere, e.g. an offset
+        m·g·sin θ); the file's ``fixed`` list.
     dc_gain, gain : float, optional
         Exactly one is set: G(0), or the numerator's leading coefficient K.
     source : str
@@ -168,6 +179,7 @@ class Plant:
     gain: float | None = None
     source: str = field(default="<memory>", compare=False)
     load: Load = field(default_factory=Load)
+    fixed: tuple[str, ...] = ()
 
     # ---- structure -------------------------------------------------------
     @property
@@ -231,7 +243,8 @@ class Plant:
         return dict(zip(self.parameter_names(), self.parameter_vector().tolist()))
 
     def with_parameters(self, vector: ArrayLike) -> "Plant":
-        """The same structure with the parameters of ``vector`` (order of parameter_names)."""
+        """The same structure with the parameters of ``vector`` (order of parameter_names); a symmetric friction's
+        levels for v < 0 take the values of its levels for v > 0."""
         vector = np.asarray(vector, dtype=float).ravel()
         if vector.size != len(self.parameter_names()):
             raise PlantError(f"{self.name}: expected {len(self.parameter_names())} parameters, got {vector.size}")
@@ -243,6 +256,7 @@ class Plant:
         poles, zeros = roots(self.poles), roots(self.zeros)
         k = next(it)
         friction = replace(self.friction, **{key: next(it) for key in self.friction.keys()})
+        friction = replace(friction, **{neg: getattr(friction, pos) for neg, pos in friction.mirrored().items()})
         load = replace(self.load, **{key: next(it) for key in self.load.keys()})
         gains = {"dc_gain": k, "gain": None} if self.dc_gain is not None else {"dc_gain": None, "gain": k}
         return replace(self, poles=poles, zeros=zeros, friction=friction, load=load, **gains)
@@ -252,9 +266,10 @@ class Plant:
         def pairs(roots):
             return "[" + ", ".join(f"[{r.real!r}, {r.imag!r}]" for r in _expand(roots)) + "]"
 
-        lines = [f'name = "{self.name}"', "", "[linear]", f"poles = {pairs(self.poles)}",
+        lines = [f'name = "{self.name}"'] + ([f"fixed = {list(self.fixed)!r}".replace("'", '"')] * bool(self.fixed))
+        lines += ["", "[linear]", f"poles = {pairs(self.poles)}",
                  f"zeros = {pairs(self.zeros)}", f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "",
-                 "[friction]", f'model = "{self.friction.model}"']
+                 "[friction]", f'model = "{self.friction.model}"'] + (["symmetric = true"] * self.friction.symmetric)
         lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
         if self.load.keys():
             lines += ["", "[load]"] + [f"{k} = {v!r}" for k, v in self.load.values().items()]
@@ -409,7 +424,7 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     def fail(key: str, why: str):
         raise PlantError(f"{source}: {key}: {why}")
 
-    _check_keys(data, {"name", "linear", "friction", "load"}, "", fail)
+    _check_keys(data, {"name", "fixed", "linear", "friction", "load"}, "", fail)
     for section in ("linear", "friction"):
         if not isinstance(data.get(section), dict):
             fail(section, "missing section")
@@ -446,9 +461,14 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     if model not in FRICTION_MODELS:
         fail("friction.model", f"must be one of {', '.join(FRICTION_MODELS)}, not {model!r}")
     keys = _FRICTION_KEYS[model]
-    _check_keys(fr, {"model", *keys}, "friction.", fail)
+    _check_keys(fr, {"model", "symmetric", *keys}, "friction.", fail)
+    symmetric = fr.get("symmetric", False)
+    if not isinstance(symmetric, bool):
+        fail("friction.symmetric", f"must be true or false, not {symmetric!r}")
     values = {}
     for k_ in keys:
+        if symmetric and k_ in _MIRRORED and k_ not in fr:
+            continue  # the level of v > 0, set below
         if k_ not in fr:
             if k_ in _FRICTION_DEFAULTS:
                 values[k_] = _FRICTION_DEFAULTS[k_]
@@ -457,6 +477,13 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
         values[k_] = _number(fr[k_], f"friction.{k_}", fail)
         if values[k_] < 0:
             fail(f"friction.{k_}", "must not be negative")
+    for neg, pos in _MIRRORED.items():
+        if symmetric and pos in values:
+            if neg in values and values[neg] != values[pos]:
+                fail(f"friction.{neg}", f"a symmetric friction has {neg} = {pos} ({values[pos]!r}), not "
+                                        f"{values[neg]!r}: give one of them")
+            values[neg] = values[pos]
+    values = {k_: values[k_] for k_ in keys}  # in parameter-vector order
     for positive in ("v_smooth", "vs", "sigma0"):
         if positive in values and values[positive] <= 0:
             fail(f"friction.{positive}", "must be positive")
@@ -467,8 +494,24 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
         fail("friction.fc_pos", "LuGre needs positive Coulomb friction on both sides")
 
     load = _read_load(data["load"], fail) if "load" in data else Load()
-    return Plant(name=name, poles=poles, zeros=zeros, friction=Friction(model=model, **values),
-                 dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source, load=load)
+    plant = Plant(name=name, poles=poles, zeros=zeros, friction=Friction(model=model, symmetric=symmetric, **values),
+                  dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source, load=load)
+    return replace(plant, fixed=_read_fixed(data.get("fixed", []), plant, fail))
+
+
+def _read_fixed(names, plant: Plant, fail) -> tuple[str, ...]:
+    """The ``fixed`` list: names of the plant's parameters, each once; not a symmetric friction's level for v < 0
+    (it follows the level for v > 0)."""
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        fail("fixed", f"must be a list of parameter names, not {names!r}")
+    for n in names:
+        if n not in plant.parameter_names():
+            fail("fixed", f"{n!r} is not a parameter of this plant ({', '.join(plant.parameter_names())})")
+        if n in plant.friction.mirrored():
+            fail("fixed", f"{n} follows {plant.friction.mirrored()[n]} in a symmetric friction: fix that instead")
+    if len(set(names)) < len(names):
+        fail("fixed", "names a parameter twice")
+    return tuple(names)
 
 
 def _read_load(table, fail) -> Load:
