@@ -7,7 +7,9 @@ Two axes in their drives' loops, each with a 1 µm encoder and actuator noise 40
 - the axis of tests/test_drive_logs.py — 25 kg, viscous damping, Stribeck friction, a constant load force (an
   incline) — with its drive (position P, velocity P on a two-sample moving average, a 350 N output limit) and
   ±175 N test pulses injected after the limit, on a 4 s reference with reversals and a fast move; and on two
-  longer logs of it (12 s; 2 s at rest first, 5.5 s), fitted with the quantiser left out only.
+  longer logs of it (12 s; 2 s at rest first, 5.5 s), fitted with the quantiser left out only;
+- that axis with friction the same in both directions, fitted as symmetric (the offset is then separated from the
+  friction), on a 16 s log that first dwells at speeds from 2 to 200 mm/s each way.
 
 The records come from the loop simulator with the controller's own quantiser and actuator noise (the law the
 controller FMU runs: docs/bench-closed-loop.md, section 1, has it equal to libcosim's co-simulation to 1e-12); the
@@ -41,10 +43,13 @@ from servofmu.runtime import available_cores
 
 SNR_DB = 40.0
 Q = 1e-6  # the encoder's quantum (m)
-CASES = ("stribeck_axis", "drive_axis", "drive_axis_long", "drive_axis_rest")
+CASES = ("stribeck_axis", "drive_axis", "drive_axis_long", "drive_axis_rest", "drive_axis_symmetric")
 # Longer logs of the drive axis (its reference as it is, 12 s; or 2 s at rest first, 5.5 s), fitted with the
 # quantiser left out only (on this axis it hardly matters): (duration, rest) of drive_reference.
-DRIVE_LOGS = {"drive_axis": (4.0, 0.5), "drive_axis_long": (12.0, 0.5), "drive_axis_rest": (5.5, 2.0)}
+DRIVE_LOGS = {"drive_axis": (4.0, 0.5), "drive_axis_long": (12.0, 0.5), "drive_axis_rest": (5.5, 2.0),
+             "drive_axis_symmetric": (16.0, 0.5)}
+# The symmetric axis's log dwells at these speeds (m/s) first: a friction run, as a drive's commissioning makes one.
+DWELL = (0.002, 0.004, 0.007, 0.012, 0.02, 0.05, 0.1, 0.2)
 
 # The drive-log axis of tests/test_drive_logs.py, in newtons (35 N/V: velocity P 60 V per m/s, ±10 V, 5 V pulses).
 DRIVE = {"name": "volt_drive", "sample_time": 1e-3, "delay": 1, "position": {"kp": 40.0},
@@ -54,18 +59,28 @@ DRIVE_AXIS = {"name": "drive_axis", "linear": {"poles": [[-60.0 / 25.0, 0.0]], "
               "friction": {"model": "stribeck", "fc_pos": 30.0, "fc_neg": 24.0, "fs_pos": 45.0, "fs_neg": 38.0,
                            "vs": 0.01, "v_smooth": 1e-3},
               "load": {"offset": -30.0}}
+# The same axis with friction the same in both directions (the levels' means), fitted as symmetric: the offset is
+# then told from the friction by the motion in each direction (docs/identification.md).
+DRIVE_AXIS_SYMMETRIC = {**DRIVE_AXIS, "name": "drive_axis_symmetric",
+                        "friction": {"model": "stribeck", "symmetric": True, "fc_pos": 27.0, "fs_pos": 41.5,
+                                     "vs": 0.01, "v_smooth": 1e-3}}
 
 
-def drive_reference(duration: float = 4.0, ts: float = 1e-3, rest: float = 0.5):
+def drive_reference(duration: float = 4.0, ts: float = 1e-3, rest: float = 0.5, dwell: tuple = ()):
     """The drive axis's reference (m) and test pulses (N): at rest for ``rest`` s (the force holding the axis
-    against its load, with no friction at rest, tells the load from the friction), then reversals at 0.8 and
-    2.4 Hz, a 30 mm move in 16 ms at the middle (the output saturates); ±175 N pulses of 8-15 ms every 120-220 ms
+    against its load, with no friction at rest, tells the load from the friction), then ``dwell``: 0.5 s at each
+    (speed, m/s) forth and back (the friction curve at those speeds), then reversals at 0.8 and 2.4 Hz, and a
+    30 mm move in 16 ms at the middle (the output saturates); ±175 N pulses of 8-15 ms every 120-220 ms
     (seeded, the same every run)."""
     rng = np.random.default_rng(1)
     t = np.arange(0.0, duration, ts)
-    s = np.maximum(t - rest, 0.0)
+    speed = np.zeros_like(t)
+    for i, v in enumerate(np.repeat(dwell, 2)):
+        speed[(t >= rest + 0.5 * i) & (t < rest + 0.5 * (i + 1))] = v * (-1) ** i
+    s = np.maximum(t - rest - len(dwell), 0.0)
     move = 0.015 * (1 + np.tanh((t - duration / 2) / 0.016))  # 0.03 / (1 + exp(−(t − T/2)/0.008)), no overflow
     x = 0.015 * (1 - np.cos(2 * np.pi * 0.8 * s)) + 0.004 * (1 - np.cos(2 * np.pi * 2.4 * s)) + move - move[0]
+    x += np.cumsum(speed) * ts
     pulses, start = np.zeros_like(t), int(0.1 / ts)
     while start < t.size:
         width = int(rng.integers(8, 16))
@@ -81,6 +96,9 @@ def case(name: str):
         t, x = reference_trajectories(controller.sample_time)["identify"]
         return load_plant("stribeck_axis"), controller, t, x, None
     duration, rest = DRIVE_LOGS[name]
+    if name == "drive_axis_symmetric":
+        return (plant_from_dict(DRIVE_AXIS_SYMMETRIC), controller_from_dict(DRIVE),
+                *drive_reference(duration, rest=rest, dwell=DWELL))
     return plant_from_dict(DRIVE_AXIS), controller_from_dict(DRIVE), *drive_reference(duration, rest=rest)
 
 
@@ -144,6 +162,9 @@ def table(name: str, res: dict, seeds: int) -> list[str]:
     names = res["names"]
     log = f"; a log of {DRIVE_LOGS[name][0]:g} s, {DRIVE_LOGS[name][1]:g} s of it at rest first" \
         if name in DRIVE_LOGS else ""
+    if name == "drive_axis_symmetric":
+        log += (f", then 0.5 s at each of {', '.join(f'{1e3 * v:g}' for v in DWELL)} mm/s forth and back; "
+                "friction fitted as symmetric")
     lines = [f"### {name}", "", f"Actuator noise {res['force_noise']:.3g} N RMS{log}; truth: "
              + ", ".join(f"{n} {v:g}" for n, v in zip(names, res["truth"])) + ".", "",
              "| the quantiser in the fit | worst rel. error | median worst | intervals covering the truth | "
