@@ -143,10 +143,12 @@ def default_candidates(orders=(1, 2, 3)) -> list[Candidate]:
 
 def load_candidates(chosen: Candidate) -> list[Candidate]:
     """The second stage of a default selection: ``chosen`` with each load term the plant format supports
-    (supported_load_terms) that it does not have yet."""
+    (supported_load_terms) that it does not have yet, but the offset: a constant force beside friction levels
+    free in each direction is the same force as other levels, in every motion and at rest (docs/selection.md), so
+    no data ranks it; it stays a term a user may name."""
     return [Candidate(chosen.law, chosen.order, chosen.zeros, tuple(sorted((*chosen.load, term),
                                                                           key=list(LOAD_TERMS).index)))
-            for term in supported_load_terms() if term not in chosen.load]
+            for term in supported_load_terms() if term not in chosen.load and term != "offset"]
 
 
 def _left(root: complex) -> complex:
