@@ -76,6 +76,45 @@ def test_linear_estimate_recovers_a_g_with_a_zero_and_coulomb_friction_from_a_re
     assert abs(est.fc_pos - 0.3) < 0.03 and abs(est.fc_neg - 0.2) < 0.03
 
 
+def test_a_resonant_axis_whose_first_order_fit_has_the_wrong_sign_gets_its_own_orders_start():
+    """G = 1.2·(s + 6)/(s² + 8s + 416)·(416/6) (a resonance at 3.2 Hz) with Coulomb 0.3/0.25 N, driven at 1 and 3.1 Hz,
+    then 0.6 and 4.3 Hz (phases as drawn, 1 % noise): the first-order least-squares fit has a negative DC gain.
+    The sign the starts keep is the sign of the input's power (Σ u·v > 0 for a force into a damped mass), so the
+    second-order estimate with a zero is kept and lands near the truth (it was replaced by the first order's, which
+    led every candidate of a selection astray)."""
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.estimate import start_estimates
+
+    truth = plant_from_dict({"name": "r", "linear": {"poles": [[-4.0, 20.0], [-4.0, -20.0]], "zeros": [[-6.0, 0.0]],
+                                                     "dc_gain": 1.2},
+                             "friction": {"model": "coulomb", "fc_pos": 0.3, "fc_neg": 0.25}})
+    rng = np.random.default_rng(6001)
+    t = np.arange(0, 20.0, DT)
+    ph = rng.uniform(0, 2 * np.pi, 4)
+    u = np.where(t < t[-1] / 2, 2 * np.sin(2 * np.pi * t + ph[0]) + 0.6 * np.sin(2 * np.pi * 3.1 * t + ph[1]),
+                 0.7 * np.sin(2 * np.pi * 0.6 * t + ph[2]) + 0.3 * np.sin(2 * np.pi * 4.3 * t + ph[3]))
+    v = BatchSimulator(truth).simulate_record(truth.parameter_vector()[None], t, u, rtol=1e-10).v[0]
+    v = v + 0.01 * np.std(v) * rng.standard_normal(v.size)
+    series = [Series(u=u, v=v, dt=DT, periodic=False)]
+    first = estimate_linear(series, 1, 0)
+    assert first.gain / -first.poles[0].real < 0  # the wrong sign
+    est = start_estimates(series, [(2, 1)])[(2, 1)]
+    assert np.allclose(sorted(est.poles, key=lambda p: p.imag), [-4 - 20j, -4 + 20j], rtol=0.1)
+    assert abs(est.zeros[0] + 6) < 1.5
+
+
+def test_a_static_level_equal_to_its_coulomb_level_gets_a_finite_search_box():
+    """A fit may end with fs = fc (no bump); the next candidate's box around it must still be finite."""
+    from servofmu.identification.features import prior_box
+    from servofmu.model.plant import plant_from_dict
+
+    start = plant_from_dict({"name": "s", "linear": {"poles": [[-5.0, 0.0]], "dc_gain": 1.0},
+                             "friction": {"model": "stribeck", "fc_pos": 0.3, "fc_neg": 0.2, "fs_pos": 0.3,
+                                          "fs_neg": 0.25, "vs": 0.05}})
+    lower, upper = prior_box(start, 0.8)
+    assert np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(lower < upper)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # The ranking
 # ---------------------------------------------------------------------------------------------------------------

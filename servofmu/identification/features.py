@@ -80,9 +80,14 @@ def target_jacobian(structure: Plant, y: np.ndarray) -> np.ndarray:
 
 
 def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:
-    """The prior's box (servofmu.identification.prior) in target coordinates."""
+    """The prior's box (servofmu.identification.prior) in target coordinates.  A static level equal to its
+    Coulomb level (no Stribeck bump; a fit may end there) is centred on a bump of a thousandth of that level:
+    the gap's logarithm would be −∞."""
     centre = to_targets(structure, structure.parameter_vector()[None, identified_mask(structure)])[0]
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
+    for i, n in enumerate(identified_names(structure)):
+        if n.startswith("fs_") and not np.isfinite(centre[i]):
+            centre[i] = np.log(max(1e-3 * nominal["fc_" + n[3:]], 1e-300))
 
     def half_width(n):
         if n in ADDITIVE_PARAMETERS:

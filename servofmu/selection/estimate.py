@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["LinearEstimate", "Series", "estimate_linear", "start_estimates", "data_bandwidth", "series_of_records",
-           "series_of_experiments"]
+           "series_of_experiments", "input_power_sign"]
 
 ITERATIONS = 4  # Sanathanan–Koerner reweightings
 HARMONICS = 15  # harmonics of a stepped-sine window used
@@ -191,6 +191,14 @@ def data_bandwidth(series: list[Series]) -> float:
     return float(np.pi / min(s.dt for s in series))
 
 
+def input_power_sign(series: list[Series]) -> float:
+    """The sign of G's DC gain as the power the input delivers says it: a force into a mass with damping and
+    friction does positive work on average (G is positive real), so Σ u·v > 0 unless input or output is measured
+    with the opposite sign.  A least-squares first-order fit's sign is no guide: it flips when the data's
+    resonance dominates."""
+    return float(np.sign(sum(float(np.dot(s.u, s.v)) for s in series)) or 1.0)
+
+
 def _dc_gain(e: LinearEstimate) -> float:
     num0 = np.prod([-z for z in e.zeros]).real if e.zeros else 1.0
     return float(e.gain * num0 / np.prod([-p for p in e.poles]).real)
@@ -218,11 +226,11 @@ def _augmented(base: LinearEstimate, zeros: int) -> LinearEstimate:
 
 def start_estimates(series: list[Series], keys) -> dict[tuple[int, int], LinearEstimate]:
     """The linear estimate for every (order, zeros) of ``keys``: the least-squares one where it is plausible (stable,
-    no pole nearly at 0, the DC gain's sign of the first-order fit), else the estimate of one order less (with the
-    zero where it has one) augmented by a fast pole (and zero).  Raises ValueError when the data determines not
+    no pole nearly at 0, a DC gain of the sign of the input's power: :func:`input_power_sign`), else the estimate of
+    one order less (with the zero where it has one) augmented by a fast pole (and zero).  Raises ValueError when the data determines not
     even the first-order estimate."""
     first = estimate_linear(series, 1, 0)
-    sign = np.sign(_dc_gain(first)) or 1.0
+    sign = input_power_sign(series)
     out = {(1, 0): first}
     for order, zeros in sorted(set(keys)):
         if (order, zeros) in out:
