@@ -19,8 +19,10 @@ SNR, with the coverage of their 95 % intervals:
   encoder, white noise on the logged position and force command (the output-error model's own assumption),
   `identify --closed-loop`;
 - ``stribeck_axis-drive``: the same loop with its 1 µm encoder and actuator noise 40 dB below the force command
-  inside the loop (as scripts/bench_closed_loop.py); the bound takes the quantiser's q/√12 on the position and
-  the actuator noise on the command as if they were white measurement noise, which they are not.
+  inside the loop (as scripts/bench_closed_loop.py), fitted as `identify --closed-loop` fits a drive whose
+  controller file gives its encoder (the quantiser modelled: servofmu.identification.closed_loop); the bound
+  takes the quantiser's q/√12 on the position and the actuator noise on the command as if they were white
+  measurement noise, which they are not.
 """
 from __future__ import annotations
 
@@ -122,15 +124,16 @@ def loop_case(name: str, drive: bool):
     force_noise = float(np.std(u0)) / 10 ** (SNR_DB / 20)
     q = base["encoder_resolution"]
 
-    def series(x, u):
-        return ClosedLoopData((ClosedLoopSeries("identify", t, ref, x, u, fitted),), law, "simulated")
+    def series(x, u, resolution=0.0):
+        return ClosedLoopData((ClosedLoopSeries("identify", t, ref, x, u, fitted),), law, "simulated",
+                              encoder_resolution=resolution)
 
     def data(seed):
         if not drive:
             rng = np.random.default_rng(seed)
             return series(x0 + sigma[0] * rng.standard_normal(t.size), u0 + sigma[1] * rng.standard_normal(t.size))
         loop = sim.simulate_loop(full, t, ref, base.with_values(force_noise=force_noise, noise_seed=seed), rtol=1e-10)
-        return series(q * np.floor(loop.position[0] / q + 0.5), loop.command[0])
+        return series(q * np.floor(loop.position[0] / q + 0.5), loop.command[0], q)  # the quantiser modelled
 
     sigma = (np.array([q / math.sqrt(12), force_noise]) if drive else
              np.array([float(np.std(x0)), float(np.std(u0))]) / 10 ** (SNR_DB / 20))
