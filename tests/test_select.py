@@ -103,6 +103,30 @@ def test_a_resonant_axis_whose_first_order_fit_has_the_wrong_sign_gets_its_own_o
     assert abs(est.zeros[0] + 6) < 1.5
 
 
+def test_a_larger_fit_hands_its_nested_candidates_a_start():
+    """A third-order fit whose real zero sits beside a complex pair of nearly equal poles reduces to the
+    second-order candidate (the pair's real part stays a pole, the DC gain is kept); the best candidate's law
+    hands its G and shared levels to the law it contains, when that law's own fit is worse."""
+    from servofmu.model.plant import plant_from_dict
+    from types import SimpleNamespace
+
+    from servofmu.selection.run import _reduced_starts
+
+    lugre = plant_from_dict({"name": "l", "linear": {"poles": [[-5.0, 0.0], [-43.0, 1.9], [-43.0, -1.9]],
+                                                     "zeros": [[-46.7, 0.0]], "dc_gain": 2.0},
+                             "friction": {"model": "lugre", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.45,
+                                          "fs_neg": 0.35, "vs": 0.05, "sigma0": 1e4, "sigma1": 30.0}})
+    fit = SimpleNamespace(plant=lugre)  # what _reduced_starts reads of a result
+    scores = [CandidateScore(Candidate("lugre", 3, 1), "fitted", result=fit, bic=-100.0),
+              CandidateScore(Candidate("stribeck", 3, 1), "fitted", result=fit, bic=-90.0)]
+    starts = _reduced_starts(scores, default_candidates((1, 2, 3)), bandwidth=300.0)
+    reduced = starts[Candidate("lugre", 2)]
+    assert reduced.poles == (-5 + 0j, -43 + 0j) and reduced.zeros == () and reduced.dc_gain == 2.0
+    nested = starts[Candidate("stribeck", 3, 1)]
+    assert nested.friction.model == "stribeck" and nested.poles == lugre.poles
+    assert (nested.friction.fs_pos, nested.friction.vs) == (0.45, 0.05)
+
+
 def test_a_static_level_equal_to_its_coulomb_level_gets_a_finite_search_box():
     """A fit may end with fs = fc (no bump); the next candidate's box around it must still be finite."""
     from servofmu.identification.features import prior_box

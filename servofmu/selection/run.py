@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -16,12 +17,13 @@ from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
+from ..model.plant import plant_from_dict
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
-from .select import CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank
+from .select import CANCELLATION, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
 
@@ -161,6 +163,11 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     return _write(selection, outputs)
 
 
+# The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
+# fs = fc.
+NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
+
+
 def _with_load(plant, candidate: Candidate):
     """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks, at their starting values
     (zero force): the second stage starts where its parent fits, so that a load term can only lower its criterion."""
@@ -179,25 +186,59 @@ def _with_load(plant, candidate: Candidate):
 
 
 def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float) -> dict:
-    """Starts for the candidates one order (or zero) smaller than a fitted one whose G has poles or zeros beyond
-    the data's bandwidth: that fit without them.  A larger candidate whose swarm found the optimum its smaller
-    sibling missed (the extra root then sits where the data cannot see it) hands it over; the smaller one is
-    fitted again from there, and the better of its two fits kept."""
+    """Starts for candidates nested in a fitted one: one order (or zero) smaller where its G has poles or zeros
+    beyond the data's bandwidth or a zero that cancels a pole (that fit without them; of several such fits the one
+    of the lowest BIC), and the law the best candidate's contains where that law's own fit is worse (LuGre's G and
+    levels for Stribeck, Stribeck's for Coulomb: a smaller model that fits worse than a model containing it has
+    missed its optimum — only for the best, whose rivals are the ones that matter).  The smaller one is fitted
+    again from there, and the better of its two fits kept."""
+    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
+    bic = {s.candidate: s.bic for s in fitted}
     out = {}
-    for s in scores:
-        if s.status != "fitted":
-            continue
-        plant = s.result.plant
-        poles = tuple(p for p in plant.poles if abs(p) <= bandwidth)
-        zeros = tuple(z for z in plant.zeros if abs(z) <= bandwidth)
-        if not poles or (poles, zeros) == (plant.poles, plant.zeros):
-            continue
-        smaller = replace(plant, poles=poles, zeros=zeros)
-        c = s.candidate
-        target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.load)
-        if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
-            out[target] = smaller
+    for s in fitted:
+        plant, c = s.result.plant, s.candidate
+        poles, zeros = _without_cancelling(tuple(p for p in plant.poles if abs(p) <= bandwidth),
+                                           tuple(z for z in plant.zeros if abs(z) <= bandwidth))
+        if poles and (poles, zeros) != (plant.poles, plant.zeros):
+            smaller = replace(plant, poles=poles, zeros=zeros)
+            target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.load)
+            if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
+                out[target] = smaller
+    best = fitted[0] if fitted else None
+    law = NESTED_LAW.get(best.candidate.law) if best else None
+    if law:
+        c = best.candidate
+        target = Candidate(law, c.order, c.zeros, c.load)
+        if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
+            out[target] = _with_law(best.result.plant, law)
     return out
+
+
+def _with_law(plant, law: str):
+    """``plant`` with the friction law ``law`` nested in its own, with the levels they share."""
+    keys = {"coulomb": ("fc_pos", "fc_neg"), "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs")}[law]
+    values = plant.friction.values()
+    data = tomllib.loads(plant.to_toml())
+    data["friction"] = {"model": law, **{k: values[k] for k in keys}}
+    return plant_from_dict(data, source=f"{plant.name} as {law}")
+
+
+def _without_cancelling(poles: tuple, zeros: tuple) -> tuple[tuple, tuple]:
+    """Distinct roots (a complex pair once) less each zero that nearly cancels a pole (within CANCELLATION,
+    relative) and that pole: the pair has no response of its own, and the fit without it is the smaller
+    candidate's (its DC gain kept: the pair's is z/p ≈ 1).  A real zero beside a complex pair (two nearly equal
+    poles the fit made complex) takes one of them: the pair becomes one real pole at its real part."""
+    poles, kept = list(poles), []
+    for z in zeros:
+        match = next((p for p in poles if abs(z - p) <= CANCELLATION * abs(p) and (z.imag == 0 or p.imag != 0)),
+                     None)
+        if match is None:
+            kept.append(z)
+            continue
+        poles.remove(match)
+        if match.imag != 0 and z.imag == 0:
+            poles.append(complex(match.real, 0.0))
+    return tuple(poles), tuple(kept)
 
 
 def _refit_contenders(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
