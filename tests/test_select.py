@@ -77,8 +77,8 @@ def test_linear_estimate_recovers_a_g_with_a_zero_and_coulomb_friction_from_a_re
 
 
 def test_a_resonant_axis_whose_first_order_fit_has_the_wrong_sign_gets_its_own_orders_start():
-    """G = 1.2·(s + 6)/(s² + 8s + 416)·(416/6) (a resonance at 3.2 Hz) with Coulomb 0.3/0.25 N, driven at 1 and 3.1 Hz,
-    then 0.6 and 4.3 Hz (phases as drawn, 1 % noise): the first-order least-squares fit has a negative DC gain.
+    """G = 83.2·(s + 6)/(s² + 8s + 416) (DC gain 1.2, a resonance at 3.2 Hz) with Coulomb 0.3/0.25 N, driven at 1
+    and 3.1 Hz, then 0.6 and 4.3 Hz (phases as drawn, 1 % noise): the first-order least-squares fit has a negative DC gain.
     The sign the starts keep is the sign of the input's power (Σ u·v > 0 for a force into a damped mass), so the
     second-order estimate with a zero is kept and lands near the truth (it was replaced by the first order's, which
     led every candidate of a selection astray)."""

@@ -34,7 +34,8 @@ from ..errors import UserError
 from ..model.plant import Plant
 
 __all__ = ["identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
-           "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale", "PERIOD_SHARE", "log_width"]
+           "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
+           "PERIOD_SHARE", "log_width"]
 
 FIXED_PARAMETERS = ("fv", "v_smooth")
 # Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).

@@ -266,10 +266,12 @@ class Plant:
         def pairs(roots):
             return "[" + ", ".join(f"[{r.real!r}, {r.imag!r}]" for r in _expand(roots)) + "]"
 
-        lines = [f'name = "{self.name}"'] + ([f"fixed = {list(self.fixed)!r}".replace("'", '"')] * bool(self.fixed))
-        lines += ["", "[linear]", f"poles = {pairs(self.poles)}",
-                 f"zeros = {pairs(self.zeros)}", f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "",
-                 "[friction]", f'model = "{self.friction.model}"'] + (["symmetric = true"] * self.friction.symmetric)
+        lines = [f'name = "{self.name}"']
+        if self.fixed:
+            lines.append("fixed = [" + ", ".join(f'"{n}"' for n in self.fixed) + "]")
+        lines += ["", "[linear]", f"poles = {pairs(self.poles)}", f"zeros = {pairs(self.zeros)}",
+                  f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "", "[friction]",
+                  f'model = "{self.friction.model}"'] + (["symmetric = true"] if self.friction.symmetric else [])
         lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
         if self.load.keys():
             lines += ["", "[load]"] + [f"{k} = {v!r}" for k, v in self.load.values().items()]

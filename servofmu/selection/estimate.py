@@ -227,8 +227,8 @@ def _augmented(base: LinearEstimate, zeros: int) -> LinearEstimate:
 def start_estimates(series: list[Series], keys) -> dict[tuple[int, int], LinearEstimate]:
     """The linear estimate for every (order, zeros) of ``keys``: the least-squares one where it is plausible (stable,
     no pole nearly at 0, a DC gain of the sign of the input's power: :func:`input_power_sign`), else the estimate of
-    one order less (with the zero where it has one) augmented by a fast pole (and zero).  Raises ValueError when the data determines not
-    even the first-order estimate."""
+    one order less (with the zero where it has one) augmented by a fast pole (and zero).  Raises ValueError when
+    the data determines not even the first-order estimate."""
     first = estimate_linear(series, 1, 0)
     sign = input_power_sign(series)
     out = {(1, 0): first}
