@@ -17,13 +17,13 @@ from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
-from ..model.plant import plant_from_dict
+from ..model.plant import Friction, plant_from_dict
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
-from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
+from .candidates import LOAD_TERMS, Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
-from .select import CANCELLATION, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank
+from .select import CandidateJob, CandidateScore, SelectOptions, cancels, could_win, fit_candidate, rank
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
 
@@ -171,11 +171,6 @@ NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
 def _with_load(plant, candidate: Candidate):
     """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks, at their starting values
     (zero force): the second stage starts where its parent fits, so that a load term can only lower its criterion."""
-    import tomllib
-
-    from ..model.plant import plant_from_dict
-    from .candidates import LOAD_TERMS
-
     data = tomllib.loads(plant.to_toml())
     load = data.setdefault("load", {})
     for term in candidate.load:
@@ -217,21 +212,18 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
 def _with_law(plant, law: str):
     """``plant`` with the friction law ``law`` nested in its own, with the levels they share."""
     keys = {"coulomb": ("fc_pos", "fc_neg"), "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs")}[law]
-    values = plant.friction.values()
-    data = tomllib.loads(plant.to_toml())
-    data["friction"] = {"model": law, **{k: values[k] for k in keys}}
-    return plant_from_dict(data, source=f"{plant.name} as {law}")
+    levels = {k: getattr(plant.friction, k) for k in keys}
+    return replace(plant, friction=Friction(model=law, fv=plant.friction.fv, **levels))
 
 
 def _without_cancelling(poles: tuple, zeros: tuple) -> tuple[tuple, tuple]:
-    """Distinct roots (a complex pair once) less each zero that nearly cancels a pole (within CANCELLATION,
-    relative) and that pole: the pair has no response of its own, and the fit without it is the smaller
+    """Distinct roots (a complex pair once) less each zero that nearly cancels a pole (select.cancels) and that
+    pole: the pair has no response of its own, and the fit without it is the smaller
     candidate's (its DC gain kept: the pair's is z/p ≈ 1).  A real zero beside a complex pair (two nearly equal
     poles the fit made complex) takes one of them: the pair becomes one real pole at its real part."""
     poles, kept = list(poles), []
     for z in zeros:
-        match = next((p for p in poles if abs(z - p) <= CANCELLATION * abs(p) and (z.imag == 0 or p.imag != 0)),
-                     None)
+        match = next((p for p in poles if cancels(z, p) and (z.imag == 0 or p.imag != 0)), None)
         if match is None:
             kept.append(z)
             continue

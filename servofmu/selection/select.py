@@ -43,7 +43,7 @@ from .candidates import Candidate
 from .data import criterion_for, data_kind
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
-           "could_win", "VALIDATION_MARGIN", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
+           "could_win", "cancels", "VALIDATION_MARGIN", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 # Validation −2·ln L a candidate may lose to the best one before it is flagged: the 99.9 % quantile of χ²(1),
 # what one parameter's estimation error costs a right model on new data far less often than that.
@@ -324,7 +324,12 @@ def _cancelling(result: Result | None, within: float = CANCELLATION) -> bool:
     if result is None:
         return False
     poles, zeros = result.plant.all_poles(), result.plant.all_zeros()
-    return any(abs(z - p) <= within * abs(p) for z in zeros for p in poles)
+    return any(cancels(z, p, within) for z in zeros for p in poles)
+
+
+def cancels(zero: complex, pole: complex, within: float = CANCELLATION) -> bool:
+    """Whether ``zero`` lies within ``within`` (relative) of ``pole``: the pair nearly cancels."""
+    return abs(zero - pole) <= within * abs(pole)
 
 
 def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
