@@ -6,6 +6,7 @@ import h5py
 import numpy as np
 import pytest
 from scipy import signal
+from scipy.stats import chi2
 
 import servofmu as sf
 from servofmu.errors import UserError
@@ -14,7 +15,7 @@ from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import (Candidate, default_candidates, load_candidates, parse_candidates,
                                            supported_load_terms)
 from servofmu.selection.estimate import Series, estimate_linear
-from servofmu.selection.select import CandidateScore, rank
+from servofmu.selection.select import CandidateScore, rank, validation_margin
 from servofmu.simulation.batch import BatchSimulator
 
 from clitools import assert_one_line_error, run
@@ -160,6 +161,18 @@ def test_ranking_puts_flags_after_clean_candidates_and_failures_last():
     assert [s.rank for s in ranked] == [1, 2, 3, 4, 5]
     assert ranked[1].flags == ("undetermined",) and ranked[2].flags == ("residuals",)
     assert ranked[3].flags == ("validation",) and ranked[4].flags == ("fit failed",)
+
+
+def test_the_validation_margin_is_the_estimation_error_of_all_parameters():
+    """A right structure of p parameters predicts new data worse than its true values by a χ²(p) amount: the flag's
+    margin is χ²(p)'s 99.9 % quantile (scipy's as the reference), so 22 worse flags a 4-parameter candidate but
+    not an 8-parameter one."""
+    for p in (4, 8, 13):
+        assert validation_margin(p) == pytest.approx(chi2.ppf(0.999, p), rel=0.02)
+    ranked = {s.name: s for s in rank([_score("lugre/2", -100.0, -60.0, 10), _score("stribeck/2", -110.0, -38.0, 8),
+                                       _score("coulomb/2", -105.0, -38.0, 4)])}
+    assert ranked["stribeck/2"].flags == () and ranked["stribeck/2"].rank == 1
+    assert ranked["coulomb/2"].flags == ("validation",)
 
 
 # ---------------------------------------------------------------------------------------------------------------

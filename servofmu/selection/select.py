@@ -20,8 +20,9 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
 - by its roots: a zero within CANCELLATION (relative) of a pole cancels it, the pair has no response of its own.
 
 The ranking: candidates whose fit failed come last; before them those with a flag — validation −2·ln L more
-than VALIDATION_MARGIN above the best candidate's, a parameter not determined, a pole-zero cancellation, or
-residual tests failed where another candidate passes them; each group in the order of BIC.
+than validation_margin(p) (the 99.9 % quantile of χ²(p)) above the best candidate's, a parameter not determined,
+a pole-zero cancellation, or residual tests failed where another candidate passes them; each group in the order
+of BIC.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ from ..errors import UserError
 from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.residuals import residual_test
+from ..identification.restarts import chi2_quantile
 from ..identification.results import Result
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
@@ -43,11 +45,19 @@ from .candidates import Candidate
 from .data import criterion_for, data_kind
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
-           "could_win", "cancels", "VALIDATION_MARGIN", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
+           "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
-# Validation −2·ln L a candidate may lose to the best one before it is flagged: the 99.9 % quantile of χ²(1),
-# what one parameter's estimation error costs a right model on new data far less often than that.
-VALIDATION_MARGIN = 10.83
+# The level of the validation flag's margin (validation_margin).
+VALIDATION_LEVEL = 0.999
+
+
+def validation_margin(parameters: int) -> float:
+    """Validation −2·ln L a candidate of ``parameters`` identified parameters may lose to the best one before it is
+    flagged: the VALIDATION_LEVEL quantile of χ²(p).  A right structure's estimate θ̂ predicts new data worse than
+    its true values by (θ̂ − θ)ᵀ I (θ̂ − θ), χ²(p) when the validation record informs as the fitted one does — the
+    estimation error of all p parameters, not of one (stribeck2 seed 0: the truth's own structure lost 21.9 to
+    lugre/2 on validation with a fit as good as the true values' on the fitted record)."""
+    return chi2_quantile(VALIDATION_LEVEL, max(parameters, 1))
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
@@ -343,7 +353,7 @@ def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
             out.append(replace(s, flags=("fit failed",) if s.status == "failed" else ("not finite",)))
             continue
         flags = []
-        if not s.validation_neg2loglik <= best_val + VALIDATION_MARGIN:
+        if not s.validation_neg2loglik <= best_val + validation_margin(s.parameters):
             flags.append("validation")
         if s.undetermined:
             flags.append("undetermined")
