@@ -149,7 +149,7 @@ class ClosedLoopCriterion(TimeDomainCriterion):
         return [pair for r in self.data.records for pair in ((f"{r.name} position", r.position[r.fitted]),
                                                              (f"{r.name} force", r.command[r.fitted]))]
 
-    def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+    def simulate_errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Model minus record at the fitted samples: per record the position, then the command."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]

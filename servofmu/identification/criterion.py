@@ -304,6 +304,7 @@ class TimeDomainCriterion:
         sizes = [y.size for y in measured]
         self.blocks = [slice(a, a + n) for a, n in zip(np.cumsum([0] + sizes[:-1]), sizes)]
         self.concurrent: list[tuple[int, ...]] | None = None  # blocks sampled at the same instants (a subclass's)
+        self._last = None  # (rtol, theta, errors) of the last single candidate: a fit's end asks for it repeatedly
 
     def signals(self) -> list[tuple[str, np.ndarray]]:
         """The measured signals at their fitted samples, as (name, values) pairs (the subclass's)."""
@@ -311,7 +312,20 @@ class TimeDomainCriterion:
 
     def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Model minus measurement for the N candidates ``theta``: one (N, samples) array per signal, simulated
-        at relative tolerance ``rtol`` (the subclass's)."""
+        at relative tolerance ``rtol`` (the subclass's :meth:`simulate_errors`); a single candidate asked for
+        again at the same tolerance is not simulated again (the polish's end, the fitness, the fit % and the
+        scores all ask for the fit's errors)."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        last = self._last
+        if last is not None and theta.shape[0] == 1 and last[0] == rtol and np.array_equal(last[1], theta):
+            return [e.copy() for e in last[2]]
+        out = self.simulate_errors(theta, rtol)
+        if theta.shape[0] == 1:
+            self._last = (rtol, theta.copy(), [e.copy() for e in out])
+        return out
+
+    def simulate_errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+        """:meth:`errors` simulated (the subclass's)."""
         raise NotImplementedError
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
@@ -343,7 +357,7 @@ class RecordCriterion(TimeDomainCriterion):
         """Per record its measured output (velocity in m/s or position in m) at the fitted samples, by name."""
         return [(r.name, r.y[r.fitted]) for r in self.data.records]
 
-    def errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
+    def simulate_errors(self, theta: np.ndarray, rtol: float) -> list[np.ndarray]:
         """Per record, model minus measurement at its fitted samples for the N candidates ``theta``."""
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]

@@ -74,6 +74,7 @@ class _Fit:
     history: np.ndarray
     intervals: np.ndarray
     covariance: np.ndarray
+    jacobian: np.ndarray  # of the weighted residuals by the parameters at theta
 
 
 def check_method(method: str) -> None:
@@ -134,6 +135,9 @@ class PSOANNIdentifier:
     covariance_ : ndarray, shape (p, p)
         The estimates' covariance the intervals come from (servofmu.identification.confounding names the
         parameter directions it shows the data does not separate).
+    jacobian_ : ndarray, shape (residuals, p)
+        The criterion's weighted residuals differentiated by the parameters at ``theta_`` (the polish's last
+        Jacobian; central differences without a polish).
     stages_ : list of Stage
         Outcome of each stage.
     history_ : ndarray
@@ -265,6 +269,7 @@ class PSOANNIdentifier:
         chosen = self._restart_while_above_floor(crit, cost, data, fits, (lower, upper), y0, stages)
         self.intervals_ = chosen.intervals
         self.covariance_ = chosen.covariance
+        self.jacobian_ = chosen.jacobian
         self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
         self.theta_ = chosen.theta
         self.fitness_ = chosen.fitness
@@ -302,7 +307,7 @@ class PSOANNIdentifier:
         cov, dof = covariance_from_jacobian(r, jac, crit.blocks, getattr(crit, "concurrent", None))
         return _Fit(theta=theta, y=y_best, r=r, fitness=fitness, history=result.cost_history,
                     intervals=intervals_from_covariance(theta, cov, dof, jac),
-                    covariance=with_free_directions(cov, jac))
+                    covariance=with_free_directions(cov, jac), jacobian=jac)
 
     def _restart_while_above_floor(self, crit, cost, data, fits: list, box, y0, stages: list) -> "_Fit":
         """Search again while the best fit is above the noise floor (servofmu.identification.restarts), until a

@@ -273,18 +273,17 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
-    crit = criterion_for(job.start, job.data, job.threads)
+    crit = est.criterion_  # its simulations of the fit are reused: the scores ask for the same errors
     crit_v = criterion_for(job.start, job.validation, job.threads)
-    for c in (crit, crit_v):
-        if hasattr(getattr(c, "simulator", None), "rtol_floor"):
-            c.simulator.rtol_floor = est.rtol_floor
+    if hasattr(getattr(crit_v, "simulator", None), "rtol_floor"):
+        crit_v.simulator.rtol_floor = est.rtol_floor
     fitted = _signal_errors(crit, job.data, theta)
     neg2, n = _neg2loglik([e for _, e in fitted])
     validated = _signal_errors(crit_v, job.validation, theta)
     names = [name for name, _ in crit_v.signals()] if crit_v.blocks is not None else ["harmonics"]
     val_neg2, _ = _neg2loglik([e for _, e in validated])
     p = theta.size
-    bound = screen_bound(crit, theta, [e for _, e in fitted]) + p * math.log(max(n, 1)) \
+    bound = screen_bound(est.jacobian_, crit.scales, [e for _, e in fitted]) + p * math.log(max(n, 1)) \
         if job.mode == "screen" else math.nan
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
@@ -297,20 +296,15 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         bic_bound=bound)
 
 
-def screen_bound(crit, theta: np.ndarray, errors: list[np.ndarray]) -> float:
-    """The lowest −2·ln L a polish could reach from ``theta`` by the Gauss–Newton model: every signal's RSS after
-    one full Gauss–Newton step on the output errors (``errors`` at ``theta``; their Jacobian by central
-    differences at the criterion's tolerance).  At a converged fit it is the fit's own −2·ln L less a fraction of
-    one; far from a minimum, what the linearised model promises there."""
-    if not all(np.all(np.isfinite(e)) for e in errors):
-        return -math.inf  # no Jacobian to bound it by: it could be anything
-    h = 1e-5 * np.maximum(np.abs(theta), 1e-3)
-    rows = np.concatenate([theta + np.diag(h), theta - np.diag(h)])
-    e = np.concatenate(crit.errors(rows, POLISH_RTOL), axis=1)
-    jac = ((e[:theta.size] - e[theta.size:]) / (2 * h[:, None])).T
+def screen_bound(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarray]) -> float:
+    """The lowest −2·ln L a polish could reach from a fit by the Gauss–Newton model: every signal's RSS after one
+    full Gauss–Newton step on its output errors (``errors`` at the fit; ``jacobian`` the polish's last, of the
+    residuals weighted by 1/``scales`` per signal).  At a converged fit it is the fit's own −2·ln L less a
+    fraction of one; far from a minimum, what the linearised model promises there."""
     r = np.concatenate(errors)
-    if not np.all(np.isfinite(jac)):
-        return -math.inf
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jacobian))) or jacobian.shape[0] != r.size:
+        return -math.inf  # no Jacobian to bound it by: it could be anything
+    jac = jacobian * np.concatenate([np.full(e.size, s) for e, s in zip(errors, scales)])[:, None]
     step = np.linalg.lstsq(jac, r, rcond=None)[0]
     left = r - jac @ step
     sizes = np.cumsum([x.size for x in errors])[:-1]
