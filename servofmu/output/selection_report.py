@@ -99,8 +99,9 @@ def selection_page(selection: Selection) -> str:
                     numeric_from=2),
               f'<p class="note">BIC from the output-error residuals of the fitted data, each signal\'s noise '
               f"variance estimated from them; flags: validation −2 ln L more than the {100 * VALIDATION_LEVEL:g} % "
-              "quantile of χ²(p) above the best (p the candidate's parameters), a parameter whose 95 % interval reaches past zero (undetermined), residual tests failed where "
-              "another candidate passes them. Flagged candidates rank after the others (docs/selection.md).</p>"]
+              "quantile of χ²(p) above the best (p the candidate's parameters), a parameter whose 95 % interval "
+              "reaches past zero (undetermined), residual tests failed where another candidate passes them. "
+              "Flagged candidates rank after the others (docs/selection.md).</p>"]
     image = _side_by_side(_validations(selection))
     if image is not None:
         parts.append(figure(f"The best {min(SIDE_BY_SIDE, len(selection.scores))} candidates on the validation "

@@ -47,17 +47,7 @@ from .data import criterion_for, data_kind
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
            "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
-# The level of the validation flag's margin (validation_margin).
-VALIDATION_LEVEL = 0.999
-
-
-def validation_margin(parameters: int) -> float:
-    """Validation −2·ln L a candidate of ``parameters`` identified parameters may lose to the best one before it is
-    flagged: the VALIDATION_LEVEL quantile of χ²(p).  A right structure's estimate θ̂ predicts new data worse than
-    its true values by (θ̂ − θ)ᵀ I (θ̂ − θ), χ²(p) when the validation record informs as the fitted one does — the
-    estimation error of all p parameters, not of one (stribeck2 seed 0: the truth's own structure lost 21.9 to
-    lugre/2 on validation with a fit as good as the true values' on the fitted record)."""
-    return chi2_quantile(VALIDATION_LEVEL, max(parameters, 1))
+VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
@@ -70,6 +60,15 @@ SCREEN_SEARCH_RTOL = 1e-4
 # What a candidate's screened BIC, less the Gauss–Newton gain a full polish could still make (screen_bound), may
 # exceed the chosen candidate's final BIC by and still be polished in full: a margin for the gain's linearisation.
 SCREEN_MARGIN = 20.0
+
+
+def validation_margin(parameters: int) -> float:
+    """Validation −2·ln L a candidate of ``parameters`` identified parameters may lose to the best one before it is
+    flagged: the VALIDATION_LEVEL quantile of χ²(p).  A right structure's estimate θ̂ predicts new data worse than
+    its true values by (θ̂ − θ)ᵀ I (θ̂ − θ), χ²(p) when the validation record informs as the fitted one does — the
+    estimation error of all p parameters, not of one (stribeck2 seed 0: the truth's own structure lost 21.9 to
+    lugre/2 on validation with a fit as good as the true values' on the fitted record)."""
+    return chi2_quantile(VALIDATION_LEVEL, max(parameters, 1))
 
 
 @dataclass(frozen=True)
