@@ -55,8 +55,8 @@ AXIS_AMPLITUDES = (200.0, 80.0)
 def axis_inputs(name: str, demo: Path, amplitudes=AXIS_AMPLITUDES) -> tuple[Path, Path, Path]:
     """An axis's FMU, noise-free measurement and network under the axis plan of ``amplitudes`` (made in ``demo``
     when missing)."""
-    plan = "axisplan" + ("" if tuple(amplitudes) == AXIS_AMPLITUDES else "-" + "-".join(f"{a:g}" for a in amplitudes))
-    fmu, data, ds, ann = (demo / f"{name}-{plan}{suffix}" for suffix in (".fmu", ".h5", "-ds.h5", "-ann.h5"))
+    tag = "axisplan" + ("" if tuple(amplitudes) == AXIS_AMPLITUDES else "-" + "-".join(f"{a:g}" for a in amplitudes))
+    fmu, data, ds, ann = (demo / f"{name}-{tag}{suffix}" for suffix in (".fmu", ".h5", "-ds.h5", "-ann.h5"))
     if not ann.exists():
         plant = load_plant(name)
         build_fmu(plant, fmu, overwrite=True)
