@@ -10,7 +10,7 @@ Per plant and seed: a 20 s record at 100 Hz (two magnitudes, two tones each, ran
 to validate on, white noise on the velocity at 40 dB; `select` over the default candidates (15: 3 laws x
 orders 1-3, with and without a zero; where the plant format has load terms, the second stage adds each to the
 structure ranked first, and a plant with a constant load offset is benchmarked too: its truth is Coulomb at order
-1, whose levels fc+ − offset and fc− + offset are the same forces — docs/selection.md).
+1, whose levels fc+ − offset and fc− + offset are the same forces — docs/selection.md — and one with a spring).
 
     python scripts/bench_select.py --seeds 20              # the full benchmark
     python scripts/bench_select.py --seeds 3 --plants g1,g2  # a smaller one
@@ -62,6 +62,11 @@ if "offset" in supported_load_terms():  # the plant format's [load] section
         "name": "coulomb1_offset", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
         "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": {"offset": 0.3}}),
         "coulomb/1", 1.0)  # the same forces as levels 0.2 and 0.7 without an offset (docs/selection.md)
+if "stiffness" in supported_load_terms():  # a spring of 4 N/m on g1: 1 N at the records' 0.25 m of travel
+    PLANTS["coulomb1_spring"] = (plant_from_dict({
+        "name": "coulomb1_spring", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+        "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": {"stiffness": 4.0, "x0": 0.0}}),
+        "coulomb+stiffness/1", 1.0)
 
 
 def excitation(t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:

@@ -128,6 +128,47 @@ def test_a_larger_fit_hands_its_nested_candidates_a_start():
     assert (nested.friction.fs_pos, nested.friction.vs) == (0.45, 0.05)
 
 
+def test_a_zero_at_the_origin_is_read_as_a_spring():
+    """G' = s·N/(s·D + k·N) is G = N/D with a spring k on the position: a fit of G' (here of order 3 with two
+    zeros, one at the origin) gives the candidate of order 2 with one zero and a stiffness, whose G with the
+    spring has G's response (compared at 40 frequencies), and nothing where no zero lies near the origin."""
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.candidates import spring_form
+
+    num, den, k = np.array([50.0]), np.polymul([1.0, 3.0], [1.0, 20.0]), 5.0
+    num_s, den_s = np.polymul([1.0, 1e-6], num), np.polyadd(np.polymul([1.0, 0.0], den), k * num)
+    pairs = lambda roots: [[r.real, r.imag] for r in roots]  # noqa: E731
+    fitted = plant_from_dict({"name": "f", "linear": {"poles": pairs(np.roots(den_s)), "zeros": pairs(np.roots(num_s)),
+                                                      "dc_gain": num_s[-1] / den_s[-1]},
+                              "friction": {"model": "stribeck", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.45,
+                                           "fs_neg": 0.35, "vs": 0.05}})
+    target, spring = spring_form(Candidate("stribeck", 3, 1), fitted)
+    assert target == Candidate("stribeck", 2, 0, ("stiffness",))
+    assert sorted(spring.all_poles(), key=abs) == pytest.approx([-3.0, -20.0], rel=1e-4)
+    assert spring.zeros == () and spring.load.stiffness == pytest.approx(k, rel=1e-4)
+    s = 1j * np.logspace(-1, 3, 40)
+    g = spring.frequency_response(s.imag)
+    assert g / (1 + spring.load.stiffness * g / s) == pytest.approx(fitted.frequency_response(s.imag), rel=1e-5)
+    assert spring.friction == fitted.friction and spring.load.x0 == 0.0
+    no_spring = plant_from_dict({"name": "n", "linear": {"poles": [[-3.0, 0.0], [-20.0, 0.0]], "zeros": [[-8.0, 0.0]],
+                                                         "dc_gain": 1.0}, "friction": {"model": "coulomb",
+                                                                                        "fc_pos": 0.3, "fc_neg": 0.3}})
+    assert spring_form(Candidate("coulomb", 2, 1), no_spring) is None
+
+
+def test_a_rest_position_at_zero_is_not_undetermined():
+    """An interval that reaches past zero flags a level or a gain (the data cannot tell it from none) but not a
+    spring's rest position or a ripple's phase, whose zero is a value like any other."""
+    from types import SimpleNamespace
+
+    from servofmu.selection.select import _undetermined
+
+    fit = SimpleNamespace(names=["pole1", "stiffness", "x0", "ripple_phase", "ripple_amplitude"],
+                          theta=np.array([-10.0, 4.0, 1e-3, 0.01, 1e-5]),
+                          intervals=np.array([[-10.1, -9.9], [3.9, 4.1], [-0.01, 0.012], [-0.5, 0.52], [-1e-3, 1e-3]]))
+    assert _undetermined(fit) == ("ripple_amplitude",)
+
+
 def test_a_static_level_equal_to_its_coulomb_level_gets_a_finite_search_box():
     """A fit may end with fs = fc (no bump); the next candidate's box around it must still be finite."""
     from servofmu.identification.features import prior_box

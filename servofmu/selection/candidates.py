@@ -13,7 +13,7 @@ fv for this reason).  Each candidate's G holds the viscous damping; docs/selecti
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,8 +22,11 @@ from ..model.plant import FRICTION_MODELS, Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
 __all__ = ["Candidate", "parse_candidates", "default_candidates", "load_candidates", "candidate_plant",
-           "supported_load_terms",
-           "LOAD_TERMS", "MAX_ORDER"]
+           "supported_load_terms", "spring_form", "LOAD_TERMS", "MAX_ORDER", "SPRING_ZERO"]
+
+# A real zero this close to the origin (relative to the smallest pole's magnitude) is read as a spring's
+# (spring_form): a fit of a plant without one puts its zeros where the response shows them, far from 0.
+SPRING_ZERO = 0.01
 
 MAX_ORDER = 6  # G(s) of higher order is no candidate: a structure to choose, not a fit of any response
 # The load terms a candidate may add, with the plant-file keys of each and their first values (docs/plant-format.md)
@@ -201,3 +204,34 @@ def candidate_plant(candidate: Candidate, estimate: LinearEstimate) -> Plant:
     if candidate.load:
         data["load"] = {k: v for term in candidate.load for k, v in LOAD_TERMS[term].items()}
     return plant_from_dict(data, source=f"candidate {candidate.name}")
+
+
+def spring_form(candidate: Candidate, plant: Plant) -> tuple[Candidate, Plant] | None:
+    """A fitted candidate whose G has a real zero at the origin, read as a spring: G' = s·N/(s·D + k·N) is
+    G = N/D with a spring of stiffness k on the load's position (the integral of G's velocity), so G' of order n
+    with a zero at 0 is G of order n − 1 without it and k = D'(0)/N(0), D = (D' − k·N)/s.  The candidate with one
+    pole and that zero fewer and a ``stiffness`` term, and its plant (x0 = 0, the other values kept); None when no
+    real zero lies within SPRING_ZERO of the origin, the candidate has a spring already, or the G left over is not
+    a stable one with a positive k."""
+    poles, zeros = plant.all_poles(), plant.all_zeros()
+    if "stiffness" in candidate.load or "stiffness" not in supported_load_terms() or not zeros or not poles:
+        return None
+    z0 = min(zeros, key=abs)
+    if z0.imag != 0 or abs(z0) > SPRING_ZERO * min(abs(p) for p in poles):
+        return None
+    rest = list(zeros)
+    rest.remove(z0)
+    num = plant.numerator_gain() * (np.real(np.poly(rest)) if rest else np.array([1.0]))
+    den_full = np.real(np.poly(poles))
+    k = den_full[-1] / num[-1]
+    den = np.polysub(den_full, k * num)[:-1]  # its constant term is 0 by k's choice
+    new_poles = np.roots(den) if den.size > 1 else np.array([])
+    if not (np.isfinite(k) and k > 0 and new_poles.size and np.all(new_poles.real < 0)):
+        return None
+    load = tuple(sorted((*candidate.load, "stiffness"), key=list(LOAD_TERMS).index))
+    target = Candidate(candidate.law, candidate.order - 1, candidate.zeros - 1, load)
+    spring = replace(plant, poles=tuple(_distinct(new_poles, stable=False)),
+                     zeros=tuple(_distinct(np.roots(num), stable=False)) if num.size > 1 else (),
+                     dc_gain=float(num[-1] / den[-1]), gain=None,
+                     load=replace(plant.load, stiffness=float(k), x0=0.0))
+    return target, spring

@@ -20,7 +20,7 @@ from ..identification.results import write_comparison, write_result
 from ..model.plant import Friction, plant_from_dict
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
-from .candidates import LOAD_TERMS, Candidate, candidate_plant, load_candidates, parse_candidates
+from .candidates import LOAD_TERMS, Candidate, candidate_plant, load_candidates, parse_candidates, spring_form
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
 from .select import CandidateJob, CandidateScore, SelectOptions, cancels, could_win, fit_candidate, rank
@@ -150,6 +150,9 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         reduced = _reduced_starts(scores, candidates, data_bandwidth(estimation_series(data, files)))
         if reduced:  # a smaller candidate again, from a larger one's fit without its roots beyond the data
             scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), reduced, run, []))
+        springs = _spring_starts(scores) if options.candidates is None else {}
+        if springs:  # a zero at the origin is a spring's: the structure with the spring instead
+            scores = _fit_all(pool, replace(job, seeded=True), springs, run, scores)
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
@@ -206,6 +209,18 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
         target = Candidate(law, c.order, c.zeros, c.load)
         if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
             out[target] = _with_law(best.result.plant, law)
+    return out
+
+
+def _spring_starts(scores: list[CandidateScore]) -> dict:
+    """Starts for the structures with a spring that fitted candidates stand for by a zero at the origin
+    (candidates.spring_form), of several sources the lowest BIC's; none for a structure already fitted."""
+    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
+    done, out = {s.candidate for s in scores}, {}
+    for s in fitted:
+        found = spring_form(s.candidate, s.result.plant)
+        if found and found[0] not in done and found[0] not in out:
+            out[found[0]] = found[1]
     return out
 
 

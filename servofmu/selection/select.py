@@ -48,6 +48,7 @@ __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "
            "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
+LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any other (not "undetermined")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
@@ -210,10 +211,13 @@ def _whiteness(crit, data, errors) -> bool | None:
 
 
 def _undetermined(result: Result) -> tuple[str, ...]:
-    """Parameters whose 95 % interval is unbounded or reaches past zero (half-width above the value)."""
+    """Parameters whose 95 % interval is unbounded or reaches past zero (half-width above the value); past zero
+    is no test for a position or a phase (LOCATION_PARAMETERS: a spring's rest position at 0 is no spring's
+    absence)."""
     lo, hi = result.intervals[:, 0], result.intervals[:, 1]
     half = (hi - lo) / 2
-    bad = ~np.isfinite(half) | (half >= np.abs(result.theta))
+    location = np.isin(result.names, LOCATION_PARAMETERS)
+    bad = ~np.isfinite(half) | ((half >= np.abs(result.theta)) & ~location)
     return tuple(n for n, b in zip(result.names, bad) if b)
 
 
