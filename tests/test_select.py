@@ -150,6 +150,15 @@ def test_a_zero_at_the_origin_is_read_as_a_spring():
     g = spring.frequency_response(s.imag)
     assert g / (1 + spring.load.stiffness * g / s) == pytest.approx(fitted.frequency_response(s.imag), rel=1e-5)
     assert spring.friction == fitted.friction and spring.load.x0 == 0.0
+    from types import SimpleNamespace  # the ranking: the zero at the origin flagged once its spring is fitted
+
+    hidden = CandidateScore(Candidate("stribeck", 3, 1), "fitted", result=SimpleNamespace(plant=fitted), bic=-101.0,
+                            validation_neg2loglik=-50.0, parameters=9)
+    named = CandidateScore(target, "fitted", result=SimpleNamespace(plant=spring), bic=-100.0,
+                           validation_neg2loglik=-50.0, parameters=9)
+    assert rank([hidden])[0].flags == ()
+    assert [(s.name, s.flags) for s in rank([hidden, named])] == [(target.name, ()),
+                                                                  (hidden.name, ("zero at the origin",))]
     no_spring = plant_from_dict({"name": "n", "linear": {"poles": [[-3.0, 0.0], [-20.0, 0.0]], "zeros": [[-8.0, 0.0]],
                                                          "dc_gain": 1.0}, "friction": {"model": "coulomb",
                                                                                         "fc_pos": 0.3, "fc_neg": 0.3}})

@@ -17,11 +17,13 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
   independence of the reference in a closed loop);
 - by its 95 % intervals: a parameter whose interval is wider than twice its value (the interval reaches past
   zero) or unbounded is not determined by the data;
-- by its roots: a zero within CANCELLATION (relative) of a pole cancels it, the pair has no response of its own.
+- by its roots: a zero within CANCELLATION (relative) of a pole cancels it, the pair has no response of its own;
+  a zero at the origin is a spring's (candidates.spring_form), and the structure with the spring is fitted too.
 
 The ranking: candidates whose fit failed come last; before them those with a flag — validation −2·ln L more
 than validation_margin(p) (the 99.9 % quantile of χ²(p)) above the best candidate's, a parameter not determined,
-a pole-zero cancellation, or residual tests failed where another candidate passes them; each group in the order
+a pole-zero cancellation, a zero at the origin whose spring was fitted, or residual tests failed where another
+candidate passes them; each group in the order
 of BIC.
 """
 from __future__ import annotations
@@ -41,7 +43,7 @@ from ..identification.restarts import chi2_quantile
 from ..identification.results import Result
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
-from .candidates import Candidate
+from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
@@ -334,6 +336,14 @@ def _cancelling(result: Result | None, within: float = CANCELLATION) -> bool:
     return any(cancels(z, p, within) for z in zeros for p in poles)
 
 
+def _spring_zero(score: CandidateScore, fitted: set) -> bool:
+    """Whether the candidate's G has a zero at the origin whose reading as a spring (candidates.spring_form) was
+    fitted too: the two are one response (a spring's is exactly such a zero), and the structure that names the
+    force ranks before the one that hides it in G."""
+    found = spring_form(score.candidate, score.result.plant) if score.result is not None else None
+    return found is not None and found[0] in fitted
+
+
 def cancels(zero: complex, pole: complex, within: float = CANCELLATION) -> bool:
     """Whether ``zero`` lies within ``within`` (relative) of ``pole``: the pair nearly cancels."""
     return abs(zero - pole) <= within * abs(pole)
@@ -356,6 +366,8 @@ def rank(scores: list[CandidateScore]) -> list[CandidateScore]:
             flags.append("undetermined")
         if _cancelling(s.result):
             flags.append("pole-zero cancellation")
+        if _spring_zero(s, {f.candidate for f in fitted}):
+            flags.append("zero at the origin")
         if any_white and s.white is False:
             flags.append("residuals")
         out.append(replace(s, flags=tuple(flags)))
