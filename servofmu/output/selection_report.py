@@ -100,7 +100,8 @@ def selection_page(selection: Selection) -> str:
               f'<p class="note">BIC from the output-error residuals of the fitted data, each signal\'s noise '
               f"variance estimated from them; flags: validation −2 ln L more than the {100 * VALIDATION_LEVEL:g} % "
               "quantile of χ²(p) above the best (p the candidate's parameters), a parameter whose 95 % interval "
-              "reaches past zero (undetermined), residual tests failed where another candidate passes them. "
+              "reaches past zero (undetermined), a pole-zero cancellation, a zero at the origin whose spring was "
+              "fitted, residual tests failed where another candidate passes them. "
               "Flagged candidates rank after the others (docs/selection.md).</p>"]
     image = _side_by_side(_validations(selection))
     if image is not None:
