@@ -213,7 +213,7 @@ def main() -> None:
              f"{ENCODER_REALISATIONS} sequences (antithetic pairs) common to every candidate, the candidate's loops averaged "
              "(servofmu.identification.closed_loop).  The intervals: Newey–West on leave-one-segment-out "
              "residuals, a record's position and command together "
-             "(servofmu.identification.criterion.newey_west_covariance).", "", *body]
+             "(servofmu.identification.long_run.newey_west_covariance).", "", *body]
     out = Path(args.out)
     kept = out.read_text().partition("\n## History\n") if out.exists() else ("", "", "")
     out.write_text("\n".join(lines) + (kept[1] + kept[2] if kept[1] else ""))
