@@ -67,6 +67,11 @@ if "stiffness" in supported_load_terms():  # a spring of 4 N/m on g1: 1 N at the
         "name": "coulomb1_spring", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
         "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": {"stiffness": 4.0, "x0": 0.0}}),
         "coulomb+stiffness/1", 1.0)
+if "ripple" in supported_load_terms():  # a ripple of 0.2 N and period 5 cm on g1: 14 periods over the travel
+    PLANTS["coulomb1_ripple"] = (plant_from_dict({
+        "name": "coulomb1_ripple", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+        "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4},
+        "load": {"ripple_amplitude": 0.2, "ripple_period": 0.05, "ripple_phase": 0.7}}), "coulomb+ripple/1", 1.0)
 
 
 def excitation(t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:

@@ -156,9 +156,12 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
-            scores = _fit_all(pool, replace(job, seeded=True),
+            scores = _fit_all(pool, replace(job, seeded=True, find_period=True),
                               {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}, run,
                               scores)
+            laws = _nested_law_starts(rank(scores)[0], scores)
+            if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
+                scores = _fit_all(pool, replace(job, seeded=True, find_period=True), laws, run, scores)
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
@@ -210,6 +213,35 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
         if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
             out[target] = _with_law(best.result.plant, law)
     return out
+
+
+def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore]) -> dict:
+    """Starts for the laws nested in the law of ``first`` (LuGre: Stribeck and Coulomb; Stribeck: Coulomb) with
+    its load terms, order and zero, from its fit (_with_law), where ``first`` has load terms: the first stage
+    chose its law without them, and a force it could not explain (a ripple) may have been taken up by a richer
+    friction law; none for a candidate already fitted."""
+    if first.status != "fitted" or not first.candidate.load:
+        return {}
+    fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
+    out, law, c = {}, NESTED_LAW.get(first.candidate.law), first.candidate
+    while law:
+        target, own = Candidate(law, c.order, c.zeros, c.load), Candidate(law, c.order, c.zeros)
+        if target not in fitted and not any(s.candidate == target for s in scores):
+            # the law's own fit of the first stage with the load's values found (a ripple searched again from
+            # that fit: its start moves the structure's parameters with it), else the winner's G and levels
+            base = fitted[own] if own in fitted else _with_law(first.result.plant, law)
+            out[target] = _with_load(_with_load_values(base, first.result.plant, without=("ripple",)), target)
+        law = NESTED_LAW.get(law)
+    return out
+
+
+def _with_load_values(plant, source, without: tuple[str, ...] = ()):
+    """``plant`` with the load terms of ``source`` at their values in ``source``, but those of the terms
+    ``without`` (LOAD_TERMS' names) left out."""
+    data = tomllib.loads(plant.to_toml())
+    left_out = {key for term in without for key in LOAD_TERMS[term]}
+    data["load"] = {k: v for k, v in tomllib.loads(source.to_toml())["load"].items() if k not in left_out}
+    return plant_from_dict(data, source=f"{plant.name} with the load of {source.name}")
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:
@@ -289,7 +321,8 @@ def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, do
     """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
     scores = list(done) + [CandidateScore(c, "failed", message=str(s)) for c, s in starts.items()
                            if isinstance(s, Exception)]
-    jobs = [replace(job, candidate=c, start=s) for c, s in starts.items() if not isinstance(s, Exception)]
+    jobs = [replace(job, candidate=c, start=s, find_period=job.find_period and "ripple" in c.load)
+            for c, s in starts.items() if not isinstance(s, Exception)]
     total = len(done) + len(starts)
     run.report(len(scores), total)
     for _, score in pool.imap(fit_candidate, jobs):

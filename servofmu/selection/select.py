@@ -45,6 +45,7 @@ from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind
+from .period import ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
            "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
@@ -116,7 +117,8 @@ class CandidateJob:
     """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
     "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
     (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
-    start is a fit, made the swarm's first particle."""
+    start is a fit, made the swarm's first particle; ``find_period``: the start's ripple (at zero force) is put
+    where the fitted data's residuals show one first (selection.period)."""
 
     candidate: Candidate
     start: Plant
@@ -127,6 +129,7 @@ class CandidateJob:
     provenance: dict
     mode: str = "full"
     seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
+    find_period: bool = False  # a ripple's period, amplitude and phase searched first (selection.period)
 
 
 @dataclass(frozen=True)
@@ -269,6 +272,8 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
+    if job.find_period:
+        job = replace(job, start=ripple_start(job.start, job.data, job.threads))
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
                                spread=job.options.spread, seed=job.options.seed, threads=job.threads,
                                **({"search_rtol": SCREEN_SEARCH_RTOL} if job.mode == "screen" else {}))

@@ -1,0 +1,194 @@
+"""Where a ripple candidate starts: the period, amplitude and phase of a position ripple found from the residuals of
+the fit it extends.
+
+A ripple A·sin(2π·x/P + φ) is no parameter a swarm finds from a box around a guess: the output error is
+many-valleyed in P (an error of P²/travel slips the ripple by a whole period over the travel).  But at a fixed P
+the ripple is linear in (A·cos φ, A·sin φ) for small A — two regressors, the output's sensitivities to a force
+sin(2π·x/P) and cos(2π·x/P) along the fitted trajectory — so every P is scored by the least-squares drop of the
+fit's residuals on its two regressors, a periodogram over position made with the model's own response (the
+friction, the loop, the data's kind and weights included).  The sensitivities are finite differences of the
+criterion at a probe amplitude.
+
+The grid is uniform in spatial frequency 1/P, a quarter cycle over the travel apart (the drop's peak is about a
+cycle over the travel wide), from two travels to RIPPLE_CYCLES cycles over the travel; the best peaks are searched
+again on a grid REFINE times finer.  The best is the start; the fit then refines it within the prior's narrow
+period box (identification.prior.PERIOD_SHARE).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.integrate import cumulative_trapezoid
+
+from ..identification.criterion import RecordData, SineData
+from ..identification.prior import identified_mask, identified_names
+from ..model.plant import Plant
+from .data import criterion_for
+
+__all__ = ["ripple_start", "travel", "RIPPLE_CYCLES"]
+
+RIPPLE_CYCLES = 100  # the shortest period searched: the travel over this many cycles
+COARSE = 0.5  # the coarse grid's step in spatial frequency: cycles over the travel
+REFINE = 8  # the refined grid's step: the coarse one's over this
+PEAKS = 3  # coarse peaks searched again
+PROBE = 0.05  # the probe force of the ripple's finite differences, times the friction level
+DIFFERENCE = 1e-5  # the structure's parameters' relative step of their central differences
+ITERATIONS = 3  # Gauss-Newton steps on a peak's ripple and the structure's parameters
+RTOL = 1e-7
+
+
+def travel(data) -> float:
+    """The widest range of positions one record or stepped-sine experiment covers (m)."""
+    if isinstance(data, SineData):  # a velocity |H|·A·sin(2π·f·t) moves ±|H|·A/(2π·f)
+        return float(np.max(np.abs(data.H) * data.amplitudes / (np.pi * data.frequencies)))
+    widths = []
+    for r in data.records:
+        if isinstance(data, RecordData):
+            position = r.y if r.output == "position" else cumulative_trapezoid(r.y, r.time, initial=0.0)
+        else:  # closed loop
+            position = r.position
+        widths.append(float(np.ptp(position[np.isfinite(position)])) if np.any(np.isfinite(position)) else 0.0)
+    return max(widths)
+
+
+def _positions(data) -> list[np.ndarray]:
+    """Every record's measured position at all its samples (m), in the model's frame: an open-loop record's from
+    its first sample (the model starts there at 0, an encoder's zero being arbitrary), a closed loop's as
+    measured (the loop follows the reference in its frame)."""
+    if isinstance(data, RecordData):
+        return [(r.y - r.y[0]) if r.output == "position" else cumulative_trapezoid(r.y, r.time, initial=0.0)
+                for r in data.records]
+    return [np.asarray(r.position, dtype=float) for r in data.records]
+
+
+def travel(data) -> float:
+    """The widest range of positions one record covers (m); 0 for stepped-sine data."""
+    if isinstance(data, SineData):
+        return 0.0
+    return max(float(np.ptp(x)) if np.all(np.isfinite(x)) else 0.0 for x in _positions(data))
+
+
+def _with_force(data, forces: list[np.ndarray]):
+    """``data`` with a known force added at the plant's input of every record: to an open-loop record's input,
+    to a closed-loop record's injected disturbance."""
+    if isinstance(data, RecordData):
+        return replace(data, records=tuple(replace(r, u=r.u + f) for r, f in zip(data.records, forces)))
+    return replace(data, records=tuple(replace(r, disturbance=f if r.disturbance is None else r.disturbance + f)
+                                       for r, f in zip(data.records, forces)))
+
+
+class _Forced:
+    """The criterion of a structure on ``data`` with a known force along the measured positions added."""
+
+    def __init__(self, structure: Plant, data, threads: int | None):
+        self.crit, self.data, self.positions = criterion_for(structure, data, threads), data, _positions(data)
+        self.probe = PROBE * max(structure.friction.fc_pos, structure.friction.fc_neg, 1e-3)
+
+    def residuals(self, theta: np.ndarray, force=None) -> np.ndarray:
+        """(N, samples) weighted residuals of the rows of ``theta`` with the force ``force(position)`` added."""
+        self.crit.data = self.data if force is None else _with_force(self.data, [force(x) for x in self.positions])
+        try:  # simulate_errors: the criterion's cache of errors knows the parameters, not the data
+            errors = self.crit.simulate_errors(np.atleast_2d(theta), RTOL)
+        finally:
+            self.crit.data = self.data
+        return np.concatenate([e / s for e, s in zip(errors, self.crit.scales)], axis=1)
+
+    def ripple_columns(self, theta: np.ndarray, k: float, coef=(0.0, 0.0), base=None) -> np.ndarray:
+        """(samples, 2): the residuals' change per newton of a force sin(2π·k·x), cos(2π·k·x) beside the ripple
+        ``coef`` (its (A·cos φ, A·sin φ)); ``base``: the residuals with ``coef`` alone, if known."""
+        base = self.residuals(theta, _ripple(k, coef))[0] if base is None else base
+        return np.column_stack([(self.residuals(theta, _ripple(k, np.add(coef, d)))[0] - base) / self.probe
+                                for d in ((self.probe, 0.0), (0.0, self.probe))])
+
+
+def _ripple(k: float, coef):
+    """The force A·sin(2π·k·x + φ) of coef = (A·cos φ, A·sin φ), as a function of the position x."""
+    return lambda x: coef[0] * np.sin(2 * np.pi * k * x) + coef[1] * np.cos(2 * np.pi * k * x)
+
+
+def _least_squares(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """The coefficients c minimising |r + x·c|² and the drop of |r|² they give (−inf where x is not finite)."""
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(r))):
+        return np.zeros(x.shape[1]), -np.inf
+    c, *_ = np.linalg.lstsq(x, -r, rcond=None)
+    fitted = x @ c
+    return c, -2 * float(r @ fitted) - float(fitted @ fitted)
+
+
+def _joint(forced: _Forced, theta: np.ndarray, free: np.ndarray, k: float, coef) -> tuple[np.ndarray, float, np.ndarray]:
+    """Gauss–Newton steps on the structure's parameters ``free`` and the ripple's spatial frequency k and coef
+    together, the ripple a force along the measured positions (the model's own positions drift with its velocity
+    error, and the ripple with them: a start found there is in the output error's valley)."""
+    theta, coef = theta.copy(), np.asarray(coef, dtype=float)
+    r = forced.residuals(theta, _ripple(k, coef))[0]
+    for _ in range(ITERATIONS):
+        h = DIFFERENCE * np.maximum(np.abs(theta[free]), 1e-3)
+        steps = np.repeat(theta[None], 2 * free.size, axis=0)
+        steps[np.arange(free.size), free] += h
+        steps[free.size + np.arange(free.size), free] -= h
+        rr = forced.residuals(steps, _ripple(k, coef))
+        jac = ((rr[:free.size] - rr[free.size:]) / (2 * h[:, None])).T
+        dk = DIFFERENCE * k
+        along_k = (forced.residuals(theta, _ripple(k + dk, coef))[0] - r) / dk
+        delta, drop = _least_squares(np.column_stack([jac, along_k, forced.ripple_columns(theta, k, coef, r)]), r)
+        if not drop > 0:
+            break
+        for _ in range(4):  # halved while the step does not lower the residuals
+            trial, trial_k, trial_coef = theta.copy(), k + delta[free.size], coef + delta[free.size + 1:]
+            trial[free] += delta[:free.size]
+            rt = forced.residuals(trial, _ripple(trial_k, trial_coef))[0] if trial_k > 0 else r
+            if float(rt @ rt) < float(r @ r):
+                theta, k, coef, r = trial, trial_k, trial_coef, rt
+                break
+            delta = delta / 2
+        else:
+            break
+    return theta, k, coef
+
+
+def ripple_start(structure: Plant, data, threads: int | None = None) -> Plant:
+    """``structure`` — a fit with a ripple term at zero amplitude — with the ripple whose period, amplitude and
+    phase lower the criterion on ``data`` the most, and the structure's other parameters moved with it (see the
+    module docstring); unchanged for stepped-sine data, records without travel or a ripple of some force."""
+    width = travel(data)
+    if not width > 0 or structure.load.ripple_amplitude != 0:
+        return structure
+    forced = _Forced(structure, data, threads)
+    names, mask = identified_names(structure), identified_mask(structure)
+    theta0 = structure.parameter_vector()[mask]
+    r0 = forced.residuals(theta0)[0]
+
+    def drops(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The least-squares drop of the residuals and the ripple (A·cos φ, A·sin φ) at spatial frequencies k."""
+        found = [_least_squares(forced.ripple_columns(theta0, kj, base=r0), r0) for kj in k]
+        return np.array([d for _, d in found]), np.array([c for c, _ in found]).reshape(-1, 2)
+
+    step = COARSE / width
+    k = np.arange(0.5 / width, RIPPLE_CYCLES / width + step / 2, step)
+    drop, coef = drops(k)
+    peaks = []
+    for i in np.argsort(-drop):  # the best coarse points at least two steps apart, each searched again
+        if np.isfinite(drop[i]) and all(abs(i - j) > 2 for j in peaks):
+            peaks.append(i)
+        if len(peaks) == PEAKS:
+            break
+    if not peaks:
+        return structure
+    fine = np.concatenate([k[i] + step * np.arange(-REFINE, REFINE + 1) / REFINE for i in peaks])
+    fine = fine[fine > 0]
+    fine_drop, fine_coef = drops(fine)
+    k, drop, coef = np.concatenate([k, fine]), np.concatenate([drop, fine_drop]), np.concatenate([coef, fine_coef])
+    # the best peaks with the structure's parameters moved with the ripple, then judged by the model's own ripple
+    ripple = [names.index(n) for n in ("ripple_amplitude", "ripple_period", "ripple_phase")]
+    free = np.array([i for i in range(len(names)) if i not in ripple])
+    tries = []
+    for i in np.argsort(-drop)[:PEAKS]:
+        if np.isfinite(drop[i]):
+            theta, ki, (a, b) = _joint(forced, theta0, free, k[i], coef[i])
+            theta[ripple] = np.hypot(a, b) or forced.probe, 1 / ki, np.arctan2(b, a)  # a swarm box needs A > 0
+            tries.append(theta)
+    rss = np.sum(forced.residuals(np.array(tries)) ** 2, axis=1)
+    vector = structure.parameter_vector()
+    vector[mask] = tries[int(np.argmin(np.where(np.isfinite(rss), rss, np.inf)))]
+    return structure.with_parameters(vector)
