@@ -156,12 +156,12 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         first = rank(scores)[0]
         if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
             # second stage: the load terms on the structure ranked first
-            scores = _fit_all(pool, replace(job, seeded=True, find_period=True),
+            scores = _fit_all(pool, replace(job, seeded=True),
                               {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}, run,
                               scores)
             laws = _nested_law_starts(rank(scores)[0], scores)
             if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
-                scores = _fit_all(pool, replace(job, seeded=True, find_period=True), laws, run, scores)
+                scores = _fit_all(pool, replace(job, seeded=True), laws, run, scores)
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
@@ -321,8 +321,7 @@ def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, do
     """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
     scores = list(done) + [CandidateScore(c, "failed", message=str(s)) for c, s in starts.items()
                            if isinstance(s, Exception)]
-    jobs = [replace(job, candidate=c, start=s, find_period=job.find_period and "ripple" in c.load)
-            for c, s in starts.items() if not isinstance(s, Exception)]
+    jobs = [replace(job, candidate=c, start=s) for c, s in starts.items() if not isinstance(s, Exception)]
     total = len(done) + len(starts)
     run.report(len(scores), total)
     for _, score in pool.imap(fit_candidate, jobs):

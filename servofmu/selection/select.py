@@ -6,7 +6,8 @@ would need a network trained per structure), from a box around the linear least-
 Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
 
 - on the data it was fitted to by the Bayesian information criterion of its output-error residuals,
-  BIC = Σ_k N_k·ln(2π·RSS_k/N_k) + N + p·ln N, the noise variance of every signal k (record, or the
+  BIC = Σ_k N_k·ln(2π·RSS_k/N_k) + N + p·ln N (a searched ripple period counting as SEARCHED_PERIOD
+  parameters), the noise variance of every signal k (record, or the
   stepped-sine harmonics) estimated from its residuals (RSS_k/N_k, the maximum-likelihood estimate), p the
   identified parameters and N the residuals.  AIC (penalty 2p) is reported too but does not rank: a superfluous
   parameter lowers −2·ln L by a χ²(1) amount, which exceeds AIC's 2 in 16 % of fits, and BIC's ln N (7.6 for
@@ -53,6 +54,11 @@ __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any other (not "undetermined")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
+# A ripple's period is searched (selection.period): in BIC's penalty it counts as this many parameters.  A
+# frequency is determined to O(N^-3/2), not O(N^-1/2): its code length is 3/2·ln N, and the maximum of a search
+# over many periods needs it (Djurić 1996, the MAP rule for sinusoids in white noise; on coulomb1_fv seed 0 a
+# searched 3 mN ripple of 26 mm lowered −2·ln L by 25.7, more than 3·ln N = 22.8, and validated 21 worse).
+SEARCHED_PERIOD = 3
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
 # simulations take a quarter of the steps they take at the polish's 1e-10, and the residuals err by ~1e-7 of the
@@ -117,8 +123,8 @@ class CandidateJob:
     """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
     "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
     (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
-    start is a fit, made the swarm's first particle; ``find_period``: the start's ripple (at zero force) is put
-    where the fitted data's residuals show one first (selection.period)."""
+    start is a fit, made the swarm's first particle.  A ripple at zero force in the start is first put where
+    the fitted data's residuals show one (selection.period)."""
 
     candidate: Candidate
     start: Plant
@@ -129,7 +135,6 @@ class CandidateJob:
     provenance: dict
     mode: str = "full"
     seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
-    find_period: bool = False  # a ripple's period, amplitude and phase searched first (selection.period)
 
 
 @dataclass(frozen=True)
@@ -272,7 +277,7 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
-    if job.find_period:
+    if job.start.load.ripple_amplitude == 0 and job.mode != "refit":
         job = replace(job, start=ripple_start(job.start, job.data, job.threads))
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
                                spread=job.options.spread, seed=job.options.seed, threads=job.threads,
@@ -293,13 +298,14 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     names = [name for name, _ in crit_v.signals()] if crit_v.blocks is not None else ["harmonics"]
     val_neg2, _ = _neg2loglik([e for _, e in validated])
     p = theta.size
-    bound = screen_bound(est.jacobian_, crit.scales, [e for _, e in fitted]) + p * math.log(max(n, 1)) \
+    penalty = (p + (SEARCHED_PERIOD - 1) * ("ripple_period" in result.names)) * math.log(max(n, 1))
+    bound = screen_bound(est.jacobian_, crit.scales, [e for _, e in fitted]) + penalty \
         if job.mode == "screen" else math.nan
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
         message=f"{stopped} simulations stopped at the step budget or failed" if stopped else "",
-        aic=neg2 + 2 * p, bic=neg2 + p * math.log(max(n, 1)),
+        aic=neg2 + 2 * p, bic=neg2 + penalty,
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),
         undetermined=_undetermined(result), seconds=time.perf_counter() - start, screened=job.mode == "screen",
