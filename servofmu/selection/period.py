@@ -1,18 +1,21 @@
 """Where a ripple candidate starts: the period, amplitude and phase of a position ripple found from the residuals of
-the fit it extends.
+the fit it extends, on records (open- or closed-loop).
 
 A ripple A·sin(2π·x/P + φ) is no parameter a swarm finds from a box around a guess: the output error is
-many-valleyed in P (an error of P²/travel slips the ripple by a whole period over the travel).  But at a fixed P
-the ripple is linear in (A·cos φ, A·sin φ) for small A — two regressors, the output's sensitivities to a force
-sin(2π·x/P) and cos(2π·x/P) along the fitted trajectory — so every P is scored by the least-squares drop of the
-fit's residuals on its two regressors, a periodogram over position made with the model's own response (the
-friction, the loop, the data's kind and weights included).  The sensitivities are finite differences of the
-criterion at a probe amplitude.
+many-valleyed in P (an error of P²/travel slips the ripple by a whole period over the travel).  But a force along
+the *measured* position x is a known input, and at a fixed P it is linear in (A·cos φ, A·sin φ): injected at the
+plant's input (an open-loop record's input, a closed loop's disturbance), sin(2π·x/P) and cos(2π·x/P) give two
+regressors, the changes of the fit's residuals per newton (finite differences of the criterion at a probe force:
+the friction, the loop, the data's kind and weights included), and every P is scored by the least-squares drop
+of the residuals on them — a periodogram over position made with the model's own response.
 
-The grid is uniform in spatial frequency 1/P, a quarter cycle over the travel apart (the drop's peak is about a
-cycle over the travel wide), from two travels to RIPPLE_CYCLES cycles over the travel; the best peaks are searched
-again on a grid REFINE times finer.  The best is the start; the fit then refines it within the prior's narrow
-period box (identification.prior.PERIOD_SHARE).
+The grid is uniform in spatial frequency 1/P, COARSE cycles over the travel apart (the drop's peak is about a
+cycle over the travel wide), from two travels to RIPPLE_CYCLES cycles over the travel; the best PEAKS are
+searched again on a grid REFINE times finer.  Each is then moved by Gauss–Newton steps together with the
+structure's own parameters (the model's position drifts with its velocity error, and its ripple with it: a gain
+3 % off slips a ripple of 5 cm a period over 0.7 m), and the one whose model ripple — along the model's own
+positions — fits best is the start; the fit refines it within the prior's narrow period box
+(identification.prior.PERIOD_SHARE).  Stepped-sine data has no measured position: its ripple is not searched.
 """
 from __future__ import annotations
 
@@ -36,20 +39,6 @@ PROBE = 0.05  # the probe force of the ripple's finite differences, times the fr
 DIFFERENCE = 1e-5  # the structure's parameters' relative step of their central differences
 ITERATIONS = 3  # Gauss-Newton steps on a peak's ripple and the structure's parameters
 RTOL = 1e-7
-
-
-def travel(data) -> float:
-    """The widest range of positions one record or stepped-sine experiment covers (m)."""
-    if isinstance(data, SineData):  # a velocity |H|·A·sin(2π·f·t) moves ±|H|·A/(2π·f)
-        return float(np.max(np.abs(data.H) * data.amplitudes / (np.pi * data.frequencies)))
-    widths = []
-    for r in data.records:
-        if isinstance(data, RecordData):
-            position = r.y if r.output == "position" else cumulative_trapezoid(r.y, r.time, initial=0.0)
-        else:  # closed loop
-            position = r.position
-        widths.append(float(np.ptp(position[np.isfinite(position)])) if np.any(np.isfinite(position)) else 0.0)
-    return max(widths)
 
 
 def _positions(data) -> list[np.ndarray]:
@@ -116,7 +105,8 @@ def _least_squares(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
     return c, -2 * float(r @ fitted) - float(fitted @ fitted)
 
 
-def _joint(forced: _Forced, theta: np.ndarray, free: np.ndarray, k: float, coef) -> tuple[np.ndarray, float, np.ndarray]:
+def _joint(forced: _Forced, theta: np.ndarray, free: np.ndarray, k: float, coef
+           ) -> tuple[np.ndarray, float, np.ndarray]:
     """Gauss–Newton steps on the structure's parameters ``free`` and the ripple's spatial frequency k and coef
     together, the ripple a force along the measured positions (the model's own positions drift with its velocity
     error, and the ripple with them: a start found there is in the output error's valley)."""
