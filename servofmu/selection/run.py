@@ -174,14 +174,17 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
 NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
 
 
-def _with_load(plant, candidate: Candidate):
-    """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks, at their starting values
-    (zero force): the second stage starts where its parent fits, so that a load term can only lower its criterion."""
+def _with_load(plant, candidate: Candidate, found=None):
+    """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks: at their values in ``found``
+    (another candidate's fitted plant) where it has them, a ripple excepted, else at their starting values (zero
+    force) — the second stage starts where its parent fits, so that a load term can only lower its criterion, and
+    a ripple at zero force is searched from there (selection.period)."""
     data = tomllib.loads(plant.to_toml())
+    known = tomllib.loads(found.to_toml()).get("load", {}) if found is not None else {}
     load = data.setdefault("load", {})
     for term in candidate.load:
         for key, value in LOAD_TERMS[term].items():
-            load.setdefault(key, value)
+            load.setdefault(key, value if term == "ripple" else known.get(key, value))
     data["name"] = "candidate"
     return plant_from_dict(data, source=f"candidate {candidate.name}")
 
@@ -217,31 +220,20 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
 
 def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore]) -> dict:
     """Starts for the laws nested in the law of ``first`` (LuGre: Stribeck and Coulomb; Stribeck: Coulomb) with
-    its load terms, order and zero, from its fit (_with_law), where ``first`` has load terms: the first stage
-    chose its law without them, and a force it could not explain (a ripple) may have been taken up by a richer
-    friction law; none for a candidate already fitted."""
+    its load terms, order and zero, where ``first`` has load terms: the first stage chose its law without them,
+    and a force it could not explain (a ripple) may have been taken up by a richer friction law; none for a
+    candidate already fitted."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
     fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
-    out, law, c = {}, NESTED_LAW.get(first.candidate.law), first.candidate
+    done, out, law, c = {s.candidate for s in scores}, {}, NESTED_LAW.get(first.candidate.law), first.candidate
     while law:
         target, own = Candidate(law, c.order, c.zeros, c.load), Candidate(law, c.order, c.zeros)
-        if target not in fitted and not any(s.candidate == target for s in scores):
-            # the law's own fit of the first stage with the load's values found (a ripple searched again from
-            # that fit: its start moves the structure's parameters with it), else the winner's G and levels
-            base = fitted[own] if own in fitted else _with_law(first.result.plant, law)
-            out[target] = _with_load(_with_load_values(base, first.result.plant, without=("ripple",)), target)
+        if target not in done:  # the law's own first-stage fit, else the winner's G and levels; its load's values
+            out[target] = _with_load(fitted[own] if own in fitted else _with_law(first.result.plant, law), target,
+                                     first.result.plant)
         law = NESTED_LAW.get(law)
     return out
-
-
-def _with_load_values(plant, source, without: tuple[str, ...] = ()):
-    """``plant`` with the load terms of ``source`` at their values in ``source``, but those of the terms
-    ``without`` (LOAD_TERMS' names) left out."""
-    data = tomllib.loads(plant.to_toml())
-    left_out = {key for term in without for key in LOAD_TERMS[term]}
-    data["load"] = {k: v for k, v in tomllib.loads(source.to_toml())["load"].items() if k not in left_out}
-    return plant_from_dict(data, source=f"{plant.name} with the load of {source.name}")
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:

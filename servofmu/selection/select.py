@@ -7,11 +7,10 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
 
 - on the data it was fitted to by the Bayesian information criterion of its output-error residuals,
   BIC = Σ_k N_k·ln(2π·RSS_k/N_k) + N + p·ln N (a searched ripple period counting as SEARCHED_PERIOD
-  parameters), the noise variance of every signal k (record, or the
-  stepped-sine harmonics) estimated from its residuals (RSS_k/N_k, the maximum-likelihood estimate), p the
-  identified parameters and N the residuals.  AIC (penalty 2p) is reported too but does not rank: a superfluous
-  parameter lowers −2·ln L by a χ²(1) amount, which exceeds AIC's 2 in 16 % of fits, and BIC's ln N (7.6 for
-  2000 samples) in under 1 %;
+  parameters), the noise variance of every signal k (record, or the stepped-sine harmonics) estimated from its
+  residuals (RSS_k/N_k, the maximum-likelihood estimate), p the identified parameters and N the residuals.  AIC
+  (penalty 2p) is reported too but does not rank: a superfluous parameter lowers −2·ln L by a χ²(1) amount,
+  which exceeds AIC's 2 in 16 % of fits, and BIC's ln N (7.6 for 2000 samples) in under 1 %;
 - on data it was not fitted to (the validation file): its fit % there (identification.criterion.fit_percent,
   as ``validate``), the same −2·ln L on the validation residuals, and for records the residual tests of
   ``validate`` (identification.residuals: whiteness and independence of the input for open-loop records,
@@ -24,8 +23,7 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
 The ranking: candidates whose fit failed come last; before them those with a flag — validation −2·ln L more
 than validation_margin(p) (the 99.9 % quantile of χ²(p)) above the best candidate's, a parameter not determined,
 a pole-zero cancellation, a zero at the origin whose spring was fitted, or residual tests failed where another
-candidate passes them; each group in the order
-of BIC.
+candidate passes them; each group in the order of BIC.
 """
 from __future__ import annotations
 
