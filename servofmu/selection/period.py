@@ -60,11 +60,13 @@ def travel(data) -> float:
 
 def _with_force(data, forces: list[np.ndarray]):
     """``data`` with a known force added at the plant's input of every record: to an open-loop record's input,
-    to a closed-loop record's injected disturbance."""
+    to a closed-loop record's injected disturbance — and to its recorded command, which a model's loop returns
+    with the disturbance in it: the force acts on the plant, as a ripple does, and the command compared is the
+    controller's own."""
     if isinstance(data, RecordData):
         return replace(data, records=tuple(replace(r, u=r.u + f) for r, f in zip(data.records, forces)))
-    return replace(data, records=tuple(replace(r, disturbance=f if r.disturbance is None else r.disturbance + f)
-                                       for r, f in zip(data.records, forces)))
+    return replace(data, records=tuple(replace(r, disturbance=f if r.disturbance is None else r.disturbance + f,
+                                               command=r.command + f) for r, f in zip(data.records, forces)))
 
 
 class _Forced:

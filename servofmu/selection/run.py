@@ -162,6 +162,9 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             laws = _nested_law_starts(rank(scores)[0], scores)
             if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
                 scores = _fit_all(pool, replace(job, seeded=True), laws, run, scores)
+                again = _from_winner(rank(scores)[0], laws)
+                if again:  # a nested law still worse than the richer one: again from the richer one's fit
+                    scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), again, run, []))
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
@@ -234,6 +237,16 @@ def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore]) -> d
                                      first.result.plant)
         law = NESTED_LAW.get(law)
     return out
+
+
+def _from_winner(first: CandidateScore, laws: dict) -> dict:
+    """Starts for the nested laws of ``laws`` (just fitted, each from its own first-stage fit) that still rank
+    below ``first``, the richer law with the same load terms: from the fit of ``first`` with its law reduced and
+    its load values, a ripple's included.  A ripple's output error is many-valleyed in its period and phase, and
+    a nested law that ends a valley off is beaten by a richer law that does not."""
+    if first.status != "fitted" or first.candidate in laws or first.candidate.law not in NESTED_LAW:
+        return {}
+    return {c: _with_law(first.result.plant, c.law) for c in laws if c.load == first.candidate.load}
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:
