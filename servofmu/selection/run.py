@@ -17,6 +17,7 @@ from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
+from ..model.friction import steady_friction
 from ..model.plant import Friction, plant_from_dict
 from ..runtime import RunOptions, temporary_folder, utc_now
 from ..simulation.parallel import Workers
@@ -147,7 +148,9 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                        mode="screen" if screen else "full")
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
-        reduced = _reduced_starts(scores, candidates, data_bandwidth(estimation_series(data, files)))
+        series = estimation_series(data, files)
+        speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
+        reduced = _reduced_starts(scores, candidates, data_bandwidth(series), speeds)
         if reduced:  # a smaller candidate again, from a larger one's fit without its roots beyond the data
             scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), reduced, run, []))
         springs = _spring_starts(scores) if options.candidates is None else {}
@@ -159,12 +162,13 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             scores = _fit_all(pool, replace(job, seeded=True),
                               {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}, run,
                               scores)
-            laws = _nested_law_starts(rank(scores)[0], scores)
+            laws = _nested_law_starts(rank(scores)[0], scores, speeds)
             if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
                 scores = _fit_all(pool, replace(job, seeded=True), laws, run, scores)
-                again = _from_winner(rank(scores)[0], laws)
-                if again:  # a nested law still worse than the richer one: again from the richer one's fit
-                    scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), again, run, []))
+                again = _from_winner(rank(scores)[0], scores, speeds)
+                if again:  # a nested law still worse than the richer one: polished again from the richer one's fit
+                    scores = _keep_better(scores, _fit_all(pool, replace(job, mode="refit", continued=True), again,
+                                                           run, []))
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
@@ -175,6 +179,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
 # The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
 # fs = fc.
 NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
+SPEED_QUANTILES = 512  # the data's velocities a Coulomb level is averaged over (_with_law)
 
 
 def _with_load(plant, candidate: Candidate, found=None):
@@ -192,7 +197,8 @@ def _with_load(plant, candidate: Candidate, found=None):
     return plant_from_dict(data, source=f"candidate {candidate.name}")
 
 
-def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float) -> dict:
+def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float,
+                    speeds: np.ndarray) -> dict:
     """Starts for candidates nested in a fitted one: one order (or zero) smaller where its G has poles or zeros
     beyond the data's bandwidth or a zero that cancels a pole (that fit without them; of several such fits the one
     of the lowest BIC), and the law the best candidate's contains where that law's own fit is worse (LuGre's G and
@@ -217,11 +223,11 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
         c = best.candidate
         target = Candidate(law, c.order, c.zeros, c.load)
         if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
-            out[target] = _with_law(best.result.plant, law)
+            out[target] = _with_law(best.result.plant, law, speeds)
     return out
 
 
-def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore]) -> dict:
+def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
     """Starts for the laws nested in the law of ``first`` (LuGre: Stribeck and Coulomb; Stribeck: Coulomb) with
     its load terms, order and zero, where ``first`` has load terms: the first stage chose its law without them,
     and a force it could not explain (a ripple) may have been taken up by a richer friction law; none for a
@@ -233,20 +239,28 @@ def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore]) -> d
     while law:
         target, own = Candidate(law, c.order, c.zeros, c.load), Candidate(law, c.order, c.zeros)
         if target not in done:  # the law's own first-stage fit, else the winner's G and levels; its load's values
-            out[target] = _with_load(fitted[own] if own in fitted else _with_law(first.result.plant, law), target,
-                                     first.result.plant)
+            source = fitted[own] if own in fitted else _with_law(first.result.plant, law, speeds)
+            out[target] = _with_load(source, target, first.result.plant)
         law = NESTED_LAW.get(law)
     return out
 
 
-def _from_winner(first: CandidateScore, laws: dict) -> dict:
-    """Starts for the nested laws of ``laws`` (just fitted, each from its own first-stage fit) that still rank
-    below ``first``, the richer law with the same load terms: from the fit of ``first`` with its law reduced and
-    its load values, a ripple's included.  A ripple's output error is many-valleyed in its period and phase, and
-    a nested law that ends a valley off is beaten by a richer law that does not."""
-    if first.status != "fitted" or first.candidate in laws or first.candidate.law not in NESTED_LAW:
+def _from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
+    """Starts for the laws nested in the law of ``first`` (the candidate ranked first, with load terms) with its
+    load terms, order and zero, whose fits rank below it: from the fit of ``first`` with its law reduced and its
+    load values, a ripple's included (polished on growing shares of the records, then on all of them).  A
+    ripple's output error is many-valleyed, and a nested law whose fit ends a valley off is beaten by a richer
+    law whose fit does not."""
+    if first.status != "fitted" or not first.candidate.load:
         return {}
-    return {c: _with_law(first.result.plant, c.law) for c in laws if c.load == first.candidate.load}
+    fitted = {s.candidate: s.bic for s in scores if s.status == "fitted"}
+    out, c, law = {}, first.candidate, NESTED_LAW.get(first.candidate.law)
+    while law:
+        target = Candidate(law, c.order, c.zeros, c.load)
+        if fitted.get(target, -math.inf) > first.bic:
+            out[target] = _with_law(first.result.plant, law, speeds)
+        law = NESTED_LAW.get(law)
+    return out
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:
@@ -261,11 +275,22 @@ def _spring_starts(scores: list[CandidateScore]) -> dict:
     return out
 
 
-def _with_law(plant, law: str):
-    """``plant`` with the friction law ``law`` nested in its own, with the levels they share."""
+def _with_law(plant, law: str, speeds: np.ndarray):
+    """``plant`` with the friction law ``law`` nested in its own: the levels they share, and Coulomb levels that
+    are the mean of its steady friction curve over the data's velocities ``speeds`` on either side (a Stribeck
+    fit may hold the axis's level in fs with a Stribeck velocity above the speeds, and fc far below it)."""
     keys = {"coulomb": ("fc_pos", "fc_neg"), "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs")}[law]
     levels = {k: getattr(plant.friction, k) for k in keys}
-    return replace(plant, friction=Friction(model=law, fv=plant.friction.fv, **levels))
+    fv = plant.friction.fv
+    if law == "coulomb":
+        for key, sign in (("fc_pos", 1.0), ("fc_neg", -1.0)):
+            side = speeds[np.sign(speeds) == sign]
+            if side.size:  # its quantiles stand for it; the curve less the viscous term, which the law keeps
+                side = np.quantile(side, np.linspace(0.0, 1.0, min(side.size, SPEED_QUANTILES)))
+                level = float(np.mean(sign * steady_friction(plant, side) - fv * np.abs(side)))
+                if np.isfinite(level) and level > 0:
+                    levels[key] = level
+    return replace(plant, friction=Friction(model=law, fv=fv, **levels))
 
 
 def _without_cancelling(poles: tuple, zeros: tuple) -> tuple[tuple, tuple]:

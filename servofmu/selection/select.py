@@ -44,7 +44,7 @@ from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind
-from .period import ripple_start
+from .period import continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
            "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
@@ -121,8 +121,10 @@ class CandidateJob:
     """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
     "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
     (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
-    start is a fit, made the swarm's first particle.  A ripple at zero force in the start is first put where
-    the fitted data's residuals show one (selection.period)."""
+    start is a fit, made the swarm's first particle; ``continued``: the start is first polished on growing
+    shares of the records (selection.period.continued_start).  A ripple at zero force in the start is first put
+    where the fitted data's residuals show one (selection.period), and the polish starts there without a
+    swarm."""
 
     candidate: Candidate
     start: Plant
@@ -133,6 +135,7 @@ class CandidateJob:
     provenance: dict
     mode: str = "full"
     seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
+    continued: bool = False  # the start polished on growing shares of the records first (period.continued_start)
 
 
 @dataclass(frozen=True)
@@ -275,13 +278,19 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
-    if job.start.load.ripple_amplitude == 0 and job.mode != "refit":
-        job = replace(job, start=ripple_start(job.start, job.data, job.threads))
+    searched = job.start.load.ripple_amplitude == 0 and job.mode != "refit"
+    if searched:
+        found = ripple_start(job.start, job.data, job.threads)
+        searched, job = found is not job.start, replace(job, start=found)
+    elif job.continued:
+        job = replace(job, start=continued_start(job.start, job.data, job.threads))
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
                                spread=job.options.spread, seed=job.options.seed, threads=job.threads,
                                **({"search_rtol": SCREEN_SEARCH_RTOL} if job.mode == "screen" else {}))
     est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
-    est.from_start = job.mode == "refit"
+    # a searched ripple's start is in its valley, whose width in the period is a fraction of the swarm's box: the
+    # polish alone from there (a swarm's particles, scored at its coarser tolerance, led the polish to another)
+    est.from_start = job.mode == "refit" or searched
     est.seeded = job.seeded
     est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))

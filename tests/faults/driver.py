@@ -73,12 +73,16 @@ def run_case(case: dict, scratch: Path) -> dict:
 
     def drain():
         while True:
-            if select.select([read_end], [], [], 0.1)[0]:
+            # ``over`` read before the poll: set once the command has written all it will, so a poll that then
+            # finds nothing has read everything (checked after an empty poll, a busy machine could let the
+            # command write its line and finish between the two, and the line was lost)
+            finished = over.is_set()
+            if select.select([read_end], [], [], 0 if finished else 0.1)[0]:
                 chunk = os.read(read_end, 65536)
                 if not chunk:  # every writer closed it
                     return
                 captured.append(chunk)
-            elif over.is_set():
+            elif finished:
                 return
 
     reader = threading.Thread(target=drain)
