@@ -44,7 +44,7 @@ from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind
-from .period import continued_start, ripple_start
+from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
            "could_win", "cancels", "validation_margin", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
@@ -52,11 +52,6 @@ __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any other (not "undetermined")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
-# A ripple's period is searched (selection.period): in BIC's penalty it counts as this many parameters.  A
-# frequency is determined to O(N^-3/2), not O(N^-1/2): its code length is 3/2·ln N, and the maximum of a search
-# over many periods needs it (Djurić 1996, the MAP rule for sinusoids in white noise; on coulomb1_fv seed 0 a
-# searched 3 mN ripple of 26 mm lowered −2·ln L by 25.7, more than 3·ln N = 22.8, and validated 21 worse).
-SEARCHED_PERIOD = 3
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
 # simulations take a quarter of the steps they take at the polish's 1e-10, and the residuals err by ~1e-7 of the
