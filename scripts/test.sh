@@ -7,4 +7,4 @@ bash scripts/setup.sh
 # tests/test_report.py opens a report in headless Chromium through Debian's chromium-driver (never a downloaded one)
 bash scripts/system_packages.sh browser
 export PATH="$PWD/.venv/bin:$PATH"  # the venv's cmake for `fmpy compile`
-exec .venv/bin/python -m pytest -q "$@"
+exec .venv/bin/python -m pytest -q --durations=20 "$@"  # the slowest 20: where the 15-minute budget goes

@@ -130,8 +130,8 @@ def test_a_larger_fit_hands_its_nested_candidates_a_start():
 
 def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds():
     """A Stribeck fit reduced to Coulomb: each level the mean over the data's speeds on that side of the curve
-    fc + (fs − fc)·exp(−(v/vs)²) (less nothing viscous: fv stays fv), not fc — a fit may hold the axis's level in
-    fs with vs above the speeds."""
+    fc + (fs − fc)·exp(−(v/vs)²), its viscous term left to fv, which the nested law keeps — not fc: a fit may
+    hold the axis's level in fs with vs above the speeds."""
     from servofmu.model.plant import plant_from_dict
     from servofmu.selection.run import _with_law
 
