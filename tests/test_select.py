@@ -183,35 +183,52 @@ def test_a_zero_at_the_origin_is_read_as_a_spring():
     assert spring_form(Candidate("coulomb", 2, 1), no_spring) is None
 
 
+def _first_order(pole, gain, fc, load, gain_key="dc_gain"):
+    """A plant of one pole with Coulomb friction (fc+, fc−) and the [load] ``load``."""
+    from servofmu.model.plant import plant_from_dict
+
+    return plant_from_dict({"name": "r", "linear": {"poles": [[pole, 0.0]], gain_key: gain},
+                            "friction": {"model": "coulomb", "fc_pos": fc[0], "fc_neg": fc[1]}, "load": load})
+
+
+NO_RIPPLE = {"ripple_amplitude": 0.0, "ripple_period": 1.0, "ripple_phase": 0.0}
+
+
+def _ripple_searched(truth, parent, data):
+    """The ripple search's start from ``parent`` on ``data``, and the residuals of the truth, the start and the
+    parent on it."""
+    from servofmu.identification.prior import identified_mask
+    from servofmu.selection.data import criterion_for
+    from servofmu.selection.period import ripple_start
+
+    start = ripple_start(parent, data)
+    crit = criterion_for(truth, data)
+    return start, [float(np.sum(crit.residuals(p.parameter_vector()[identified_mask(p)][None], 1e-10) ** 2))
+                   for p in (truth, start, parent)]
+
+
 def test_a_ripple_is_found_from_the_residuals_over_position(tmp_path):
     """g1 with a 0.25 N ripple of period 37 mm (10 s record, 40 dB): from a fit without it — G and levels 3 % off,
     the ripple at zero force — the search finds its period within 1 %, its amplitude within 20 %, and a start
     whose output error is the truth's (the parent's is 60 times more), from which the polish ends at the truth
     within noise."""
     from servofmu.identification.prior import identified_mask
-    from servofmu.model.plant import plant_from_dict
     from servofmu.selection.data import criterion_for, load_selection_data
     from servofmu.selection.period import ripple_start
     from servofmu.selection.select import CandidateJob, fit_candidate
 
-    def plant(pole, gain, fc, load):
-        return plant_from_dict({"name": "r", "linear": {"poles": [[pole, 0.0]], "dc_gain": gain},
-                                "friction": {"model": "coulomb", "fc_pos": fc[0], "fc_neg": fc[1]}, "load": load})
-
-    truth = plant(-10.0, 1.0, (0.5, 0.4), {"ripple_amplitude": 0.25, "ripple_period": 0.037, "ripple_phase": -1.0})
+    truth = _first_order(-10.0, 1.0, (0.5, 0.4),
+                         {"ripple_amplitude": 0.25, "ripple_period": 0.037, "ripple_phase": -1.0})
     data, _ = load_selection_data([_record(tmp_path, "ripple", truth, 4)])
-    parent = plant(-10.3, 0.97, (0.515, 0.39), {"ripple_amplitude": 0.0, "ripple_period": 1.0, "ripple_phase": 0.0})
-    start = ripple_start(parent, data)
+    start, rss = _ripple_searched(truth, _first_order(-10.3, 0.97, (0.515, 0.39), NO_RIPPLE), data)
     assert start.load.ripple_period == pytest.approx(0.037, rel=0.01)
     assert start.load.ripple_amplitude == pytest.approx(0.25, rel=0.2)
-    crit = criterion_for(truth, data)
-    rss = [float(np.sum(crit.residuals(p.parameter_vector()[identified_mask(p)][None], 1e-10) ** 2))
-           for p in (truth, start, parent)]
     assert rss[1] < 1.01 * rss[0] and rss[2] > 10 * rss[1]  # the search's polish on growing shares: the truth's
     assert ripple_start(start, data) is start  # a ripple of some force is the fit's to refine, not searched again
     polished = fit_candidate(None, CandidateJob(Candidate("coulomb", 1, 0, ("ripple",)), start, data, data,
                                                 sf.SelectOptions(), None, {}, mode="refit"))
     fitted = polished.result.plant  # the polish from the start: the optimum, the truth within its noise
+    crit = criterion_for(truth, data)
     assert float(np.sum(crit.residuals(fitted.parameter_vector()[identified_mask(fitted)][None], 1e-10) ** 2)) \
         <= rss[0]
     assert fitted.load.ripple_period == pytest.approx(0.037, rel=2e-3)
@@ -224,18 +241,11 @@ def test_a_ripple_is_found_in_closed_loop_records():
     the truth's.  The ripple acts on the plant and not in the recorded command: a search that also added it to
     the model's command found twice the amplitude and halved the residuals only."""
     from servofmu.identification.closed_loop import ClosedLoopData, ClosedLoopSeries
-    from servofmu.identification.prior import identified_mask
     from servofmu.model.controller import load_controller
-    from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.data import criterion_for
-    from servofmu.selection.period import ripple_start
     from servofmu.simulation.closed_loop import LoopSimulator
 
-    def plant(pole, gain, fc, load):
-        return plant_from_dict({"name": "r", "linear": {"poles": [[pole, 0.0]], "gain": gain},
-                                "friction": {"model": "coulomb", "fc_pos": fc[0], "fc_neg": fc[1]}, "load": load})
-
-    truth = plant(-2.0, 0.01, (40.0, 32.0), {"ripple_amplitude": 12.0, "ripple_period": 0.032, "ripple_phase": 0.3})
+    truth = _first_order(-2.0, 0.01, (40.0, 32.0),
+                         {"ripple_amplitude": 12.0, "ripple_period": 0.032, "ripple_phase": 0.3}, gain_key="gain")
     law = load_controller("axis_controller").with_values(encoder_resolution=0.0, force_noise=0.0)
     t = np.arange(0.0, 4.0, law.sample_time)
     reference = 0.15 * (1 - np.cos(2 * np.pi * 0.5 * t)) + 0.01 * np.sin(2 * np.pi * 3.1 * t)
@@ -245,13 +255,9 @@ def test_a_ripple_is_found_in_closed_loop_records():
     command = loop.command[0] + 0.01 * np.std(loop.command[0]) * rng.standard_normal(t.size)
     data = ClosedLoopData((ClosedLoopSeries("r", t, reference, position, command, np.ones(t.size, bool)),), law,
                           "simulated")
-    parent = plant(-2.06, 0.0097, (41.2, 31.0), {"ripple_amplitude": 0.0, "ripple_period": 1.0, "ripple_phase": 0.0})
-    start = ripple_start(parent, data)
+    start, rss = _ripple_searched(truth, _first_order(-2.06, 0.0097, (41.2, 31.0), NO_RIPPLE, gain_key="gain"), data)
     assert start.load.ripple_period == pytest.approx(0.032, rel=0.01)
     assert start.load.ripple_amplitude == pytest.approx(12.0, rel=0.05)
-    crit = criterion_for(truth, data)
-    rss = [float(np.sum(crit.residuals(p.parameter_vector()[identified_mask(p)][None], 1e-10) ** 2))
-           for p in (truth, start, parent)]
     assert rss[1] < 1.1 * rss[0] and rss[2] > 10 * rss[1]
 
 
