@@ -300,14 +300,19 @@ def test_an_interrupted_many_files_run_resumes_with_only_the_unfinished_files(g1
 
     args = [*map(str, fleet), "--structure", "g1", "--ann", str(g1_files["ann"]), "--output-dir", str(tmp_path),
             "--workers", "0"]
-    proc = subprocess.Popen([sys.executable, "-m", "servofmu", "identify", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while not list(tmp_path.glob("*-result.h5")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    finished = {p.name: p.read_bytes() for p in tmp_path.glob("*-result.h5")}
+    for _ in range(3):  # again when the run finished every file before the signal reached it (a busy machine)
+        for p in tmp_path.glob("*-result.h5"):
+            p.unlink()
+        proc = subprocess.Popen([sys.executable, "-m", "servofmu", "identify", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("*-result.h5")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        finished = {p.name: p.read_bytes() for p in tmp_path.glob("*-result.h5")}
+        if not (proc.returncode == 0 and len(finished) == len(fleet)):
+            break
     assert proc.returncode == 130 and "interrupted" in err, err
     assert 1 <= len(finished) < 3 and not list(tmp_path.glob(".*part"))
 
