@@ -1,6 +1,7 @@
 """`servofmu select`: candidate names, the linear estimate against scipy, the ranking, a small selection from
 records end to end, and bad input refused in one line with nothing written."""
 import json
+from dataclasses import replace
 
 import h5py
 import numpy as np
@@ -126,6 +127,31 @@ def test_a_larger_fit_hands_its_nested_candidates_a_start():
     nested = starts[Candidate("stribeck", 3, 1)]
     assert nested.friction.model == "stribeck" and nested.poles == lugre.poles
     assert (nested.friction.fs_pos, nested.friction.vs) == (0.45, 0.05)
+
+
+def test_a_load_term_winner_hands_its_fit_to_the_nested_laws_that_rank_below_it():
+    """stribeck+ripple/1 ranked first: coulomb+ripple/1, fitted worse, gets the winner's G and ripple with Coulomb
+    levels, to be polished again; a nested law that already fits better, or a winner without load terms, none."""
+    from types import SimpleNamespace
+
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.run import _from_winner
+
+    ripple = {"ripple_amplitude": 0.2, "ripple_period": 0.05, "ripple_phase": 0.7}
+    stribeck = plant_from_dict({"name": "s", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+                                "friction": {"model": "stribeck", "fc_pos": 0.47, "fc_neg": 0.37, "fs_pos": 0.5,
+                                             "fs_neg": 0.4, "vs": 1.25}, "load": ripple})
+    first = CandidateScore(Candidate("stribeck", 1, 0, ("ripple",)), "fitted", result=SimpleNamespace(plant=stribeck),
+                           bic=-100.0)
+    nested = Candidate("coulomb", 1, 0, ("ripple",))
+    speeds = np.array([0.3, -0.3])
+    starts = _from_winner(first, [first, CandidateScore(nested, "fitted", bic=-90.0)], speeds)
+    assert list(starts) == [nested]
+    assert starts[nested].friction.model == "coulomb" and starts[nested].poles == stribeck.poles
+    assert starts[nested].load == stribeck.load
+    assert _from_winner(first, [first, CandidateScore(nested, "fitted", bic=-110.0)], speeds) == {}
+    plain = replace(first, candidate=Candidate("stribeck", 1))
+    assert _from_winner(plain, [plain, CandidateScore(Candidate("coulomb", 1), "fitted", bic=-90.0)], speeds) == {}
 
 
 def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds():

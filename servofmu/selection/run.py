@@ -235,13 +235,12 @@ def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore], spee
     if first.status != "fitted" or not first.candidate.load:
         return {}
     fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
-    done, out, law, c = {s.candidate for s in scores}, {}, NESTED_LAW.get(first.candidate.law), first.candidate
-    while law:
-        target, own = Candidate(law, c.order, c.zeros, c.load), Candidate(law, c.order, c.zeros)
+    done, out = {s.candidate for s in scores}, {}
+    for target in _nested_laws(first.candidate):
+        own = replace(target, load=())
         if target not in done:  # the law's own first-stage fit, else the winner's G and levels; its load's values
-            source = fitted[own] if own in fitted else _with_law(first.result.plant, law, speeds)
+            source = fitted[own] if own in fitted else _with_law(first.result.plant, target.law, speeds)
             out[target] = _with_load(source, target, first.result.plant)
-        law = NESTED_LAW.get(law)
     return out
 
 
@@ -253,14 +252,18 @@ def _from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np
     law whose fit does not."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
-    fitted = {s.candidate: s.bic for s in scores if s.status == "fitted"}
-    out, c, law = {}, first.candidate, NESTED_LAW.get(first.candidate.law)
+    bic = {s.candidate: s.bic for s in scores if s.status == "fitted"}
+    return {target: _with_law(first.result.plant, target.law, speeds) for target in _nested_laws(first.candidate)
+            if bic.get(target, -math.inf) > first.bic}
+
+
+def _nested_laws(candidate: Candidate):
+    """The candidates of the laws nested in the law of ``candidate`` (NESTED_LAW, all the way down), with its
+    order, zero and load terms."""
+    law = NESTED_LAW.get(candidate.law)
     while law:
-        target = Candidate(law, c.order, c.zeros, c.load)
-        if fitted.get(target, -math.inf) > first.bic:
-            out[target] = _with_law(first.result.plant, law, speeds)
+        yield replace(candidate, law=law)
         law = NESTED_LAW.get(law)
-    return out
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:
