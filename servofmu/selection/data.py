@@ -15,13 +15,23 @@ from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_s
 from .estimate import Series, series_of_experiments, series_of_records
 
 __all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
-           "BoundedSimulator", "STEPS_PER_SAMPLE"]
+           "BoundedSimulator", "STEPS_PER_SAMPLE", "steps_per_sample"]
 
 # The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
-# for a failed integration): the bench's true plants need at most 24 per sample at the polish's tolerance 1e-10
-# (docs/bench-select.md); a candidate with fast poles and Coulomb friction can chatter about zero velocity and
-# take millions (one simulation of the polish 24 s instead of 10 ms).
+# for a failed integration), at the polish's tolerance BUDGET_RTOL: the bench's true plants need at most 28 per
+# sample there (docs/selection.md); a candidate with fast poles and Coulomb friction can chatter about zero
+# velocity and take millions (one simulation of the polish 24 s instead of 10 ms).
 STEPS_PER_SAMPLE = 200
+BUDGET_RTOL = 1e-10
+# How the budget follows the tolerance: the true plants' steps grow as rtol^-0.2 (1.3-1.9 per sample at 1e-4,
+# 3.6-6.8 at 1e-7, 14-28 at 1e-10), so a looser run keeps the same margin over them with fewer steps.
+BUDGET_EXPONENT = 0.2
+
+
+def steps_per_sample(rtol: float) -> float:
+    """The step budget per sample of a record simulated at ``rtol``: STEPS_PER_SAMPLE at BUDGET_RTOL, scaled as
+    the steps a plant needs (13 at the swarm's screening 1e-4, 50 at the screening polish's 1e-7)."""
+    return STEPS_PER_SAMPLE * (BUDGET_RTOL / rtol) ** BUDGET_EXPONENT
 
 
 def data_kind(data) -> str:
@@ -123,7 +133,7 @@ def check_validation(fit, fit_files: list[DataFile], validation, validation_file
 
 
 class BoundedSimulator(BatchSimulator):
-    """The batch simulator with a step budget on every record: STEPS_PER_SAMPLE integrator steps per sample, a run
+    """The batch simulator with a step budget on every record: steps_per_sample(rtol) integrator steps per sample, a run
     that needs more stopped and its response NaN (a candidate far from the data: the search scores it infinite,
     the polish steps back); ``rtol_floor``: the loosest tolerance asked for is kept (a screening fit's).
     ``stopped`` counts the runs of valid parameter sets that gave NaN (stopped at the
@@ -134,11 +144,11 @@ class BoundedSimulator(BatchSimulator):
 
     def simulate_record(self, params, time, u, hold: str = "zoh", rtol: float = 1e-8, max_steps: int = 50_000_000,
                         progress=None) -> RecordResponse:
-        """As :meth:`BatchSimulator.simulate_record`, with at most STEPS_PER_SAMPLE steps per sample and a
+        """As :meth:`BatchSimulator.simulate_record`, with at most steps_per_sample(rtol) steps per sample and a
         tolerance of at least ``rtol_floor``."""
-        budget = min(max_steps, STEPS_PER_SAMPLE * max(np.size(time), 1))
-        out = super().simulate_record(params, time, u, hold=hold, rtol=max(rtol, self.rtol_floor), max_steps=budget,
-                                      progress=progress)
+        rtol = max(rtol, self.rtol_floor)
+        budget = min(max_steps, int(steps_per_sample(rtol) * max(np.size(time), 1)))
+        out = super().simulate_record(params, time, u, hold=hold, rtol=rtol, max_steps=budget, progress=progress)
         valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
         self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.v), axis=1)))
         return out

@@ -42,6 +42,9 @@ PROBE = 0.05  # the probe force of the ripple's finite differences, times the fr
 DIFFERENCE = 1e-5  # the structure's parameters' relative step of their central differences
 ITERATIONS = 3  # Gauss-Newton steps on a peak's ripple and the structure's parameters
 RTOL = 1e-7
+# The grids' tolerance: a probe's change of the residuals is ~1e-2 of the signal, a simulation's error at 1e-5 a
+# thousandth of that, and the grid only ranks periods (the peaks are moved at RTOL)
+GRID_RTOL = 1e-5
 # A ripple's period is searched: in BIC's penalty it counts as this many parameters.  A frequency is determined to
 # O(N^-3/2), not O(N^-1/2): its code length is 3/2·ln N, and the maximum of a search over many periods needs it
 # (Djurić 1996, the MAP rule for sinusoids in white noise; on coulomb1_fv seed 0 a searched 3 mN ripple of 26 mm
@@ -85,20 +88,22 @@ class _Forced:
         self.crit, self.data, self.positions = criterion_for(structure, data, threads), data, _positions(data)
         self.probe = PROBE * max(structure.friction.fc_pos, structure.friction.fc_neg, 1e-3)
 
-    def residuals(self, theta: np.ndarray, force=None) -> np.ndarray:
-        """(N, samples) weighted residuals of the rows of ``theta`` with the force ``force(position)`` added."""
+    def residuals(self, theta: np.ndarray, force=None, rtol: float = RTOL) -> np.ndarray:
+        """(N, samples) weighted residuals of the rows of ``theta`` with the force ``force(position)`` added,
+        simulated at ``rtol``."""
         self.crit.data = self.data if force is None else _with_force(self.data, [force(x) for x in self.positions])
         try:  # simulate_errors: the criterion's cache of errors knows the parameters, not the data
-            errors = self.crit.simulate_errors(np.atleast_2d(theta), RTOL)
+            errors = self.crit.simulate_errors(np.atleast_2d(theta), rtol)
         finally:
             self.crit.data = self.data
         return np.concatenate([e / s for e, s in zip(errors, self.crit.scales)], axis=1)
 
-    def ripple_columns(self, theta: np.ndarray, k: float, coef=(0.0, 0.0), base=None) -> np.ndarray:
+    def ripple_columns(self, theta: np.ndarray, k: float, coef=(0.0, 0.0), base=None, rtol: float = RTOL
+                       ) -> np.ndarray:
         """(samples, 2): the residuals' change per newton of a force sin(2π·k·x), cos(2π·k·x) beside the ripple
-        ``coef`` (its (A·cos φ, A·sin φ)); ``base``: the residuals with ``coef`` alone, if known."""
-        base = self.residuals(theta, _ripple(k, coef))[0] if base is None else base
-        return np.column_stack([(self.residuals(theta, _ripple(k, np.add(coef, d)))[0] - base) / self.probe
+        ``coef`` (its (A·cos φ, A·sin φ)); ``base``: the residuals with ``coef`` alone at ``rtol``, if known."""
+        base = self.residuals(theta, _ripple(k, coef), rtol)[0] if base is None else base
+        return np.column_stack([(self.residuals(theta, _ripple(k, np.add(coef, d)), rtol)[0] - base) / self.probe
                                 for d in ((self.probe, 0.0), (0.0, self.probe))])
 
 
@@ -158,11 +163,12 @@ def ripple_start(structure: Plant, data, threads: int | None = None) -> Plant:
     forced = _Forced(structure, data, threads)
     names, mask = identified_names(structure), identified_mask(structure)
     theta0 = structure.parameter_vector()[mask]
-    r0 = forced.residuals(theta0)[0]
+    r0, r0_grid = forced.residuals(theta0)[0], forced.residuals(theta0, rtol=GRID_RTOL)[0]
 
     def drops(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The least-squares drop of the residuals and the ripple (A·cos φ, A·sin φ) at spatial frequencies k."""
-        found = [_least_squares(forced.ripple_columns(theta0, kj, base=r0), r0) for kj in k]
+        found = [_least_squares(forced.ripple_columns(theta0, kj, base=r0_grid, rtol=GRID_RTOL), r0_grid)
+                 for kj in k]
         return np.array([d for _, d in found]), np.array([c for c, _ in found]).reshape(-1, 2)
 
     step = COARSE / width

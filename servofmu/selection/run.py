@@ -150,21 +150,24 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
         series = estimation_series(data, files)
         speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
-        reduced = _reduced_starts(scores, candidates, data_bandwidth(series), speeds)
-        if reduced:  # a smaller candidate again, from a larger one's fit without its roots beyond the data
-            scores = _keep_better(scores, _fit_all(pool, replace(job, seeded=True), reduced, run, []))
-        springs = _spring_starts(scores) if options.candidates is None else {}
-        if springs:  # a zero at the origin is a spring's: the structure with the spring instead
-            scores = _fit_all(pool, replace(job, seeded=True), springs, run, scores)
-        first = rank(scores)[0]
-        if options.candidates is None and first.status == "fitted" and load_candidates(first.candidate):
-            # second stage: the load terms on the structure ranked first
-            scores = _fit_all(pool, replace(job, seeded=True),
-                              {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}, run,
-                              scores)
+        default, seeded = options.candidates is None, replace(job, seeded=True)
+        # one round: smaller candidates again from larger ones' fits without their roots beyond the data; the
+        # structures with a spring where a zero at the origin stands for one; and, on the guess that the structure
+        # ranked first stays first, the second stage: the load terms on it (run again below where it does not)
+        leader = rank(scores)[0]
+        reduced, springs, loads = _fit_groups(pool, seeded, [
+            _reduced_starts(scores, candidates, data_bandwidth(series), speeds),
+            _spring_starts(scores) if default else {}, _load_starts(leader) if default else {}], run, len(scores))
+        scores = _keep_better(scores, reduced) + springs
+        first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
+        scores = _with_new(_keep_better(scores, loads), loads)
+        if default and first.status == "fitted" and load_candidates(first.candidate):
+            if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
+                loads = _fit_all(pool, seeded, _load_starts(first), run, [])
+                scores = _with_new(_keep_better(scores, loads), loads)
             laws = _nested_law_starts(rank(scores)[0], scores, speeds)
             if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
-                scores = _fit_all(pool, replace(job, seeded=True), laws, run, scores)
+                scores = _fit_all(pool, seeded, laws, run, scores)
                 again = _from_winner(rank(scores)[0], scores, speeds)
                 if again:  # a nested law still worse than the richer one: polished again from the richer one's fit
                     scores = _keep_better(scores, _fit_all(pool, replace(job, mode="refit", continued=True), again,
@@ -195,6 +198,24 @@ def _with_load(plant, candidate: Candidate, found=None):
             load.setdefault(key, value if term == "ripple" else known.get(key, value))
     data["name"] = "candidate"
     return plant_from_dict(data, source=f"candidate {candidate.name}")
+
+
+# A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (the
+# screening's tolerance moves a BIC by ~0.04): load terms started from its earlier fit stand.
+SAME_FIT = 1.0
+
+
+def _load_starts(first: CandidateScore) -> dict:
+    """The second stage's starts: the fit of ``first`` (the candidate ranked first) with each load term
+    (candidates.load_candidates) added at zero force; none when ``first`` was not fitted."""
+    if first.status != "fitted":
+        return {}
+    return {c: _with_load(first.result.plant, c) for c in load_candidates(first.candidate)}
+
+
+def _same_fit(now: CandidateScore, before: CandidateScore) -> bool:
+    """Whether ``now`` is the candidate of ``before`` with a BIC within SAME_FIT of its own."""
+    return now.candidate == before.candidate and abs(now.bic - before.bic) <= SAME_FIT
 
 
 def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float,
@@ -350,17 +371,47 @@ def _keep_better(scores: list[CandidateScore], again: list[CandidateScore]) -> l
     return [better.get(s.candidate, s) for s in scores]
 
 
+def _with_new(scores: list[CandidateScore], more: list[CandidateScore]) -> list[CandidateScore]:
+    """``scores`` and the scores of ``more`` of candidates it does not have."""
+    known = {s.candidate for s in scores}
+    return scores + [s for s in more if s.candidate not in known]
+
+
 def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, done: list) -> list[CandidateScore]:
     """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
-    scores = list(done) + [CandidateScore(c, "failed", message=str(s)) for c, s in starts.items()
-                           if isinstance(s, Exception)]
-    jobs = [replace(job, candidate=c, start=s) for c, s in starts.items() if not isinstance(s, Exception)]
-    total = len(done) + len(starts)
-    run.report(len(scores), total)
-    for _, score in pool.imap(fit_candidate, jobs):
-        scores.append(score)
-        run.report(len(scores), total)
-    return scores
+    return list(done) + _fit_groups(pool, job, [starts], run, len(done))[0]
+
+
+def _fit_groups(pool: Workers, job: CandidateJob, groups: list[dict], run: RunOptions, done: int
+                ) -> list[list[CandidateScore]]:
+    """The scores of the candidates of every dict of starts in ``groups``, fitted in one round (a candidate
+    without a start fails at once), the costliest first (_expected_cost) so that no long fit starts last; ``done``
+    candidates were fitted before (for the progress)."""
+    out = [[CandidateScore(c, "failed", message=str(s)) for c, s in starts.items() if isinstance(s, Exception)]
+           for starts in groups]
+    jobs = [(g, replace(job, candidate=c, start=s)) for g, starts in enumerate(groups) for c, s in starts.items()
+            if not isinstance(s, Exception)]
+    jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
+    total = done + sum(map(len, groups))
+    count = done + sum(map(len, out))
+    run.report(count, total)
+    for i, score in pool.imap(fit_candidate, [j for _, j in jobs]):
+        out[jobs[i][0]].append(score)
+        count += 1
+        run.report(count, total)
+    return out
+
+
+# How much longer a law's fits take than Coulomb's (its states and parameters; LuGre's stiff bristles)
+LAW_COST = {"coulomb": 0, "stribeck": 1, "lugre": 2}
+
+
+def _expected_cost(job: CandidateJob) -> tuple:
+    """A key that orders fits by their expected time: a ripple's search first, then by the order of G and its
+    zeros (third-order fits with a zero take ten times a first-order one's time), then the law."""
+    c = job.candidate
+    searched = job.start.load.ripple_amplitude == 0 and "ripple" in c.load and job.mode != "refit"
+    return searched, job.continued, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
 
 
 def _key(score: CandidateScore) -> str:
