@@ -200,9 +200,9 @@ def _with_load(plant, candidate: Candidate, found=None):
     return plant_from_dict(data, source=f"candidate {candidate.name}")
 
 
-# A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (the
-# screening's tolerance moves a BIC by ~0.04): load terms started from its earlier fit stand.
-SAME_FIT = 1.0
+# A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (a polish
+# stops when a step gains less than a noise variance, ~1 in −2·ln L): load terms started from its earlier fit stand.
+SAME_FIT = 2.0
 
 
 def _load_starts(first: CandidateScore) -> dict:
