@@ -10,10 +10,12 @@ Per plant and seed: a 20 s record at 100 Hz (two magnitudes, two tones each, ran
 to validate on, white noise on the velocity at 40 dB; `select` over the default candidates (15: 3 laws x
 orders 1-3, with and without a zero; where the plant format has load terms, the second stage adds each to the
 structure ranked first, and a plant with a constant load offset is benchmarked too: its truth is Coulomb at order
-1, whose levels fc+ − offset and fc− + offset are the same forces — docs/selection.md — and one with a spring).
+1, whose levels fc+ − offset and fc− + offset are the same forces — docs/selection.md — one with a spring and
+two with a position ripple, of order 1 and 2).  One plant in closed loop: a cogging axis in the example drive's
+loop, 8 s records of strokes with position and command noise, selected with --closed-loop.
 
     python scripts/bench_select.py --seeds 20              # the full benchmark
-    python scripts/bench_select.py --seeds 3 --plants g1,g2  # a smaller one
+    python scripts/bench_select.py --seeds 3 --plants coulomb1,coulomb3  # a smaller one
 """
 from __future__ import annotations
 
@@ -72,6 +74,23 @@ if "ripple" in supported_load_terms():  # a ripple of 0.2 N and period 5 cm on g
         "name": "coulomb1_ripple", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
         "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4},
         "load": {"ripple_amplitude": 0.2, "ripple_period": 0.05, "ripple_phase": 0.7}}), "coulomb+ripple/1", 1.0)
+    # a ripple of 0.15 N and period 4 cm on a second-order axis (stribeck2's G with Coulomb friction)
+    PLANTS["coulomb2_ripple"] = (plant_from_dict({
+        "name": "coulomb2_ripple", "linear": {"poles": [[-5.0, 0.0], [-40.0, 0.0]], "dc_gain": 2.0},
+        "friction": {"model": "coulomb", "fc_pos": 0.3, "fc_neg": 0.25},
+        "load": {"ripple_amplitude": 0.15, "ripple_period": 0.04, "ripple_phase": -1.1}}), "coulomb+ripple/2", 1.0)
+
+
+# Closed-loop plants: name -> (plant, true candidate name, controller); their records are the example drive's
+# loop (fmu_models/axis_controller.toml, its encoder left out) following strokes, fitted with --closed-loop.
+LOOP_PLANTS = {}
+if "ripple" in supported_load_terms():  # tests/test_select.py's cogging axis: 12 N of 32 mm beside 40/32 N
+    LOOP_PLANTS["axis_ripple_loop"] = (plant_from_dict({
+        "name": "axis_ripple_loop", "linear": {"poles": [[-2.0, 0.0]], "gain": 0.01},
+        "friction": {"model": "coulomb", "fc_pos": 40.0, "fc_neg": 32.0},
+        "load": {"ripple_amplitude": 12.0, "ripple_period": 0.032, "ripple_phase": 0.3}}), "coulomb+ripple/1",
+        "axis_controller")
+LOOP_DURATION = 8.0
 
 
 def excitation(t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
@@ -96,6 +115,39 @@ def record(plant, path: Path, seed: int, scale: float) -> Path:
     return path
 
 
+def controller_file(folder: Path, name: str) -> Path:
+    """The controller file ``name`` without its encoder (the records' position noise stands for it)."""
+    from servofmu.model.controller import load_controller
+
+    text = Path(load_controller(name).source).read_text().split("[encoder]")[0]
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def loop_record(plant, controller: Path, path: Path, seed: int) -> Path:
+    """A LOOP_DURATION closed-loop record of ``plant`` in the loop of ``controller``: strokes of 0.3 m at 0.5 Hz
+    with a 1 cm tone at 3.1 Hz (random phase), 1 µm of position noise and 1 % of command noise, imported as a
+    drive's log."""
+    from servofmu.measurement.records import LoopChannels
+    from servofmu.model.controller import load_controller
+    from servofmu.simulation.closed_loop import LoopSimulator
+
+    rng = np.random.default_rng(seed)
+    law = load_controller(controller)
+    t = np.arange(0.0, LOOP_DURATION, law.sample_time)
+    f1, f2, phase = rng.uniform(0.4, 0.6), rng.uniform(2.5, 3.5), rng.uniform(0, 2 * np.pi)
+    reference = 0.15 * (1 - np.cos(2 * np.pi * f1 * t)) + 0.01 * np.sin(2 * np.pi * f2 * t + phase)
+    loop = LoopSimulator(plant).simulate_loop(plant.parameter_vector()[None], t, reference, law, rtol=1e-10)
+    position = loop.position[0] + 1e-6 * rng.standard_normal(t.size)
+    command = loop.command[0] + 0.01 * np.std(loop.command[0]) * rng.standard_normal(t.size)
+    csv = path.with_suffix(".csv")
+    np.savetxt(csv, np.column_stack([t, reference, position, command]), delimiter=",", header="t,ref,pos,cmd",
+               comments="", fmt="%.17g")
+    import_records([csv], path, "t", "cmd", "pos", kind="position", loop=LoopChannels(reference="ref"))
+    return path
+
+
 def _cpu() -> float:
     """CPU seconds of this process and its finished children (the worker processes)."""
     t = os.times()
@@ -103,10 +155,17 @@ def _cpu() -> float:
 
 
 def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None, screen: bool = True) -> dict:
-    plant, truth, scale = PLANTS[name]
-    fit = record(plant, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1, scale)
-    val = record(plant, folder / f"{name}-{seed}-val.h5", 1000 * seed + 2, scale)
-    options = sf.SelectOptions(seed=seed, iterations=iterations)
+    if name in LOOP_PLANTS:
+        plant, truth, controller = LOOP_PLANTS[name]
+        controller = controller_file(folder, controller)
+        fit = loop_record(plant, controller, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1)
+        val = loop_record(plant, controller, folder / f"{name}-{seed}-val.h5", 1000 * seed + 2)
+        options = sf.SelectOptions(seed=seed, iterations=iterations, closed_loop=str(controller))
+    else:
+        plant, truth, scale = PLANTS[name]
+        fit = record(plant, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1, scale)
+        val = record(plant, folder / f"{name}-{seed}-val.h5", 1000 * seed + 2, scale)
+        options = sf.SelectOptions(seed=seed, iterations=iterations)
     if "screen" in sf.SelectOptions.__dataclass_fields__:
         options = replace(options, screen=screen)
     load, t0, cpu0 = os.getloadavg()[0], time.perf_counter(), _cpu()
@@ -139,8 +198,9 @@ def _loads(rows: list[dict]) -> str:
 
 def report(rows: list[dict], args) -> str:
     lines = ["# Structure selection: the true structure ranked first?", "",
-             f"Made by `scripts/bench_select.py --seeds {args.seeds}` on 2 shared cores (`nice -n 10`, other work "
-             f"running beside it), {args.workers} worker processes. Per plant and seed: one 20 s record at 100 Hz "
+             f"Made by `scripts/bench_select.py --seeds {args.seeds}` on 2 cores, {args.workers} worker processes "
+             "(the load average at each selection's start and end in the last column). Per plant and seed: one 20 s "
+             "record at 100 Hz "
              f"to fit and one to validate on, {SNR_DB:g} dB white noise on the velocity, `select` over the default "
              f"{len(default_candidates())} candidates (3 laws × orders 1–3, with and without a zero; "
              f"swarm iterations: {args.iterations or 50}). A plant with viscous friction has as its truth its law "
@@ -149,7 +209,7 @@ def report(rows: list[dict], args) -> str:
              "chosen instead | failed fits | seconds per selection (median) | CPU seconds (median) | load |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:  # rows of earlier runs may name another member of the truth's class of equal structures
-        r["truth"] = PLANTS[r["plant"]][1] if r["plant"] in PLANTS else r["truth"]
+        r["truth"] = {**PLANTS, **LOOP_PLANTS}.get(r["plant"], (None, r["truth"]))[1]
     for name in dict.fromkeys(r["plant"] for r in rows):
         rs = [r for r in rows if r["plant"] == name]
         first = sum(r["chosen"] == r["truth"] for r in rs)
@@ -177,7 +237,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--plants", default=",".join(PLANTS))
+    parser.add_argument("--plants", default=",".join([*PLANTS, *LOOP_PLANTS]))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int)
     parser.add_argument("--no-screen", action="store_true", help="every candidate fitted at the full tolerance")
@@ -191,6 +251,9 @@ def main() -> None:
         Path(args.output).write_text(report(rows, args))
         print(report(rows, args))
         return
+    unknown = [p for p in args.plants.split(",") if p not in PLANTS and p not in LOOP_PLANTS]
+    if unknown:
+        parser.error(f"unknown plant {unknown[0]!r}; the plants: {', '.join([*PLANTS, *LOOP_PLANTS])}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.first_seed, args.first_seed + args.seeds):

@@ -412,6 +412,43 @@ def test_select_ranks_g1s_structure_first_and_writes_every_output(g1_records, tm
     assert 'id="chosen"' in page and "coulomb/1" in page and "<img" in page
 
 
+def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_stays_first(g1_records, tmp_path,
+                                                                                           monkeypatch):
+    """A default selection at order 1 on g1: the load terms of the structure the first round ranks first are
+    fitted in the round of the refits (two rounds and the screened candidates' polish, not three), each candidate
+    once, and coulomb/1 is chosen; the round's costliest fits are sent first."""
+    import servofmu.selection.run as selection_run
+
+    rounds = []
+    fit_groups = selection_run._fit_groups
+
+    def spy(pool, job, groups, run, done):
+        rounds.append([c.name for g in groups for c in g])
+        return fit_groups(pool, job, groups, run, done)
+
+    monkeypatch.setattr(selection_run, "_fit_groups", spy)
+    selection = sf.select_files([g1_records["fit"]], g1_records["val"], tmp_path / "s.h5",
+                                sf.SelectOptions(orders=(1,), iterations=15), RunOptions(workers=0))
+    names = [s.name for s in selection.scores]
+    assert selection.chosen.name == "coulomb/1"
+    assert len(names) == len(set(names))
+    assert {f"coulomb+{term}/1" for term in ("stiffness", "ripple")} <= set(names)
+    assert len(rounds) == 3 and "coulomb+ripple/1" in rounds[1], rounds
+
+
+def test_fits_are_sent_costliest_first():
+    """A ripple's search first, then the higher order and zero, then the richer law."""
+    from servofmu.selection.run import _expected_cost
+    from servofmu.selection.select import CandidateJob
+
+    g1 = sf.load_plant("g1")
+    searched = replace(g1, load=replace(g1.load, ripple_amplitude=0.0))  # a ripple at zero force: searched
+    jobs = [CandidateJob(c, searched if c.load else g1, None, None, sf.SelectOptions(), None, {})
+            for c in parse_candidates(["coulomb/1", "lugre/1", "coulomb/3z", "stribeck/2", "coulomb+ripple/1"])]
+    order = [j.candidate.name for j in sorted(jobs, key=_expected_cost, reverse=True)]
+    assert order == ["coulomb+ripple/1", "coulomb/3z", "stribeck/2", "lugre/1", "coulomb/1"]
+
+
 @pytest.mark.parametrize("case", ["unknown candidate", "order 0", "validation of other signals",
                                   "validation on the fitted data"])
 def test_bad_input_is_one_line_and_nothing_is_written(g1_records, tmp_path, case):

@@ -12,7 +12,7 @@ from servofmu.measurement.records import import_records
 from servofmu.model.plant import plant_from_dict
 from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import Candidate
-from servofmu.selection.data import STEPS_PER_SAMPLE, BoundedSimulator, load_selection_data
+from servofmu.selection.data import STEPS_PER_SAMPLE, BoundedSimulator, load_selection_data, steps_per_sample
 from servofmu.selection.select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win,
                                        fit_candidate, rank)
 from servofmu.simulation.batch import BatchSimulator
@@ -72,6 +72,24 @@ def test_a_chattering_simulation_is_stopped_at_the_step_budget():
     v = ok.simulate_record(q, t, u, rtol=1e-10).v
     assert ok.stopped == 0
     np.testing.assert_array_equal(v, BatchSimulator(g1, threads=1).simulate_record(q, t, u, rtol=1e-10).v)
+
+
+@pytest.mark.parametrize("name", ["g1", "g2", "stribeck_servo", "lugre_servo"])
+def test_the_step_budget_follows_the_tolerance_and_leaves_true_plants_a_margin(name):
+    """At the swarm's 1e-4, the screening's 1e-7 and the polish's 1e-10 a shipped plant's record runs within a
+    fifth of the budget; the budget at 1e-4 is under a tenth of the one at 1e-10, and stops the chattering plant."""
+    t = np.arange(0, 20, DT)
+    u = _input(t)
+    plant = sf.load_plant(name)
+    sim = BatchSimulator(plant, threads=1)
+    for rtol in (1e-4, 1e-7, 1e-10):
+        budget = int(steps_per_sample(rtol) * t.size / 5)
+        assert np.all(np.isfinite(sim.simulate_record(plant.parameter_vector()[None], t, u, rtol=rtol,
+                                                      max_steps=budget).v)), rtol
+    assert steps_per_sample(1e-10) == STEPS_PER_SAMPLE and steps_per_sample(1e-4) < STEPS_PER_SAMPLE / 10
+    bounded = BoundedSimulator(STRUCTURE, threads=1)
+    assert not np.all(np.isfinite(bounded.simulate_record(CHATTERING.parameter_vector()[None], t, u, rtol=1e-4).v))
+    assert bounded.stopped == 1
 
 
 def test_a_candidate_that_chatters_is_stopped_scored_and_ranked(g1_records):

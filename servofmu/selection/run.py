@@ -151,14 +151,17 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         series = estimation_series(data, files)
         speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
         default, seeded = options.candidates is None, replace(job, seeded=True)
-        # one round: smaller candidates again from larger ones' fits without their roots beyond the data; the
-        # structures with a spring where a zero at the origin stands for one; and, on the guess that the structure
-        # ranked first stays first, the second stage: the load terms on it (run again below where it does not)
+        # one round: smaller candidates again from larger ones' fits without their roots beyond the data, and, on
+        # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
+        # again below where it does not stay first)
         leader = rank(scores)[0]
-        reduced, springs, loads = _fit_groups(pool, seeded, [
+        reduced, loads = _fit_groups(pool, seeded, [
             _reduced_starts(scores, candidates, data_bandwidth(series), speeds),
-            _spring_starts(scores) if default else {}, _load_starts(leader) if default else {}], run, len(scores))
-        scores = _keep_better(scores, reduced) + springs
+            _load_starts(leader) if default else {}], run, len(scores))
+        scores = _keep_better(scores, reduced)
+        springs = _spring_starts(scores) if default else {}
+        if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
+            scores = _fit_all(pool, seeded, springs, run, scores)
         first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
         scores = _with_new(_keep_better(scores, loads), loads)
         if default and first.status == "fitted" and load_candidates(first.candidate):
