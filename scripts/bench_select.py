@@ -32,6 +32,7 @@ import numpy as np
 
 import servofmu as sf
 from servofmu.measurement.records import import_records
+from servofmu.identification.prior import identified_names
 from servofmu.model.plant import plant_from_dict
 from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import default_candidates, supported_load_terms
@@ -174,9 +175,11 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
     seconds, cpu = time.perf_counter() - t0, _cpu() - cpu0
     by_name = {s.name: s for s in sel.scores}
     chosen = sel.chosen
+    # a truth that no stage fitted: the parameters its plant identifies (the truth is the plant's structure then)
+    truth_parameters = by_name[truth].parameters if truth in by_name else len(identified_names(plant))
     return {"plant": name, "seed": seed, "truth": truth, "chosen": chosen.name if chosen else None,
-            "truth_rank": by_name[truth].rank, "more_parameters": bool(chosen and chosen.parameters >
-                                                                      by_name[truth].parameters),
+            "truth_rank": by_name[truth].rank if truth in by_name else None,
+            "more_parameters": bool(chosen and chosen.parameters > truth_parameters),
             "failed": sum(s.status == "failed" for s in sel.scores), "seconds": seconds, "cpu_seconds": cpu,
             "load": [load, os.getloadavg()[0]], "fits": len(sel.scores),
             "screened": sum(getattr(s, "screened", False) for s in sel.scores),
