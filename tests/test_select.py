@@ -154,6 +154,37 @@ def test_a_load_term_winner_hands_its_fit_to_the_nested_laws_that_rank_below_it(
     assert _from_winner(plain, [plain, CandidateScore(Candidate("coulomb", 1), "fitted", bic=-90.0)], speeds) == {}
 
 
+def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_it():
+    """stribeck+ripple/2z ranked first: its nested structures are the Coulomb law with the zero, then both laws
+    without it; started from its fit, the zero is dropped and the poles, DC gain and ripple kept.  A screened
+    ripple candidate ranked below a structure without load terms leads the nesting when its full polish could
+    reach a BIC below that structure's."""
+    from types import SimpleNamespace
+
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.run import _from_winner, _load_leader, _nested_structures
+
+    winner = Candidate("stribeck", 2, 1, ("ripple",))
+    assert [c.name for c in _nested_structures(winner)] == ["coulomb+ripple/2z", "stribeck+ripple/2",
+                                                             "coulomb+ripple/2"]
+    plant = plant_from_dict({"name": "s", "linear": {"poles": [[-5.0, 0.0], [-40.0, 0.0]], "zeros": [[-60.0, 0.0]],
+                                                     "dc_gain": 2.0},
+                             "friction": {"model": "stribeck", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.4,
+                                          "fs_neg": 0.3, "vs": 0.05},
+                             "load": {"ripple_amplitude": 0.15, "ripple_period": 0.04, "ripple_phase": -1.1}})
+    first = CandidateScore(winner, "fitted", result=SimpleNamespace(plant=plant), bic=-100.0)
+    nested = [CandidateScore(c, "fitted", bic=-90.0) for c in _nested_structures(winner)]  # fitted worse
+    starts = _from_winner(first, [first, *nested], np.array([0.5, -0.5]))
+    assert list(starts) == [s.candidate for s in nested]
+    truth = starts[Candidate("coulomb", 2, 0, ("ripple",))]
+    assert truth.zeros == () and truth.poles == plant.poles and truth.dc_gain == 2.0
+    assert truth.friction.model == "coulomb" and truth.load == plant.load
+    plain = CandidateScore(Candidate("stribeck", 2, 1), "fitted", result=SimpleNamespace(plant=plant), bic=-90.0)
+    screened = replace(first, bic=-80.0, screened=True, bic_bound=-120.0)
+    assert _load_leader([plain, screened]).candidate == winner
+    assert _load_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
+
+
 def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds():
     """A Stribeck fit reduced to Coulomb: each level the mean over the data's speeds on that side of the curve
     fc + (fs − fc)·exp(−(v/vs)²), its viscous term left to fv, which the nested law keeps — not fc: a fit may

@@ -24,7 +24,8 @@ from ..simulation.parallel import Workers
 from .candidates import LOAD_TERMS, Candidate, candidate_plant, load_candidates, parse_candidates, spring_form
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
-from .select import CandidateJob, CandidateScore, SelectOptions, cancels, could_win, fit_candidate, rank
+from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, cancels, could_win, fit_candidate,
+                     rank)
 
 __all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
 
@@ -168,8 +169,8 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
                 loads = _fit_all(pool, seeded, _load_starts(first), run, [])
                 scores = _with_new(_keep_better(scores, loads), loads)
-            laws = _nested_law_starts(rank(scores)[0], scores, speeds)
-            if laws:  # a load term won: the laws its own contains, with the term (the law was chosen without it)
+            laws = _nested_law_starts(_load_leader(scores), scores, speeds)
+            if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
                 scores = _fit_all(pool, seeded, laws, run, scores)
                 again = _from_winner(rank(scores)[0], scores, speeds)
                 if again:  # a nested law still worse than the richer one: polished again from the richer one's fit
@@ -251,43 +252,66 @@ def _reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], b
     return out
 
 
+def _load_leader(scores: list[CandidateScore]) -> CandidateScore:
+    """The candidate ranked first, or where it has no load terms, the screened candidate with load terms whose
+    full polish could reach a BIC below its own (select.screen_bound, less SCREEN_MARGIN) — of several, the lowest
+    bound: a ripple's screened fit can be far from its optimum (coulomb2_ripple seed 0: the screened
+    stribeck+ripple/2z ranked below stribeck/2z, polished in full it was 400 lower)."""
+    first = rank(scores)[0]
+    rivals = [s for s in scores if s.candidate.load and s.screened and s.status == "fitted"
+              and s.bic_bound - SCREEN_MARGIN <= first.bic]
+    return first if first.candidate.load or not rivals else min(rivals, key=lambda s: s.bic_bound)
+
+
 def _nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
-    """Starts for the laws nested in the law of ``first`` (LuGre: Stribeck and Coulomb; Stribeck: Coulomb) with
-    its load terms, order and zero, where ``first`` has load terms: the first stage chose its law without them,
-    and a force it could not explain (a ripple) may have been taken up by a richer friction law; none for a
-    candidate already fitted."""
+    """Starts for the structures nested in the one of ``first`` (_nested_structures: the laws its law contains,
+    and it and those without its zero) with its load terms, where ``first`` has load terms: the first stage chose
+    its law, order and zero without them, and a force it could not explain (a ripple) may have been taken up by a
+    richer friction law or a zero; none for a candidate already fitted."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
     fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
     done, out = {s.candidate for s in scores}, {}
-    for target in _nested_laws(first.candidate):
+    for target in _nested_structures(first.candidate):
         own = replace(target, load=())
-        if target not in done:  # the law's own first-stage fit, else the winner's G and levels; its load's values
-            source = fitted[own] if own in fitted else _with_law(first.result.plant, target.law, speeds)
+        if target not in done:  # its own first-stage fit, else the winner's G and levels; its load's values
+            source = fitted[own] if own in fitted else _reduced_to(first.result.plant, target, speeds)
             out[target] = _with_load(source, target, first.result.plant)
     return out
 
 
 def _from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
-    """Starts for the laws nested in the law of ``first`` (the candidate ranked first, with load terms) with its
-    load terms, order and zero, whose fits rank below it: from the fit of ``first`` with its law reduced and its
+    """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
+    its load terms, whose fits rank below it: from the fit of ``first`` reduced to them (_reduced_to) with its
     load values, a ripple's included (polished on growing shares of the records, then on all of them).  A
-    ripple's output error is many-valleyed, and a nested law whose fit ends a valley off is beaten by a richer
-    law whose fit does not."""
+    ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off is beaten by a
+    richer one whose fit does not."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
     bic = {s.candidate: s.bic for s in scores if s.status == "fitted"}
-    return {target: _with_law(first.result.plant, target.law, speeds) for target in _nested_laws(first.candidate)
+    return {target: _reduced_to(first.result.plant, target, speeds) for target in _nested_structures(first.candidate)
             if bic.get(target, -math.inf) > first.bic}
 
 
-def _nested_laws(candidate: Candidate):
-    """The candidates of the laws nested in the law of ``candidate`` (NESTED_LAW, all the way down), with its
-    order, zero and load terms."""
-    law = NESTED_LAW.get(candidate.law)
-    while law:
+def _nested_structures(candidate: Candidate):
+    """The candidates nested in ``candidate`` with its load terms: the laws its law contains (NESTED_LAW, all the
+    way down) at its order and zero, then, where it has a zero, its own law and those without the zero."""
+    laws = [candidate.law]
+    while NESTED_LAW.get(laws[-1]):
+        laws.append(NESTED_LAW[laws[-1]])
+    for law in laws[1:]:
         yield replace(candidate, law=law)
-        law = NESTED_LAW.get(law)
+    if candidate.zeros:
+        for law in laws:
+            yield replace(candidate, law=law, zeros=0)
+
+
+def _reduced_to(plant, target: Candidate, speeds: np.ndarray):
+    """``plant`` (a fit) as a start of the nested structure ``target``: its law reduced (_with_law), and without
+    its zeros where ``target`` has none (its poles and DC gain kept)."""
+    if target.law != plant.friction.model:
+        plant = _with_law(plant, target.law, speeds)
+    return replace(plant, zeros=()) if not target.zeros and plant.zeros else plant
 
 
 def _spring_starts(scores: list[CandidateScore]) -> dict:
