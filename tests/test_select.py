@@ -112,16 +112,16 @@ def test_a_larger_fit_hands_its_nested_candidates_a_start():
     from servofmu.model.plant import plant_from_dict
     from types import SimpleNamespace
 
-    from servofmu.selection.run import _reduced_starts
+    from servofmu.selection.starts import reduced_starts
 
     lugre = plant_from_dict({"name": "l", "linear": {"poles": [[-5.0, 0.0], [-43.0, 1.9], [-43.0, -1.9]],
                                                      "zeros": [[-46.7, 0.0]], "dc_gain": 2.0},
                              "friction": {"model": "lugre", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.45,
                                           "fs_neg": 0.35, "vs": 0.05, "sigma0": 1e4, "sigma1": 30.0}})
-    fit = SimpleNamespace(plant=lugre)  # what _reduced_starts reads of a result
+    fit = SimpleNamespace(plant=lugre)  # what reduced_starts reads of a result
     scores = [CandidateScore(Candidate("lugre", 3, 1), "fitted", result=fit, bic=-100.0),
               CandidateScore(Candidate("stribeck", 3, 1), "fitted", result=fit, bic=-90.0)]
-    starts = _reduced_starts(scores, default_candidates((1, 2, 3)), 300.0, np.array([-0.2, 0.1, 0.3]))
+    starts = reduced_starts(scores, default_candidates((1, 2, 3)), 300.0, np.array([-0.2, 0.1, 0.3]))
     reduced = starts[Candidate("lugre", 2)]
     assert reduced.poles == (-5 + 0j, -43 + 0j) and reduced.zeros == () and reduced.dc_gain == 2.0
     nested = starts[Candidate("stribeck", 3, 1)]
@@ -135,7 +135,7 @@ def test_a_load_term_winner_hands_its_fit_to_the_nested_laws_that_rank_below_it(
     from types import SimpleNamespace
 
     from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.run import _from_winner
+    from servofmu.selection.starts import from_winner
 
     ripple = {"ripple_amplitude": 0.2, "ripple_period": 0.05, "ripple_phase": 0.7}
     stribeck = plant_from_dict({"name": "s", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
@@ -145,13 +145,13 @@ def test_a_load_term_winner_hands_its_fit_to_the_nested_laws_that_rank_below_it(
                            bic=-100.0)
     nested = Candidate("coulomb", 1, 0, ("ripple",))
     speeds = np.array([0.3, -0.3])
-    starts = _from_winner(first, [first, CandidateScore(nested, "fitted", bic=-90.0)], speeds)
+    starts = from_winner(first, [first, CandidateScore(nested, "fitted", bic=-90.0)], speeds)
     assert list(starts) == [nested]
     assert starts[nested].friction.model == "coulomb" and starts[nested].poles == stribeck.poles
     assert starts[nested].load == stribeck.load
-    assert _from_winner(first, [first, CandidateScore(nested, "fitted", bic=-110.0)], speeds) == {}
+    assert from_winner(first, [first, CandidateScore(nested, "fitted", bic=-110.0)], speeds) == {}
     plain = replace(first, candidate=Candidate("stribeck", 1))
-    assert _from_winner(plain, [plain, CandidateScore(Candidate("coulomb", 1), "fitted", bic=-90.0)], speeds) == {}
+    assert from_winner(plain, [plain, CandidateScore(Candidate("coulomb", 1), "fitted", bic=-90.0)], speeds) == {}
 
 
 def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_it():
@@ -162,10 +162,10 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
     from types import SimpleNamespace
 
     from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.run import _from_winner, _load_leader, _nested_structures
+    from servofmu.selection.starts import from_winner, load_leader, nested_structures
 
     winner = Candidate("stribeck", 2, 1, ("ripple",))
-    assert [c.name for c in _nested_structures(winner)] == ["coulomb+ripple/2z", "stribeck+ripple/2",
+    assert [c.name for c in nested_structures(winner)] == ["coulomb+ripple/2z", "stribeck+ripple/2",
                                                              "coulomb+ripple/2"]
     plant = plant_from_dict({"name": "s", "linear": {"poles": [[-5.0, 0.0], [-40.0, 0.0]], "zeros": [[-60.0, 0.0]],
                                                      "dc_gain": 2.0},
@@ -173,16 +173,16 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
                                           "fs_neg": 0.3, "vs": 0.05},
                              "load": {"ripple_amplitude": 0.15, "ripple_period": 0.04, "ripple_phase": -1.1}})
     first = CandidateScore(winner, "fitted", result=SimpleNamespace(plant=plant), bic=-100.0)
-    nested = [CandidateScore(c, "fitted", bic=-90.0) for c in _nested_structures(winner)]  # fitted worse
-    starts = _from_winner(first, [first, *nested], np.array([0.5, -0.5]))
+    nested = [CandidateScore(c, "fitted", bic=-90.0) for c in nested_structures(winner)]  # fitted worse
+    starts = from_winner(first, [first, *nested], np.array([0.5, -0.5]))
     assert list(starts) == [s.candidate for s in nested]
     truth = starts[Candidate("coulomb", 2, 0, ("ripple",))]
     assert truth.zeros == () and truth.poles == plant.poles and truth.dc_gain == 2.0
     assert truth.friction.model == "coulomb" and truth.load == plant.load
     plain = CandidateScore(Candidate("stribeck", 2, 1), "fitted", result=SimpleNamespace(plant=plant), bic=-90.0)
     screened = replace(first, bic=-80.0, screened=True, bic_bound=-120.0)
-    assert _load_leader([plain, screened]).candidate == winner
-    assert _load_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
+    assert load_leader([plain, screened]).candidate == winner
+    assert load_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
 
 
 def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds():
@@ -190,14 +190,14 @@ def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds(
     fc + (fs − fc)·exp(−(v/vs)²), its viscous term left to fv, which the nested law keeps — not fc: a fit may
     hold the axis's level in fs with vs above the speeds."""
     from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.run import _with_law
+    from servofmu.selection.starts import with_law
 
     stribeck = plant_from_dict({"name": "s", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
                                 "friction": {"model": "stribeck", "fc_pos": 0.47, "fc_neg": 0.37, "fs_pos": 0.5,
                                              "fs_neg": 0.4, "vs": 1.25, "fv": 0.1}})
     speeds = np.array([0.05, 0.2, 0.6, -0.1, -0.4])
     curve = lambda v, fc, fs: fc + (fs - fc) * np.exp(-(v / 1.25) ** 2)  # noqa: E731
-    coulomb = _with_law(stribeck, "coulomb", speeds)
+    coulomb = with_law(stribeck, "coulomb", speeds)
     assert coulomb.friction.model == "coulomb" and coulomb.friction.fv == 0.1
     assert coulomb.friction.fc_pos == pytest.approx(np.mean(curve(speeds[:3], 0.47, 0.5)), rel=1e-3)
     assert coulomb.friction.fc_neg == pytest.approx(np.mean(curve(speeds[3:], 0.37, 0.4)), rel=1e-3)

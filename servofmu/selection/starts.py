@@ -1,0 +1,187 @@
+"""Where the selection's later rounds start their candidates: from the fits of the rounds before — a larger
+candidate's fit without the roots beyond the data, a richer law's reduced to the law it contains, a zero at the
+origin read as a spring, the structure ranked first with each load term, and a load term's leader reduced to the
+structures nested in it (docs/selection.md, the candidates)."""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import replace
+
+import numpy as np
+
+from ..model.friction import steady_friction
+from ..model.plant import Friction, plant_from_dict
+from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
+from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
+
+__all__ = ["NESTED_LAW", "with_load", "load_starts", "reduced_starts", "load_leader", "nested_law_starts",
+           "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law", "without_cancelling"]
+
+
+# The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
+# fs = fc.
+NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
+SPEED_QUANTILES = 512  # the data's velocities a Coulomb level is averaged over (with_law)
+
+
+def with_load(plant, candidate: Candidate, found=None):
+    """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks: at their values in ``found``
+    (another candidate's fitted plant) where it has them, a ripple excepted, else at their starting values (zero
+    force) — the second stage starts where its parent fits, so that a load term can only lower its criterion, and
+    a ripple at zero force is searched from there (selection.period)."""
+    data = tomllib.loads(plant.to_toml())
+    known = tomllib.loads(found.to_toml()).get("load", {}) if found is not None else {}
+    load = data.setdefault("load", {})
+    for term in candidate.load:
+        for key, value in LOAD_TERMS[term].items():
+            load.setdefault(key, value if term == "ripple" else known.get(key, value))
+    data["name"] = "candidate"
+    return plant_from_dict(data, source=f"candidate {candidate.name}")
+
+
+def load_starts(first: CandidateScore) -> dict:
+    """The second stage's starts: the fit of ``first`` (the candidate ranked first) with each load term
+    (candidates.load_candidates) added at zero force; none when ``first`` was not fitted."""
+    if first.status != "fitted":
+        return {}
+    return {c: with_load(first.result.plant, c) for c in load_candidates(first.candidate)}
+
+
+def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float,
+                    speeds: np.ndarray) -> dict:
+    """Starts for candidates nested in a fitted one: one order (or zero) smaller where its G has poles or zeros
+    beyond the data's bandwidth or a zero that cancels a pole (that fit without them; of several such fits the one
+    of the lowest BIC), and the law the best candidate's contains where that law's own fit is worse (LuGre's G and
+    levels for Stribeck, Stribeck's for Coulomb: a smaller model that fits worse than a model containing it has
+    missed its optimum — only for the best, whose rivals are the ones that matter).  The smaller one is fitted
+    again from there, and the better of its two fits kept."""
+    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
+    bic = {s.candidate: s.bic for s in fitted}
+    out = {}
+    for s in fitted:
+        plant, c = s.result.plant, s.candidate
+        poles, zeros = without_cancelling(tuple(p for p in plant.poles if abs(p) <= bandwidth),
+                                           tuple(z for z in plant.zeros if abs(z) <= bandwidth))
+        if poles and (poles, zeros) != (plant.poles, plant.zeros):
+            smaller = replace(plant, poles=poles, zeros=zeros)
+            target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.load)
+            if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
+                out[target] = smaller
+    best = fitted[0] if fitted else None
+    law = NESTED_LAW.get(best.candidate.law) if best else None
+    if law:
+        c = best.candidate
+        target = Candidate(law, c.order, c.zeros, c.load)
+        if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
+            out[target] = with_law(best.result.plant, law, speeds)
+    return out
+
+
+def load_leader(scores: list[CandidateScore]) -> CandidateScore:
+    """The candidate ranked first, or where it has no load terms, the screened candidate with load terms whose
+    full polish could reach a BIC below its own (select.screen_bound, less SCREEN_MARGIN) — of several, the lowest
+    bound: a ripple's screened fit can be far from its optimum (coulomb2_ripple seed 0: the screened
+    stribeck+ripple/2z ranked below stribeck/2z, polished in full it was 400 lower)."""
+    first = rank(scores)[0]
+    rivals = [s for s in scores if s.candidate.load and s.screened and s.status == "fitted"
+              and s.bic_bound - SCREEN_MARGIN <= first.bic]
+    return first if first.candidate.load or not rivals else min(rivals, key=lambda s: s.bic_bound)
+
+
+def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
+    """Starts for the structures nested in the one of ``first`` (nested_structures: the laws its law contains,
+    and it and those without its zero) with its load terms, where ``first`` has load terms: the first stage chose
+    its law, order and zero without them, and a force it could not explain (a ripple) may have been taken up by a
+    richer friction law or a zero; none for a candidate already fitted."""
+    if first.status != "fitted" or not first.candidate.load:
+        return {}
+    fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
+    done, out = {s.candidate for s in scores}, {}
+    for target in nested_structures(first.candidate):
+        own = replace(target, load=())
+        if target not in done:  # its own first-stage fit, else the winner's G and levels; its load's values
+            source = fitted[own] if own in fitted else reduced_to(first.result.plant, target, speeds)
+            out[target] = with_load(source, target, first.result.plant)
+    return out
+
+
+def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
+    """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
+    its load terms, whose fits rank below it: from the fit of ``first`` reduced to them (reduced_to) with its
+    load values, a ripple's included (polished on growing shares of the records, then on all of them).  A
+    ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off is beaten by a
+    richer one whose fit does not."""
+    if first.status != "fitted" or not first.candidate.load:
+        return {}
+    bic = {s.candidate: s.bic for s in scores if s.status == "fitted"}
+    return {target: reduced_to(first.result.plant, target, speeds) for target in nested_structures(first.candidate)
+            if bic.get(target, -math.inf) > first.bic}
+
+
+def nested_structures(candidate: Candidate):
+    """The candidates nested in ``candidate`` with its load terms: the laws its law contains (NESTED_LAW, all the
+    way down) at its order and zero, then, where it has a zero, its own law and those without the zero."""
+    laws = [candidate.law]
+    while NESTED_LAW.get(laws[-1]):
+        laws.append(NESTED_LAW[laws[-1]])
+    for law in laws[1:]:
+        yield replace(candidate, law=law)
+    if candidate.zeros:
+        for law in laws:
+            yield replace(candidate, law=law, zeros=0)
+
+
+def reduced_to(plant, target: Candidate, speeds: np.ndarray):
+    """``plant`` (a fit) as a start of the nested structure ``target``: its law reduced (with_law), and without
+    its zeros where ``target`` has none (its poles and DC gain kept)."""
+    if target.law != plant.friction.model:
+        plant = with_law(plant, target.law, speeds)
+    return replace(plant, zeros=()) if not target.zeros and plant.zeros else plant
+
+
+def spring_starts(scores: list[CandidateScore]) -> dict:
+    """Starts for the structures with a spring that fitted candidates stand for by a zero at the origin
+    (candidates.spring_form), of several sources the lowest BIC's; none for a structure already fitted."""
+    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
+    done, out = {s.candidate for s in scores}, {}
+    for s in fitted:
+        found = spring_form(s.candidate, s.result.plant)
+        if found and found[0] not in done and found[0] not in out:
+            out[found[0]] = found[1]
+    return out
+
+
+def with_law(plant, law: str, speeds: np.ndarray):
+    """``plant`` with the friction law ``law`` nested in its own: the levels they share, and Coulomb levels that
+    are the mean of its steady friction curve over the data's velocities ``speeds`` on either side (a Stribeck
+    fit may hold the axis's level in fs with a Stribeck velocity above the speeds, and fc far below it)."""
+    keys = {"coulomb": ("fc_pos", "fc_neg"), "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs")}[law]
+    levels = {k: getattr(plant.friction, k) for k in keys}
+    fv = plant.friction.fv
+    if law == "coulomb":
+        for key, sign in (("fc_pos", 1.0), ("fc_neg", -1.0)):
+            side = speeds[np.sign(speeds) == sign]
+            if side.size:  # its quantiles stand for it; the curve less the viscous term, which the law keeps
+                side = np.quantile(side, np.linspace(0.0, 1.0, min(side.size, SPEED_QUANTILES)))
+                level = float(np.mean(sign * steady_friction(plant, side) - fv * np.abs(side)))
+                if np.isfinite(level) and level > 0:
+                    levels[key] = level
+    return replace(plant, friction=Friction(model=law, fv=fv, **levels))
+
+
+def without_cancelling(poles: tuple, zeros: tuple) -> tuple[tuple, tuple]:
+    """Distinct roots (a complex pair once) less each zero that nearly cancels a pole (select.cancels) and that
+    pole: the pair has no response of its own, and the fit without it is the smaller
+    candidate's (its DC gain kept: the pair's is z/p ≈ 1).  A real zero beside a complex pair (two nearly equal
+    poles the fit made complex) takes one of them: the pair becomes one real pole at its real part."""
+    poles, kept = list(poles), []
+    for z in zeros:
+        match = next((p for p in poles if cancels(z, p) and (z.imag == 0 or p.imag != 0)), None)
+        if match is None:
+            kept.append(z)
+            continue
+        poles.remove(match)
+        if match.imag != 0 and z.imag == 0:
+            poles.append(complex(match.real, 0.0))
+    return tuple(poles), tuple(kept)
