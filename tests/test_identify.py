@@ -298,7 +298,13 @@ def test_an_interrupted_many_files_run_resumes_with_only_the_unfinished_files(g1
     import signal
     import time
 
-    args = [*map(str, fleet), "--structure", "g1", "--ann", str(g1_files["ann"]), "--output-dir", str(tmp_path),
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    files = list(fleet)
+    for i, f in enumerate(fleet):  # three files more, so that the signal finds the run with work left
+        files.append(inputs / f"copy{i}.h5")
+        files[-1].write_bytes(f.read_bytes())
+    args = [*map(str, files), "--structure", "g1", "--ann", str(g1_files["ann"]), "--output-dir", str(tmp_path),
             "--workers", "0"]
     for _ in range(3):  # again when the run finished every file before the signal reached it (a busy machine)
         for p in tmp_path.glob("*-result.h5"):
@@ -307,20 +313,20 @@ def test_an_interrupted_many_files_run_resumes_with_only_the_unfinished_files(g1
                                 stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 120
         while not list(tmp_path.glob("*-result.h5")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+            time.sleep(0.01)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
         finished = {p.name: p.read_bytes() for p in tmp_path.glob("*-result.h5")}
-        if not (proc.returncode == 0 and len(finished) == len(fleet)):
+        if not (proc.returncode == 0 and len(finished) == len(files)):
             break
     assert proc.returncode == 130 and "interrupted" in err, err
-    assert 1 <= len(finished) < 3 and not list(tmp_path.glob(".*part"))
+    assert 1 <= len(finished) < len(files) and not list(tmp_path.glob(".*part"))
 
     again = run("identify", *args, "--resume", "--json")
     assert again.returncode == 0, again.stderr
     status = {Path(o["result_file"]).name: o["status"] for o in json.loads(again.stdout)}
     assert {n for n, s in status.items() if s == "kept"} == set(finished)
-    assert {n for n, s in status.items() if s == "identified"} == {f"{f.stem}-result.h5" for f in fleet} - set(finished)
+    assert {n for n, s in status.items() if s == "identified"} == {f"{f.stem}-result.h5" for f in files} - set(finished)
     assert all((tmp_path / n).read_bytes() == b for n, b in finished.items())  # kept as they were
 
 
