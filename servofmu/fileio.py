@@ -118,6 +118,9 @@ def claim_output(path: str | Path, mode: str = "new", inputs=(), can_continue: s
         probe.unlink()
     except OSError as exc:
         raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    except BaseException:  # a stop signal between making and removing it: the probe must not stay behind
+        probe.unlink(missing_ok=True)
+        raise
     _hold(path)
     return path
 

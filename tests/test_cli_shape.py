@@ -92,6 +92,24 @@ def test_the_library_refuses_the_same_file_under_another_name(tmp_path):
     assert claim_output(tmp_path / "c.h5", "new", inputs=[tmp_path / "a.h5"]) == tmp_path / "c.h5"
 
 
+def test_a_stop_signal_while_an_output_is_claimed_leaves_no_probe_behind(tmp_path, monkeypatch):
+    import os
+
+    from servofmu import fileio
+
+    close = os.close
+
+    def interrupted_close(fd):  # Ctrl-C right after the probe file was made
+        close(fd)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fileio.os, "close", interrupted_close)
+    with pytest.raises(KeyboardInterrupt):
+        fileio.claim_output(tmp_path / "a.h5", "new")
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_library_and_the_command_line_refuse_an_existing_output_in_the_same_words(tmp_path):
     from servofmu.fileio import OutputExists, claim_output
 
