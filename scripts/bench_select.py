@@ -185,7 +185,12 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
             "screened": sum(getattr(s, "screened", False) for s in sel.scores),
             "slowest": max((s.seconds, s.name) for s in sel.scores),
             "levels": [chosen.result.plant.friction.fc_pos, chosen.result.plant.friction.fc_neg]
-            if chosen and chosen.result else None}
+            if chosen and chosen.result else None,
+            # every candidate's scores, so that a ranking rule can be examined again without refitting
+            "candidates": [{"name": s.name, "parameters": s.parameters, "bic": s.bic, "white": s.white,
+                            "validation_neg2loglik": s.validation_neg2loglik, "flags": list(s.flags),
+                            "screened": bool(getattr(s, "screened", False)), "seconds": s.seconds}
+                           for s in sel.scores]}
 
 
 def _median(rows: list[dict], key: str) -> str:

@@ -366,6 +366,19 @@ def test_ranking_puts_flags_after_clean_candidates_and_failures_last():
     assert ranked[3].flags == ("validation",) and ranked[4].flags == ("fit failed",)
 
 
+def test_a_failed_residual_test_flags_only_beside_a_passing_candidate_of_competitive_bic():
+    """The residual flag needs a passing candidate without another flag within RESIDUAL_BIC_MARGIN by BIC: one 24
+    worse (odds of 10⁵ against it) does not outrank the structure that fails the tests by chance, one 5 worse
+    does, one 5 worse with an undetermined parameter (it passes by fitting the noise) does not."""
+    far = rank([_score("coulomb/1", -124.0, -50.0, 4, white=False), _score("coulomb/2z", -100.0, -50.0, 7)])
+    assert [s.name for s in far] == ["coulomb/1", "coulomb/2z"] and far[0].flags == ()
+    near = rank([_score("coulomb/1", -105.0, -50.0, 4, white=False), _score("coulomb/2z", -100.0, -50.0, 7)])
+    assert [s.name for s in near] == ["coulomb/2z", "coulomb/1"] and near[1].flags == ("residuals",)
+    undetermined = rank([_score("coulomb/1", -105.0, -50.0, 4, white=False),
+                         _score("coulomb/2z", -100.0, -50.0, 7, undetermined=("b0",))])
+    assert [s.name for s in undetermined] == ["coulomb/1", "coulomb/2z"] and undetermined[0].flags == ()
+
+
 def test_the_validation_margin_is_the_estimation_error_of_all_parameters():
     """A right structure of p parameters predicts new data worse than its true values by a χ²(p) amount: the flag's
     margin is χ²(p)'s 99.9 % quantile (scipy's as the reference), so 22 worse flags a 4-parameter candidate but

@@ -157,6 +157,8 @@ class PSOANNIdentifier:
     ((-10.000000000...+0j),)
     """
 
+    polish_iterations = MAX_POLISH_ITERATIONS  # Levenberg–Marquardt steps at most (a selection's screening: fewer)
+
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
                  seed: int = 0, threads: int | None = None, progress: Progress | None = None,
@@ -290,10 +292,10 @@ class PSOANNIdentifier:
         time_domain = crit.blocks is not None
         if self.polish:
             t0, before = time.perf_counter(), crit.evaluations
-            y_best, jac_y = polish(crit, self._to_theta, y_best)
+            y_best, jac_y = polish(crit, self._to_theta, y_best, self.polish_iterations)
             if time_domain and len(crit.blocks) > 1:  # weights from each signal's noise, then the fit again
                 crit.reweight(self._to_theta(y_best[None]), POLISH_RTOL)
-                y_best, jac_y = polish(crit, self._to_theta, y_best)
+                y_best, jac_y = polish(crit, self._to_theta, y_best, self.polish_iterations)
             theta = self._to_theta(y_best[None])[0]
             r = crit.residuals(theta, POLISH_RTOL)[0]
             fitness = crit.relative_rms(theta, POLISH_RTOL) if time_domain else float(rms(r))
@@ -383,7 +385,7 @@ def swarm_options(iterations: int | None = None) -> PsoOptions:
 # ---------------------------------------------------------------------------
 # Stage 3: the polish
 # ---------------------------------------------------------------------------
-def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def polish(crit, to_theta, y0: np.ndarray, iterations: int = MAX_POLISH_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg–Marquardt on ``crit``'s residuals from ``y0`` (search coordinates; ``to_theta`` maps rows of them
     to parameters); returns the optimum and the Jacobian there (in search coordinates).
 
@@ -409,7 +411,7 @@ def polish(crit, to_theta, y0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     y, r = y0.copy(), residual(y0)
     jac, damping = jacobian(y, r), 1e-6
-    for _ in range(MAX_POLISH_ITERATIONS):
+    for _ in range(iterations):
         if not np.all(np.isfinite(jac)):
             break
         a, g = jac.T @ jac, jac.T @ r
