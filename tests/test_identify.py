@@ -310,7 +310,8 @@ def test_an_interrupted_many_files_run_resumes_with_only_the_unfinished_files(g1
         for p in tmp_path.glob("*-result.h5"):
             p.unlink()
         proc = subprocess.Popen([sys.executable, "-m", "servofmu", "identify", *args], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+                                stderr=subprocess.PIPE, text=True,  # Ctrl-C as in a terminal, also under nohup
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         deadline = time.monotonic() + 120
         while not list(tmp_path.glob("*-result.h5")) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)

@@ -12,6 +12,7 @@ import io
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -153,11 +154,23 @@ def run_here(argv, cwd: Path) -> tuple[int, str]:
     return rc, err.getvalue()
 
 
-def run_servofmu(argv, cwd: Path, tmpdir: Path, **kwargs) -> subprocess.Popen:
-    """``python -m servofmu ARGV`` as a user starts it, in a session of its own (Ctrl-C goes to its group)."""
+def ctrl_c_as_in_a_terminal(then=None):
+    """A ``preexec_fn``: Ctrl-C's default restored first (a test run started in the background — ``nohup``,
+    ``cmd &`` — ignores SIGINT, and servofmu, like any command, keeps an ignored Ctrl-C ignored), then ``then``."""
+    def preexec():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if then is not None:
+            then()
+    return preexec
+
+
+def run_servofmu(argv, cwd: Path, tmpdir: Path, preexec_fn=None, **kwargs) -> subprocess.Popen:
+    """``python -m servofmu ARGV`` as a user starts it from a terminal, in a session of its own (Ctrl-C goes to
+    its group)."""
     return subprocess.Popen([sys.executable, "-m", "servofmu", *map(str, argv)], cwd=cwd,
                             env=command_env(TMPDIR=str(tmpdir)), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=ctrl_c_as_in_a_terminal(preexec_fn), **kwargs)
 
 
 # ---------------------------------------------------------------------------
