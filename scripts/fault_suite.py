@@ -68,6 +68,8 @@ def pytest_outcomes(where: str, extra: list[str], env: dict) -> tuple[dict[tuple
         proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", where,
                                f"--junitxml={report}", *extra], cwd=ROOT,
                               env={**os.environ, "SERVOFMU_FAULTS": "all", **env})
+        if not report.exists():  # pytest could not run (its own message above): no table to make
+            raise SystemExit(f"fault_suite: pytest ended with status {proc.returncode} before running any case")
         outcomes = {}
         for case in ET.parse(report).getroot().iter("testcase"):
             key = case.get("classname", ""), case.get("name", "")

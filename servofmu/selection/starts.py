@@ -56,7 +56,7 @@ def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], ba
     levels for Stribeck, Stribeck's for Coulomb: a smaller model that fits worse than a model containing it has
     missed its optimum — only for the best, whose rivals are the ones that matter).  The smaller one is fitted
     again from there, and the better of its two fits kept."""
-    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
+    fitted = _by_bic(scores)
     bic = {s.candidate: s.bic for s in fitted}
     out = {}
     for s in fitted:
@@ -143,13 +143,17 @@ def reduced_to(plant, target: Candidate, speeds: np.ndarray):
 def spring_starts(scores: list[CandidateScore]) -> dict:
     """Starts for the structures with a spring that fitted candidates stand for by a zero at the origin
     (candidates.spring_form), of several sources the lowest BIC's; none for a structure already fitted."""
-    fitted = sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
     done, out = {s.candidate for s in scores}, {}
-    for s in fitted:
+    for s in _by_bic(scores):
         found = spring_form(s.candidate, s.result.plant)
         if found and found[0] not in done and found[0] not in out:
             out[found[0]] = found[1]
     return out
+
+
+def _by_bic(scores: list[CandidateScore]) -> list[CandidateScore]:
+    """The fitted candidates of finite BIC, the lowest first."""
+    return sorted((s for s in scores if s.status == "fitted" and np.isfinite(s.bic)), key=lambda s: s.bic)
 
 
 def with_law(plant, law: str, speeds: np.ndarray):
