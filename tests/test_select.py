@@ -1,6 +1,7 @@
 """`servofmu select`: candidate names, the linear estimate against scipy, the ranking, a small selection from
 records end to end, and bad input refused in one line with nothing written."""
 import json
+import math
 from dataclasses import replace
 
 import h5py
@@ -16,7 +17,7 @@ from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import (Candidate, default_candidates, load_candidates, parse_candidates,
                                            supported_load_terms)
 from servofmu.selection.estimate import Series, estimate_linear
-from servofmu.selection.select import CandidateScore, rank, validation_margin
+from servofmu.selection.select import STRONG_EVIDENCE, CandidateScore, rank, validation_allowance, validation_margin
 from servofmu.simulation.batch import BatchSimulator
 
 from clitools import assert_one_line_error, run
@@ -366,8 +367,43 @@ def test_ranking_puts_flags_after_clean_candidates_and_failures_last():
     assert ranked[3].flags == ("validation",) and ranked[4].flags == ("fit failed",)
 
 
+def test_the_validation_allowance_is_the_quantile_of_the_estimation_errors_cost_on_the_validation_record():
+    """With linear residuals: where the validation record informs as the fitted one does, the allowance is
+    validation_margin(p); where it informs a hundred times more on one parameter (a ripple's period over a longer
+    travel), it is the 99.9 % quantile of (θ̂ − θ)ᵀ F_v (θ̂ − θ) that a Monte Carlo of θ̂ ~ N(θ, F⁻¹) gives.  It
+    spares the flag only a candidate within STRONG_EVIDENCE of the best BIC."""
+    rng = np.random.default_rng(5)
+    jac = rng.standard_normal((400, 3))
+    theta = np.array([1.0, 2.0, 3.0])
+    noise = [rng.standard_normal(400)]
+
+    class Linear:  # validation output errors linear in θ, noise of unit variance
+        def __init__(self, a):
+            self.a = a
+
+        def errors(self, rows, rtol):
+            return [(rows - theta) @ self.a.T + noise[0]]
+
+    same = validation_allowance(jac, np.ones(1), [noise[0]], Linear(jac), theta, noise)
+    assert same == pytest.approx(validation_margin(3), rel=1e-3)
+    sharper = jac.copy()
+    sharper[:, 0] *= 10
+    allowance = validation_allowance(jac, np.ones(1), [noise[0]], Linear(sharper), theta, noise)
+    fisher, fisher_v = jac.T @ jac, sharper.T @ sharper
+    draws = rng.multivariate_normal(np.zeros(3), np.linalg.inv(fisher), 400_000)
+    cost = np.einsum("ij,jk,ik->i", draws, fisher_v, draws)
+    assert allowance == pytest.approx(np.quantile(cost, 0.999), rel=0.1)
+    assert allowance > 4 * validation_margin(3)
+    assert math.isnan(validation_allowance(jac, np.ones(1), [noise[0]], object(), theta, noise))  # sine data
+    worse_val = -50.0 + validation_margin(4) + 1
+    for bic, flagged in ((-120.0 + STRONG_EVIDENCE - 1, ()), (-120.0 + STRONG_EVIDENCE + 1, ("validation",))):
+        ranked = rank([replace(_score("coulomb/1", bic, worse_val, 4), validation_allowance=allowance),
+                       _score("coulomb/2", -120.0, -50.0, 5)])
+        assert next(s for s in ranked if s.name == "coulomb/1").flags == flagged
+
+
 def test_a_failed_residual_test_flags_only_beside_a_passing_candidate_of_competitive_bic():
-    """The residual flag needs a passing candidate without another flag within RESIDUAL_BIC_MARGIN by BIC: one 24
+    """The residual flag needs a passing candidate without another flag within STRONG_EVIDENCE by BIC: one 24
     worse (odds of 10⁵ against it) does not outrank the structure that fails the tests by chance, one 5 worse
     does, one 5 worse with an undetermined parameter (it passes by fitting the noise) does not."""
     far = rank([_score("coulomb/1", -124.0, -50.0, 4, white=False), _score("coulomb/2z", -100.0, -50.0, 7)])

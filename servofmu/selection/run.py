@@ -16,7 +16,7 @@ from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
-from ..runtime import RunOptions, temporary_folder, utc_now
+from ..runtime import RunOptions, available_cores, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
@@ -247,6 +247,9 @@ def _fit_groups(pool: Workers, job: CandidateJob, groups: list[dict], run: RunOp
            for starts in groups]
     jobs = [(g, replace(job, candidate=c, start=s)) for g, starts in enumerate(groups) for c, s in starts.items()
             if not isinstance(s, Exception)]
+    spare = _threads_per_job(pool, len(jobs))
+    if spare > 1:  # fewer fits than local workers: each fit's simulations on the idle cores too
+        jobs = [(g, replace(j, threads=spare)) for g, j in jobs]
     jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
     total = done + sum(map(len, groups))
     count = done + sum(map(len, out))
@@ -256,6 +259,15 @@ def _fit_groups(pool: Workers, job: CandidateJob, groups: list[dict], run: RunOp
         count += 1
         run.report(count, total)
     return out
+
+
+def _threads_per_job(pool: Workers, jobs: int) -> int:
+    """The cores each of ``jobs`` fits may use on a local pool with more workers than fits (a round of one or two
+    late candidates would leave cores idle: the batch simulator runs a swarm's particles and a Jacobian's columns
+    on threads, with results that do not depend on their number); 1 otherwise, and on a Dask cluster."""
+    if pool.scheduler is not None or pool.workers == 0 or jobs == 0:
+        return 1
+    return max(1, min(pool.workers, available_cores()) // jobs)
 
 
 # How much longer a law's fits take than Coulomb's (its states and parameters; LuGre's stiff bristles)
