@@ -189,6 +189,7 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
             # every candidate's scores, so that a ranking rule can be examined again without refitting
             "candidates": [{"name": s.name, "parameters": s.parameters, "bic": s.bic, "white": s.white,
                             "validation_neg2loglik": s.validation_neg2loglik, "flags": list(s.flags),
+                            "validation_allowance": getattr(s, "validation_allowance", None),
                             "screened": bool(getattr(s, "screened", False)), "seconds": s.seconds}
                            for s in sel.scores]}
 

@@ -573,3 +573,17 @@ def test_docs_selection_example_runs_on_stepped_sine_data(tmp_path):
     assert chosen.friction.model == "coulomb" and chosen.order == 1
     assert abs(chosen.friction.fc_pos / 0.5 - 1) < 0.05 and abs(chosen.friction.fc_neg / 0.4 - 1) < 0.05
     assert (tmp_path / "select.html").is_file() and (tmp_path / "select-result.h5").is_file()
+
+
+def test_a_round_of_fewer_fits_than_local_workers_gives_each_fit_the_idle_cores(monkeypatch):
+    """Two local workers on two cores: one fit gets both cores' threads, two fits one each; a Dask cluster's or
+    this process's fits keep theirs (a remote worker's cores are not this machine's)."""
+    from servofmu.selection import run as selection_run
+    from servofmu.simulation.parallel import Workers
+
+    monkeypatch.setattr(selection_run, "available_cores", lambda: 2)
+    per_job = selection_run._threads_per_job
+    assert [per_job(Workers(workers=2), n) for n in (1, 2, 5)] == [2, 1, 1]
+    assert per_job(Workers(workers=8), 1) == 2  # no more threads than cores
+    assert per_job(Workers(workers=0), 1) == 1
+    assert per_job(Workers(scheduler="tcp://127.0.0.1:1", workers=2), 1) == 1

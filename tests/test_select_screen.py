@@ -13,8 +13,8 @@ from servofmu.model.plant import plant_from_dict
 from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import Candidate
 from servofmu.selection.data import STEPS_PER_SAMPLE, BoundedSimulator, load_selection_data, steps_per_sample
-from servofmu.selection.select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win,
-                                       fit_candidate, rank)
+from servofmu.selection.select import (SCREEN_MARGIN, SCREEN_POLISH_ITERATIONS, CandidateJob, CandidateScore,
+                                       SelectOptions, could_win, fit_candidate, rank)
 from servofmu.simulation.batch import BatchSimulator
 
 DT = 0.01
@@ -151,3 +151,22 @@ def test_screening_chooses_and_fits_as_the_full_selection(g1_records, tmp_path):
     assert not any(could_win(s, fast.scores[0]) for s in fast.scores)
     with h5py.File(tmp_path / "fast.h5") as f:
         assert list(f["selection/screened"][()]) == [int(s.screened) for s in fast.scores]
+
+
+def test_the_screening_polish_takes_at_most_its_steps_and_the_full_polish_the_identifiers(g1_records, monkeypatch):
+    """A screened fit's polish is capped at SCREEN_POLISH_ITERATIONS Levenberg–Marquardt steps, a refit's at the
+    identifier's MAX_POLISH_ITERATIONS: the cap each polish of the fit was given, recorded."""
+    from servofmu.identification import identifier
+
+    given = []
+    real = identifier.polish
+    monkeypatch.setattr(identifier, "polish", lambda *a, **k: given.append(a[3]) or real(*a, **k))
+    data, _ = load_selection_data([g1_records["fit"]])
+    validation, _ = load_selection_data([g1_records["val"]])
+    g1 = sf.load_plant("g1")
+    for mode, cap in (("screen", SCREEN_POLISH_ITERATIONS), ("refit", identifier.MAX_POLISH_ITERATIONS)):
+        given.clear()
+        score = fit_candidate(None, CandidateJob(Candidate("coulomb", 1), g1, data, validation,
+                                                 SelectOptions(iterations=5), 1, {}, mode=mode))
+        assert score.status == "fitted" and given and set(given) == {cap}, (mode, given)
+    assert SCREEN_POLISH_ITERATIONS < identifier.MAX_POLISH_ITERATIONS

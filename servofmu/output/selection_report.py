@@ -13,7 +13,7 @@ from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import read_data_file
 from ..runtime import RunOptions, utc_now
 from ..selection.run import Selection, select_files
-from ..selection.select import VALIDATION_LEVEL, SelectOptions
+from ..selection.select import STRONG_EVIDENCE, VALIDATION_LEVEL, SelectOptions
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import pyplot
 from .validate import Validation, validate
@@ -99,7 +99,9 @@ def selection_page(selection: Selection) -> str:
                     numeric_from=2),
               f'<p class="note">BIC from the output-error residuals of the fitted data, each signal\'s noise '
               f"variance estimated from them; flags: validation −2 ln L more than the {100 * VALIDATION_LEVEL:g} % "
-              "quantile of χ²(p) above the best (p the candidate's parameters), a parameter whose 95 % interval "
+              "quantile of χ²(p) above the best (p the candidate's parameters; on records, for a candidate within "
+              f"{STRONG_EVIDENCE:g} of the best BIC, the same quantile of its own estimation error's cost on the "
+              "validation data if larger), a parameter whose 95 % interval "
               "reaches past zero (undetermined), a pole-zero cancellation, a zero at the origin whose spring was "
               "fitted, residual tests failed where another candidate passes them. "
               "Flagged candidates rank after the others (docs/selection.md).</p>"]

@@ -21,7 +21,9 @@ Coulomb levels (servofmu.selection.estimate), then polished.  Each fit is scored
   a zero at the origin is a spring's (candidates.spring_form), and the structure with the spring is fitted too.
 
 The ranking: candidates whose fit failed come last; before them those with a flag — validation −2·ln L more
-than validation_margin(p) (the 99.9 % quantile of χ²(p)) above the best candidate's, a parameter not determined,
+than validation_margin(p) (the 99.9 % quantile of χ²(p)) above the best candidate's, or, for records and a
+candidate within STRONG_EVIDENCE of the best BIC, more than its validation_allowance if that is larger (the
+quantile of its own estimation error's cost on the validation record), a parameter not determined,
 a pole-zero cancellation, a zero at the origin whose spring was fitted, or residual tests failed where another
 candidate without a flag passes them with a BIC at most STRONG_EVIDENCE above; each group in the order of BIC.
 """
