@@ -167,7 +167,7 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
 
     winner = Candidate("stribeck", 2, 1, ("ripple",))
     assert [c.name for c in nested_structures(winner)] == ["coulomb+ripple/2z", "stribeck+ripple/2",
-                                                             "coulomb+ripple/2"]
+                                                             "coulomb+ripple/2", "stribeck+ripple/1"]
     plant = plant_from_dict({"name": "s", "linear": {"poles": [[-5.0, 0.0], [-40.0, 0.0]], "zeros": [[-60.0, 0.0]],
                                                      "dc_gain": 2.0},
                              "friction": {"model": "stribeck", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.4,
@@ -180,10 +180,37 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
     truth = starts[Candidate("coulomb", 2, 0, ("ripple",))]
     assert truth.zeros == () and truth.poles == plant.poles and truth.dc_gain == 2.0
     assert truth.friction.model == "coulomb" and truth.load == plant.load
+    lower = starts[Candidate("stribeck", 1, 0, ("ripple",))]  # the fastest pole and the zero dropped
+    assert lower.poles == (-5.0,) and lower.zeros == () and lower.dc_gain == 2.0 and lower.load == plant.load
     plain = CandidateScore(Candidate("stribeck", 2, 1), "fitted", result=SimpleNamespace(plant=plant), bic=-90.0)
     screened = replace(first, bic=-80.0, screened=True, bic_bound=-120.0)
     assert load_leader([plain, screened]).candidate == winner
     assert load_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
+
+
+def test_a_load_term_winner_of_a_higher_order_hands_its_fit_to_the_order_below_never_fitted():
+    """coulomb+ripple/2 ranked first (the first stage chose order 2 without the ripple, whose force a pole took
+    up) and coulomb+ripple/1 never fitted: it is started from the winner's fit without its fastest root; a
+    complex pair where one pole is left becomes a real pole at its magnitude."""
+    from types import SimpleNamespace
+
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.starts import from_winner, reduced_to
+
+    load = {"ripple_amplitude": 0.2, "ripple_period": 0.05, "ripple_phase": 0.7}
+    plant = plant_from_dict({"name": "c", "linear": {"poles": [[-400.0, 0.0], [-10.0, 0.0]], "dc_gain": 1.0},
+                             "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}, "load": load})
+    first = CandidateScore(Candidate("coulomb", 2, 0, ("ripple",)), "fitted", result=SimpleNamespace(plant=plant),
+                           bic=-100.0)
+    target = Candidate("coulomb", 1, 0, ("ripple",))
+    starts = from_winner(first, [first], np.array([0.3, -0.3]))
+    assert list(starts) == [target]
+    assert starts[target].poles == (-10.0,) and starts[target].dc_gain == 1.0 and starts[target].load == plant.load
+    assert from_winner(first, [first, CandidateScore(target, "fitted", bic=-110.0)], np.array([0.3])) == {}
+    pair = plant_from_dict({"name": "c", "linear": {"poles": [[-3.0, 4.0], [-3.0, -4.0], [-1.0, 0.0]],
+                                                    "dc_gain": 1.0},
+                            "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}})
+    assert reduced_to(pair, Candidate("coulomb", 2), np.array([0.3])).poles == (-1.0, -5.0)
 
 
 def test_a_coulomb_law_nested_in_a_stribeck_fit_holds_its_curve_over_the_speeds():

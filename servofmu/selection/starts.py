@@ -108,20 +108,21 @@ def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speed
 
 def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
     """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
-    its load terms, whose fits rank below it: from the fit of ``first`` reduced to them (reduced_to) with its
-    load values, a ripple's included (polished on growing shares of the records, then on all of them).  A
-    ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off is beaten by a
-    richer one whose fit does not."""
+    its load terms, whose fits rank below it or that were not fitted: from the fit of ``first`` reduced to them
+    (reduced_to) with its load values, a ripple's included (polished on growing shares of the records, then on
+    all of them).  A ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off —
+    or whose ripple search started from a fit a valley off — is beaten by a richer one whose fit does not."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
-    bic = {s.candidate: s.bic for s in scores if s.status == "fitted"}
+    bic = {s.candidate: s.bic for s in scores if s.status == "fitted" and np.isfinite(s.bic)}
     return {target: reduced_to(first.result.plant, target, speeds) for target in nested_structures(first.candidate)
-            if bic.get(target, -math.inf) > first.bic}
+            if bic.get(target, math.inf) > first.bic}
 
 
 def nested_structures(candidate: Candidate):
     """The candidates nested in ``candidate`` with its load terms: the laws its law contains (NESTED_LAW, all the
-    way down) at its order and zero, then, where it has a zero, its own law and those without the zero."""
+    way down) at its order and zero, then, where it has a zero, its own law and those without the zero, then its
+    own law one order lower (an order chosen without the load term may hold its force in a pole)."""
     laws = [candidate.law]
     while NESTED_LAW.get(laws[-1]):
         laws.append(NESTED_LAW[laws[-1]])
@@ -130,14 +131,33 @@ def nested_structures(candidate: Candidate):
     if candidate.zeros:
         for law in laws:
             yield replace(candidate, law=law, zeros=0)
+    if candidate.order > 1:
+        yield replace(candidate, order=candidate.order - 1, zeros=min(candidate.zeros, candidate.order - 2))
 
 
 def reduced_to(plant, target: Candidate, speeds: np.ndarray):
-    """``plant`` (a fit) as a start of the nested structure ``target``: its law reduced (with_law), and without
-    its zeros where ``target`` has none (its poles and DC gain kept)."""
+    """``plant`` (a fit) as a start of the nested structure ``target``: its law reduced (with_law), without its
+    zeros where ``target`` has none, and of a lower order without its fastest poles (the slowest roots kept, a
+    complex pair that does not fit as one real pole at its magnitude; the DC gain kept)."""
     if target.law != plant.friction.model:
         plant = with_law(plant, target.law, speeds)
+    if target.order < plant.order:
+        plant = replace(plant, poles=_slowest(plant.poles, target.order), zeros=_slowest(plant.zeros, target.zeros))
     return replace(plant, zeros=()) if not target.zeros and plant.zeros else plant
+
+
+def _slowest(roots: tuple, count: int) -> tuple:
+    """The slowest of ``roots`` (a complex pair listed once, counting two) up to ``count`` roots: a pair that does
+    not fit whole becomes one real root at its magnitude."""
+    out, n = [], 0
+    for r in sorted(roots, key=abs):
+        if n + (2 if r.imag else 1) <= count:
+            out.append(r)
+            n += 2 if r.imag else 1
+        elif n < count:
+            out.append(complex(-abs(r), 0.0))
+            n += 1
+    return tuple(out)
 
 
 def spring_starts(scores: list[CandidateScore]) -> dict:
