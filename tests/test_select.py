@@ -207,6 +207,7 @@ def test_a_load_term_winner_of_a_higher_order_hands_its_fit_to_the_order_below_n
     assert list(starts) == [target]
     assert starts[target].poles == (-10.0,) and starts[target].dc_gain == 1.0 and starts[target].load == plant.load
     assert from_winner(first, [first, CandidateScore(target, "fitted", bic=-110.0)], np.array([0.3])) == {}
+    assert from_winner(first, [first], np.array([0.3]), orders=(2, 3)) == {}  # order 1 not among the selection's
     pair = plant_from_dict({"name": "c", "linear": {"poles": [[-3.0, 4.0], [-3.0, -4.0], [-1.0, 0.0]],
                                                     "dc_gain": 1.0},
                             "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4}})
