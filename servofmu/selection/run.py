@@ -166,7 +166,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
                 loads = _fit_all(pool, seeded, load_starts(first), run, [])
                 scores = _with_new(_keep_better(scores, loads), loads)
-            laws = nested_law_starts(load_leader(scores), scores, speeds, options.orders)
+            laws = nested_law_starts(load_leader(scores), scores, speeds)
             if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
                 scores = _fit_all(pool, seeded, laws, run, scores)
                 # a nested structure worse than the richer one ranked first, or not fitted: from the richer one's

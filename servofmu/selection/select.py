@@ -326,12 +326,6 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     if searched:
         found = ripple_start(job.start, job.data, job.threads)
         searched, job = found is not job.start, replace(job, start=found)
-        if searched and job.mode == "screen":
-            # polished at the full tolerance at once: where a ripple's wells trap a slow axis the response at
-            # SCREEN_RTOL is another (coulomb1_ripple seed 16: stribeck+ripple/1's screening polish stopped at 1.7
-            # times the noise, the full one from the same start reached it), and the search, not the polish, is
-            # most of the fit's time
-            job = replace(job, mode="full")
     elif job.continued:
         job = replace(job, start=continued_start(job.start, job.data, job.threads))
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),

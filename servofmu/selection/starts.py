@@ -89,8 +89,7 @@ def load_leader(scores: list[CandidateScore]) -> CandidateScore:
     return first if first.candidate.load or not rivals else min(rivals, key=lambda s: s.bic_bound)
 
 
-def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray,
-                      orders=(1, 2, 3)) -> dict:
+def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
     """Starts for the structures nested in the one of ``first`` (nested_structures: the laws its law contains,
     and it and those without its zero) with its load terms, where ``first`` has load terms: the first stage chose
     its law, order and zero without them, and a force it could not explain (a ripple) may have been taken up by a
@@ -99,7 +98,7 @@ def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speed
         return {}
     fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
     done, out = {s.candidate for s in scores}, {}
-    for target in nested_structures(first.candidate, orders):
+    for target in nested_structures(first.candidate):
         own = replace(target, load=())
         if target not in done:  # its own first-stage fit, else the winner's G and levels; its load's values
             source = fitted[own] if own in fitted else reduced_to(first.result.plant, target, speeds)
@@ -109,7 +108,8 @@ def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speed
 
 def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray, orders=(1, 2, 3)) -> dict:
     """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
-    its load terms, whose fits rank below it or that were not fitted: from the fit of ``first`` reduced to them
+    its load terms — its own law one order lower too where ``orders`` (the selection's) has it — whose fits rank
+    below it or that were not fitted: from the fit of ``first`` reduced to them
     (reduced_to) with its load values, a ripple's included (polished on growing shares of the records, then on
     all of them).  A ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off —
     or whose ripple search started from a fit a valley off — is beaten by a richer one whose fit does not."""
@@ -120,11 +120,11 @@ def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.
             for target in nested_structures(first.candidate, orders) if bic.get(target, math.inf) > first.bic}
 
 
-def nested_structures(candidate: Candidate, orders=(1, 2, 3)):
+def nested_structures(candidate: Candidate, orders=()):
     """The candidates nested in ``candidate`` with its load terms: the laws its law contains (NESTED_LAW, all the
     way down) at its order and zero, then, where it has a zero, its own law and those without the zero, then its
-    own law one order lower where ``orders`` (the selection's) has it (an order chosen without the load term may
-    hold its force in a pole)."""
+    own law one order lower where ``orders`` has it (an order chosen without the load term may hold its force in
+    a pole)."""
     laws = [candidate.law]
     while NESTED_LAW.get(laws[-1]):
         laws.append(NESTED_LAW[laws[-1]])
