@@ -53,7 +53,12 @@ __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "
            "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
-VALIDATION_STEP = 0.01  # the validation Jacobian's differences: a hundredth of each parameter's standard error
+# The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
+# period over a longer travel is far from linear over a whole one: its allowance came out seven times larger),
+# simulated at the screening's tolerance, whose error (~1e-7 of the signal) is a two-hundredth of the change such
+# a step makes (~2e-5 at 40 dB and 2000 samples): at the polish's 1e-10 its p + 1 simulations added 6 % to a
+# selection's time
+VALIDATION_STEP = 0.1
 LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any other (not "undetermined")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
@@ -93,7 +98,8 @@ def validation_allowance(jacobian: np.ndarray, scales: np.ndarray, errors: list[
     """The VALIDATION_LEVEL quantile of what a right structure's estimation error costs on the validation
     record: (θ̂ − θ)ᵀ F_v (θ̂ − θ) with θ̂ − θ ~ N(0, F⁻¹), F and F_v the Fisher informations of the fitted and
     the validation records (Gauss–Newton, every signal's residuals in units of its noise), a sum Σ λᵢ·χ²(1) over
-    the eigenvalues λ of F⁻¹F_v, its quantile from a χ² of the same mean and variance (Satterthwaite).  Where the
+    the eigenvalues λ of F⁻¹F_v (F_v from differences of VALIDATION_STEP standard errors at SCREEN_RTOL), its
+    quantile from a χ² of the same mean and variance (Satterthwaite).  Where the
     validation record informs as the fitted one does (every λ = 1) it is validation_margin(p); a ripple's period
     met over a longer travel there raises its λ a hundredfold.  ``jacobian``: the polish's last, of the residuals
     weighted by 1/``scales`` per signal; ``errors`` and ``validated``: every signal's output errors at θ̂ on the
@@ -109,8 +115,8 @@ def validation_allowance(jacobian: np.ndarray, scales: np.ndarray, errors: list[
     step = np.where(np.isfinite(se) & (se > 0), VALIDATION_STEP * se, 1e-6 * np.maximum(np.abs(theta), 1e-6))
     rows = np.vstack([theta, theta + np.diag(step)])
     columns = []
-    for e, e0 in zip(crit_v.errors(rows, POLISH_RTOL), validated):
-        sigma = np.sqrt(max(e0 @ e0 / e0.size, 1e-300))
+    for e, e0 in zip(crit_v.errors(rows, SCREEN_RTOL), validated):
+        sigma = np.sqrt(max(e0 @ e0 / e0.size, 1e-300))  # the noise: the validation errors at θ̂ (full tolerance)
         columns.append((e[1:] - e[0]) / step[:, None] / sigma)
     jv = np.concatenate(columns, axis=1).T
     if not np.all(np.isfinite(jv)):
