@@ -109,9 +109,8 @@ def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speed
 def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray, orders=(1, 2, 3)) -> dict:
     """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
     its load terms — its own law one order lower too where ``orders`` (the selection's) has it — whose fits rank
-    below it or that were not fitted: from the fit of ``first`` reduced to them
-    (reduced_to) with its load values, a ripple's included (polished on growing shares of the records, then on
-    all of them).  A ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off —
+    below it or that were not fitted: from the fit of ``first`` reduced to them (reduced_to) with its load
+    values, a ripple's included (polished on growing shares of the records, then on all of them).  A ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off —
     or whose ripple search started from a fit a valley off — is beaten by a richer one whose fit does not."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
