@@ -528,12 +528,13 @@ def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_st
     once, and coulomb/1 is chosen; the round's costliest fits are sent first."""
     import servofmu.selection.run as selection_run
 
-    rounds = []
+    rounds, polished = [], []
     fit_groups = selection_run._fit_groups
 
-    def spy(pool, job, groups, run, done):
-        rounds.append([c.name for g in groups for c in g])
-        return fit_groups(pool, job, groups, run, done)
+    def spy(pool, groups, run, done):
+        rounds.append([c.name for _, g in groups for c in g])
+        polished.append([job.polished for job, _ in groups])
+        return fit_groups(pool, groups, run, done)
 
     monkeypatch.setattr(selection_run, "_fit_groups", spy)
     selection = sf.select_files([g1_records["fit"]], g1_records["val"], tmp_path / "s.h5",
@@ -543,6 +544,8 @@ def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_st
     assert len(names) == len(set(names))
     assert {f"coulomb+{term}/1" for term in ("stiffness", "ripple")} <= set(names)
     assert len(rounds) == 3 and "coulomb+ripple/1" in rounds[1], rounds
+    # the smaller candidates' starts from larger fits are polished alone, the load terms searched
+    assert polished == [[False], [True, False], [False]], polished
 
 
 def test_fits_are_sent_costliest_first():

@@ -170,3 +170,22 @@ def test_the_screening_polish_takes_at_most_its_steps_and_the_full_polish_the_id
                                                  SelectOptions(iterations=5), 1, {}, mode=mode))
         assert score.status == "fitted" and given and set(given) == {cap}, (mode, given)
     assert SCREEN_POLISH_ITERATIONS < identifier.MAX_POLISH_ITERATIONS
+
+
+def test_a_start_that_is_the_structures_fit_is_polished_without_a_swarm(g1_records):
+    """A polished job (a larger candidate's fit reduced to this structure) runs no swarm: its stages are the
+    start and the polish; from a start a few per cent off g1 it ends where the swarm-and-polish fit ends (same
+    BIC within a noise variance), screened as the first round's fits are."""
+    data, _ = load_selection_data([g1_records["fit"]])
+    validation, _ = load_selection_data([g1_records["val"]])
+    g1 = sf.load_plant("g1")
+    off = g1.with_parameters(g1.parameter_vector() * np.where(g1.parameter_vector() != 0, 1.04, 1.0))
+    options = SelectOptions(iterations=10, seed=1)
+    polished = fit_candidate(None, CandidateJob(Candidate("coulomb", 1), off, data, validation, options, 1, {},
+                                                mode="screen", polished=True))
+    searched = fit_candidate(None, CandidateJob(Candidate("coulomb", 1), off, data, validation, options, 1, {},
+                                                mode="screen", seeded=True))
+    assert [st.name for st in polished.result.stages] == ["start", "polish"]
+    assert searched.result.stages[0].name == "pso"
+    assert polished.screened and searched.screened
+    assert abs(polished.bic - searched.bic) < 1.0, (polished.bic, searched.bic)

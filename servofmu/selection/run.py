@@ -153,9 +153,9 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
         # again below where it does not stay first)
         leader = rank(scores)[0]
-        reduced, loads = _fit_groups(pool, seeded, [
-            reduced_starts(scores, candidates, data_bandwidth(series), speeds),
-            load_starts(leader) if default else {}], run, len(scores))
+        reduced, loads = _fit_groups(pool, [
+            (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
+            (seeded, load_starts(leader) if default else {})], run, len(scores))
         scores = _keep_better(scores, reduced)
         springs = spring_starts(scores) if default else {}
         if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
@@ -239,23 +239,23 @@ def _with_new(scores: list[CandidateScore], more: list[CandidateScore]) -> list[
 
 def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, done: list) -> list[CandidateScore]:
     """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
-    return list(done) + _fit_groups(pool, job, [starts], run, len(done))[0]
+    return list(done) + _fit_groups(pool, [(job, starts)], run, len(done))[0]
 
 
-def _fit_groups(pool: Workers, job: CandidateJob, groups: list[dict], run: RunOptions, done: int
+def _fit_groups(pool: Workers, groups: list[tuple[CandidateJob, dict]], run: RunOptions, done: int
                 ) -> list[list[CandidateScore]]:
-    """The scores of the candidates of every dict of starts in ``groups``, fitted in one round (a candidate
-    without a start fails at once), the costliest first (_expected_cost) so that no long fit starts last; ``done``
-    candidates were fitted before (for the progress)."""
+    """The scores of the candidates of every (job, dict of starts) in ``groups``, each fitted as its group's job
+    says, in one round (a candidate without a start fails at once), the costliest first (_expected_cost) so that no
+    long fit starts last; ``done`` candidates were fitted before (for the progress)."""
     out = [[CandidateScore(c, "failed", message=str(s)) for c, s in starts.items() if isinstance(s, Exception)]
-           for starts in groups]
-    jobs = [(g, replace(job, candidate=c, start=s)) for g, starts in enumerate(groups) for c, s in starts.items()
-            if not isinstance(s, Exception)]
+           for _, starts in groups]
+    jobs = [(g, replace(job, candidate=c, start=s)) for g, (job, starts) in enumerate(groups)
+            for c, s in starts.items() if not isinstance(s, Exception)]
     spare = _threads_per_job(pool, len(jobs))
     if spare > 1:  # fewer fits than local workers: each fit's simulations on the idle cores too
         jobs = [(g, replace(j, threads=spare)) for g, j in jobs]
     jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
-    total = done + sum(map(len, groups))
+    total = done + sum(len(starts) for _, starts in groups)
     count = done + sum(map(len, out))
     run.report(count, total)
     for i, score in pool.imap(fit_candidate, [j for _, j in jobs]):
@@ -279,11 +279,13 @@ LAW_COST = {"coulomb": 0, "stribeck": 1, "lugre": 2}
 
 
 def _expected_cost(job: CandidateJob) -> tuple:
-    """A key that orders fits by their expected time: a ripple's search first, then by the order of G and its
-    zeros (third-order fits with a zero take ten times a first-order one's time), then the law."""
+    """A key that orders fits by their expected time: a ripple's search first, then a swarm before a polish
+    alone, then by the order of G and its zeros (third-order fits with a zero take ten times a first-order one's
+    time), then the law."""
     c = job.candidate
     searched = job.start.load.ripple_amplitude == 0 and "ripple" in c.load and job.mode != "refit"
-    return searched, job.continued, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
+    swarm = job.mode != "refit" and not job.polished
+    return searched, job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
 
 
 def _key(score: CandidateScore) -> str:

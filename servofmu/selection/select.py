@@ -170,8 +170,9 @@ class CandidateJob:
     """One candidate's fit, as sent to a worker: its start plant, the fitted and the validation data; ``mode``
     "full" (swarm and polish at the identifier's tolerances), "screen" (swarm, polish at SCREEN_RTOL) or "refit"
     (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
-    start is a fit, made the swarm's first particle; ``continued``: the start is first polished on growing
-    shares of the records (selection.period.continued_start).  A ripple at zero force in the start is first put
+    start is a fit, made the swarm's first particle; ``polished``: the start is a fit of this structure (a larger
+    candidate's without the roots beyond the data): the polish alone from it; ``continued``: the start is first
+    polished on growing shares of the records (selection.period.continued_start).  A ripple at zero force in the start is first put
     where the fitted data's residuals show one (selection.period), and the polish starts there without a
     swarm."""
 
@@ -184,6 +185,7 @@ class CandidateJob:
     provenance: dict
     mode: str = "full"
     seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
+    polished: bool = False  # the start is a fit of this structure: no swarm, the polish alone from it
     continued: bool = False  # the start polished on growing shares of the records first (period.continued_start)
 
 
@@ -342,7 +344,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         est.polish_iterations = SCREEN_POLISH_ITERATIONS
     # a searched ripple's start is in its valley, whose width in the period is a fraction of the swarm's box: the
     # polish alone from there (a swarm's particles, scored at its coarser tolerance, led the polish to another)
-    est.from_start = job.mode == "refit" or searched
+    est.from_start = job.mode == "refit" or searched or job.polished
     est.seeded = job.seeded
     est.fit(job.data)
     result = est.result(dict(job.provenance, candidate=job.candidate.name))

@@ -54,8 +54,8 @@ def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], ba
     beyond the data's bandwidth or a zero that cancels a pole (that fit without them; of several such fits the one
     of the lowest BIC), and the law the best candidate's contains where that law's own fit is worse (LuGre's G and
     levels for Stribeck, Stribeck's for Coulomb: a smaller model that fits worse than a model containing it has
-    missed its optimum — only for the best, whose rivals are the ones that matter).  The smaller one is fitted
-    again from there, and the better of its two fits kept."""
+    missed its optimum — only for the best, whose rivals are the ones that matter).  The smaller one is polished
+    again from there (no swarm: the start is its fit), and the better of its two fits kept."""
     fitted = _by_bic(scores)
     bic = {s.candidate: s.bic for s in fitted}
     out = {}
