@@ -172,9 +172,9 @@ class CandidateJob:
     (the polish alone at the identifier's tolerances, from ``start``: a screened fit's plant); ``seeded``: the
     start is a fit, made the swarm's first particle; ``polished``: the start is a fit of this structure (a larger
     candidate's without the roots beyond the data): the polish alone from it; ``continued``: the start is first
-    polished on growing shares of the records (selection.period.continued_start).  A ripple at zero force in the start is first put
-    where the fitted data's residuals show one (selection.period), and the polish starts there without a
-    swarm."""
+    polished on growing shares of the records (selection.period.continued_start).  A ripple at zero force in the
+    start is first put where the fitted data's residuals show one (selection.period), and the polish starts there
+    without a swarm."""
 
     candidate: Candidate
     start: Plant
