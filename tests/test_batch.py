@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 
 from servofmu.errors import UserError
 from servofmu.identification.prior import full_vectors
-from servofmu.model.plant import PlantError, load_plant, plant_from_dict
+from servofmu.model.plant import PlantError, bristle_nominal, load_plant, plant_from_dict, state_scale
 from servofmu.simulation.batch import (
     BatchSimulator,
     SteadyStateFeatures,
@@ -482,12 +482,34 @@ def cache_key(plant, extra=None) -> str:
 
 
 def test_the_cache_key_follows_what_determines_the_library():
+    """The structure and the two constants the code holds (the state scale, LuGre's bristle nominal: powers of
+    two), not the values: the parameters are the library's arguments."""
     g1 = load_plant("g1")
-    other_values = g1.with_parameters(g1.parameter_vector() * 1.1)  # the nominal values scale the states
-    assert cache_key(g1) == cache_key(load_plant("g1"))
-    keys = {cache_key(g1), cache_key(other_values), cache_key(load_plant("g2")),
-            cache_key(g1, {"extra.h": "#define X 1\n"})}
+    near = g1.with_parameters(g1.parameter_vector() * 1.1)  # poles 10 % faster: the same power of two
+    far = g1.with_parameters(g1.parameter_vector() * 2.0)  # twice as fast: the states scaled otherwise
+    assert state_scale(near) == state_scale(g1) != state_scale(far)
+    assert cache_key(g1) == cache_key(load_plant("g1")) == cache_key(near)
+    keys = {cache_key(g1), cache_key(far), cache_key(load_plant("g2")), cache_key(g1, {"extra.h": "#define X 1\n"})}
     assert len(keys) == 4
+    lugre = load_plant("lugre_servo")
+    stiffer = lugre.with_parameters([v * 4 if n == "sigma0" else v for n, v in lugre.parameters().items()])
+    assert bristle_nominal(stiffer.friction) == bristle_nominal(lugre.friction) / 4
+    assert cache_key(stiffer) != cache_key(lugre)
+
+
+def test_plants_sharing_a_library_simulate_as_with_a_library_of_their_own(tmp_path, monkeypatch):
+    """A library built for one plant, run with another plant's values of the same key, gives bit for bit what a
+    library built for that other plant gives (in a cache of its own)."""
+    g2 = load_plant("g2")
+    other = g2.with_parameters(g2.parameter_vector() * 1.05)
+    assert cache_key(other) == cache_key(g2)
+    t = np.arange(0, 2, 0.01)
+    u = np.sin(2 * np.pi * t)
+    shared = BatchSimulator(g2, threads=1).simulate_record(other.parameter_vector()[None], t, u, rtol=1e-9)
+    monkeypatch.setenv("SERVOFMU_CACHE", str(tmp_path))
+    own = BatchSimulator(other, threads=1).simulate_record(other.parameter_vector()[None], t, u, rtol=1e-9)
+    assert [p.suffix for p in tmp_path.iterdir()] == [".so"]  # built anew there, from the other plant
+    assert np.array_equal(shared.v, own.v) and np.array_equal(shared.position, own.position)
 
 
 def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_bit(monkeypatch):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..model.plant import bristle_nominal
 from ..model.symbolic import INPUT_INFO, OUTPUT_INFO, OUTPUT_NAMES, SymbolicModel
 
 VR_TIME, VR_U, VR_Y0, VR_P0, VR_X0, VR_DX0 = 0, 1, 2, 1000, 2000, 3000
@@ -94,8 +95,8 @@ def state_nominals(model: SymbolicModel) -> list[float]:
     fr = model.plant.friction
     out = []
     for name in model.state_names:
-        if name == "z":  # bristle deflection at sliding: g/sigma0
-            out.append(min(fr.fc_pos, fr.fc_neg) / fr.sigma0)
+        if name == "z":  # bristle deflection at sliding: g/sigma0 (to a power of two)
+            out.append(bristle_nominal(fr))
         else:
             out.append(1.0)
     return out

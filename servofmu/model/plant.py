@@ -21,7 +21,8 @@ from numpy.typing import ArrayLike
 
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 
-__all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "load_plant", "plant_from_dict",
+__all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "state_scale", "bristle_nominal",
+           "load_plant", "plant_from_dict",
            "resolve_plant_path", "example_files", "parameter_info", "MAX_ORDER", "gain_unit", "root_names",
            "FRICTION_MODELS", "PARAMETER_INFO", "Load", "LOAD_KEYS"]
 
@@ -276,6 +277,29 @@ class Plant:
         if self.load.keys():
             lines += ["", "[load]"] + [f"{k} = {v!r}" for k, v in self.load.values().items()]
         return "\n".join(lines) + "\n"
+
+
+def _power_of_two(value: float) -> float:
+    """The power of two nearest ``value`` (> 0) in log: scaling by it is exact in floating point."""
+    return float(2.0 ** np.round(np.log2(value)))
+
+
+def state_scale(plant: Plant) -> float:
+    """c of G's realisation (servofmu.model.symbolic: ``xi_k = x_k / c^(k-1)``): the power of two nearest the
+    geometric mean of the nonzero pole magnitudes, 1 without one.  A constant of the model, not a parameter (the
+    realisation is exact for any c); rounded, so that structures whose poles differ by less than a factor of about
+    1.4 share one compiled simulator (servofmu.simulation.compiled.library_key)."""
+    nominal = [abs(r) for r in plant.all_poles() if abs(r) > 0]
+    return _power_of_two(float(np.exp(np.mean(np.log(nominal))))) if nominal else 1.0
+
+
+def bristle_nominal(friction: Friction) -> float:
+    """The LuGre bristle deflection's nominal magnitude (its absolute tolerance's scale): its deflection at
+    sliding, min(fc)/sigma0, rounded to a power of two as :func:`state_scale` is (1 where that is not positive)."""
+    if friction.model != "lugre" or not friction.sigma0:
+        return 1.0
+    value = min(friction.fc_pos, friction.fc_neg) / friction.sigma0
+    return _power_of_two(value) if np.isfinite(value) and value > 0 else 1.0
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ num(s) = b₍ₙ₋₁₎sⁿ⁻¹ + … + b₀ the unscaled form is
     x1' = −a₍ₙ₋₁₎x1 + x2 + b₍ₙ₋₁₎w,  …,  xn' = −a₀x1 + b₀w,   v = x1,
 
 and ``xi_k = x_k / c^(k-1)``, c being the geometric mean of the nominal pole
-magnitudes, so that every state is of the order of v (good for absolute
-tolerances).  c is a constant of the model, not a parameter: changing a pole
+magnitudes rounded to a power of two (plant.state_scale), so that every state is
+of the order of v (good for absolute tolerances).  c is a constant of the model, not a parameter: changing a pole
 keeps the realisation exact.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from .plant import Plant, parameter_info
+from .plant import Plant, parameter_info, state_scale
 
 __all__ = ["SymbolicModel", "build_model", "friction_force", "load_force", "EXCITATION_PARAMETERS", "OUTPUT_NAMES",
            "OUTPUT_INFO", "INPUT_INFO"]
@@ -182,8 +182,7 @@ def build_model(plant: Plant) -> SymbolicModel:
         k = par["gain"]
     num = [0] * (n - len(zpoly)) + [k * c for c in zpoly]  # length n, highest power s^(n-1) first
 
-    nominal = [abs(r) for r in plant.all_poles() if abs(r) > 0]
-    c = float(np.exp(np.mean(np.log(nominal)))) if nominal else 1.0
+    c = state_scale(plant)
 
     t, u = ca.SX.sym("t"), ca.SX.sym("u")
     xi = ca.SX.sym("xi", n)
