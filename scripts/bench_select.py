@@ -34,7 +34,7 @@ import servofmu as sf
 from servofmu.measurement.records import import_records
 from servofmu.identification.prior import identified_names
 from servofmu.model.plant import plant_from_dict
-from servofmu.runtime import RunOptions
+from servofmu.runtime import RunOptions, cache_dir
 from servofmu.selection.candidates import default_candidates, supported_load_terms
 from servofmu.simulation.batch import BatchSimulator
 
@@ -155,6 +155,12 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def _libraries() -> int:
+    """How many compiled simulator libraries the cache holds."""
+    folder = cache_dir()
+    return sum(1 for p in folder.iterdir() if p.suffix == ".so") if folder.is_dir() else 0
+
+
 def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None, screen: bool = True) -> dict:
     if name in LOOP_PLANTS:
         plant, truth, controller = LOOP_PLANTS[name]
@@ -169,10 +175,12 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
         options = sf.SelectOptions(seed=seed, iterations=iterations)
     if "screen" in sf.SelectOptions.__dataclass_fields__:
         options = replace(options, screen=screen)
+    libraries = _libraries()
     load, t0, cpu0 = os.getloadavg()[0], time.perf_counter(), _cpu()
     sel = sf.select_files([fit], val, folder / f"{name}-{seed}-select.h5", options,
                           RunOptions(workers=workers, overwrite=True))
     seconds, cpu = time.perf_counter() - t0, _cpu() - cpu0
+    compiled = _libraries() - libraries
     by_name = {s.name: s for s in sel.scores}
     chosen = sel.chosen
     # a truth that no stage fitted: the parameters its plant identifies (the truth is the plant's structure then)
@@ -181,6 +189,7 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
             "truth_rank": by_name[truth].rank if truth in by_name else None,
             "more_parameters": bool(chosen and chosen.parameters > truth_parameters),
             "failed": sum(s.status == "failed" for s in sel.scores), "seconds": seconds, "cpu_seconds": cpu,
+            "compiled": compiled,  # simulator libraries the selection compiled (not in the cache yet)
             "load": [load, os.getloadavg()[0]], "fits": len(sel.scores),
             "screened": sum(getattr(s, "screened", False) for s in sel.scores),
             "slowest": max((s.seconds, s.name) for s in sel.scores),
@@ -232,6 +241,11 @@ def report(rows: list[dict], args) -> str:
     over = sum(r["more_parameters"] for r in rows)
     lines += ["", f"All: truth first in {first} of {len(rows)} selections ({100 * first / len(rows):.1f} %), more "
               f"parameters than the truth in {over} ({100 * over / len(rows):.1f} %).", ""]
+    compiled = [r["compiled"] for r in rows if "compiled" in r]
+    if compiled:
+        lines += [f"Simulator libraries compiled (not yet in the cache): {sum(compiled)} in all, median "
+                  f"{np.median(compiled):.0f} per selection; {sum(c == 0 for c in compiled)} selections compiled "
+                  "none.", ""]
     levels = [r["levels"] for r in rows if r["plant"] == "coulomb1_offset" and r.get("levels")
               and r["chosen"] == "coulomb/1"]
     if levels:
