@@ -287,8 +287,8 @@ def _power_of_two(value: float) -> float:
 def state_scale(plant: Plant) -> float:
     """c of G's realisation (servofmu.model.symbolic: ``xi_k = x_k / c^(k-1)``): the power of two nearest the
     geometric mean of the nonzero pole magnitudes, 1 without one.  A constant of the model, not a parameter (the
-    realisation is exact for any c); rounded, so that structures whose poles differ by less than a factor of about
-    1.4 share one compiled simulator (servofmu.simulation.compiled.library_key)."""
+    realisation is exact for any c); rounded, so that plants of one structure whose geometric means round to the
+    same power of two share one compiled simulator (the compiled libraries' cache key holds c, not the values)."""
     nominal = [abs(r) for r in plant.all_poles() if abs(r) > 0]
     return _power_of_two(float(np.exp(np.mean(np.log(nominal))))) if nominal else 1.0
 

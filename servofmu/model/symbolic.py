@@ -14,8 +14,8 @@ num(s) = b₍ₙ₋₁₎sⁿ⁻¹ + … + b₀ the unscaled form is
 
 and ``xi_k = x_k / c^(k-1)``, c being the geometric mean of the nominal pole
 magnitudes rounded to a power of two (plant.state_scale), so that every state is
-of the order of v (good for absolute tolerances).  c is a constant of the model, not a parameter: changing a pole
-keeps the realisation exact.
+of the order of v (good for absolute tolerances).  c is a constant of the model,
+not a parameter: changing a pole keeps the realisation exact.
 """
 from __future__ import annotations
 
