@@ -361,6 +361,30 @@ def test_a_rest_position_at_zero_is_not_undetermined():
     assert _undetermined(fit) == ("ripple_amplitude",)
 
 
+def test_the_coulomb_levels_are_undetermined_by_their_mean():
+    """Levels that trade against each other (their difference shares a spring's rest position's force) are judged
+    by their mean: one level's interval reaching zero along that valley flags nothing; a mean that could be zero
+    flags both; without a covariance each level is judged alone."""
+    from types import SimpleNamespace
+
+    from servofmu.selection.select import _undetermined
+
+    sd = np.array([0.0122, 0.0377, 0.0377, 0.0094])  # coulomb1_spring seed 7's fit of its own structure
+    corr = np.eye(4)
+    corr[1, 2] = corr[2, 1] = -0.9985  # the levels' estimates move against each other, with the rest position
+    corr[1, 3] = corr[3, 1] = 0.99
+    corr[2, 3] = corr[3, 2] = -0.99
+    names = ["pole1", "fc_pos", "fc_neg", "x0"]
+
+    def fit(theta, covariance=sd[:, None] * corr * sd[None, :]):
+        return SimpleNamespace(names=names, theta=np.array(theta), covariance=covariance,
+                               intervals=np.array(theta)[:, None] + 1.96 * sd[:, None] * np.array([-1.0, 1.0]))
+
+    assert _undetermined(fit([-10.0, 0.889, 0.012, 0.097])) == ()
+    assert _undetermined(fit([-10.0, 0.02, -0.0195, 0.097])) == ("fc_pos", "fc_neg")
+    assert _undetermined(fit([-10.0, 0.889, 0.012, 0.097], covariance=None)) == ("fc_neg",)
+
+
 def test_a_static_level_equal_to_its_coulomb_level_gets_a_finite_search_box():
     """A fit may end with fs = fc (no bump); the next candidate's box around it must still be finite."""
     from servofmu.identification.features import prior_box

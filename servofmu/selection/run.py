@@ -169,14 +169,15 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             laws = nested_law_starts(load_leader(scores), scores, speeds)
             if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
                 scores = _fit_all(pool, seeded, laws, run, scores)
-                # a nested structure worse than the richer one ranked first, or not fitted: from the richer one's
-                # fit, again from a nested one that then ranks first (each time a smaller structure: it ends)
-                again = from_winner(rank(scores)[0], scores, speeds, options.orders)
-                while again:
-                    refitted = _fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
-                    scores = _with_new(_keep_better(scores, refitted), refitted)
-                    top = rank(scores)[0]
-                    again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
+            # a nested structure (a law it contains, or one order lower: a far pole may stand in for the term)
+            # worse than the one with load terms ranked first, or not fitted: from the first one's fit, again
+            # from a nested one that then ranks first (each time a smaller structure: it ends)
+            again = from_winner(rank(scores)[0], scores, speeds, options.orders)
+            while again:
+                refitted = _fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
+                scores = _with_new(_keep_better(scores, refitted), refitted)
+                top = rank(scores)[0]
+                again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
         if screen:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
