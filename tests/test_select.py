@@ -155,6 +155,40 @@ def test_a_load_term_winner_hands_its_fit_to_the_nested_laws_that_rank_below_it(
     assert from_winner(plain, [plain, CandidateScore(Candidate("coulomb", 1), "fitted", bic=-90.0)], speeds) == {}
 
 
+def test_the_first_hands_its_fit_to_the_fitted_candidates_nested_in_it():
+    """lugre/3z ranked first, its zero cancelling its middle pole: the fitted candidates with its load terms (none),
+    a law it contains, no higher order and no more zeros get starts from its fit — the cancelling pair dropped
+    before the fastest poles are — and none of another load, richer, or not fitted."""
+    from types import SimpleNamespace
+
+    from servofmu.model.plant import plant_from_dict
+    from servofmu.selection.starts import with_law, with_load, within_first
+
+    lugre = plant_from_dict({"name": "l", "linear": {"poles": [[-5.0, 0.0], [-12.0, 0.0], [-40.0, 0.0]],
+                                                     "zeros": [[-12.5, 0.0]], "dc_gain": 2.0},
+                             "friction": {"model": "lugre", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.45,
+                                          "fs_neg": 0.35, "vs": 0.05, "sigma0": 1e4, "sigma1": 100.0}})
+    first = CandidateScore(Candidate("lugre", 3, 1), "fitted", result=SimpleNamespace(plant=lugre), parameters=12,
+                           bic=-100.0)
+    fitted = {c: CandidateScore(c, "fitted", parameters=p, bic=-90.0) for c, p in (
+        (Candidate("stribeck", 2), 8), (Candidate("coulomb", 1), 4), (Candidate("lugre", 2), 10),
+        (Candidate("stribeck", 2, 0, ("ripple",)), 11), (Candidate("lugre", 3, 1), 12))}
+    failed = CandidateScore(Candidate("coulomb", 3), "failed")
+    starts = within_first(first, [first, *fitted.values(), failed], np.array([0.4, -0.4]))
+    assert set(starts) == {Candidate("stribeck", 2), Candidate("coulomb", 1), Candidate("lugre", 2)}
+    stribeck = starts[Candidate("stribeck", 2)]
+    assert stribeck.poles == (-5.0, -40.0) and stribeck.zeros == () and stribeck.dc_gain == 2.0
+    assert stribeck.friction.model == "stribeck" and stribeck.friction.fs_pos == 0.45
+    assert starts[Candidate("coulomb", 1)].poles == (-5.0,)
+    assert within_first(failed, [failed, *fitted.values()], np.array([0.4])) == {}
+    rippled = fitted[Candidate("stribeck", 2, 0, ("ripple",))]  # ranked first: the law and G without the ripple
+    stribeck = with_law(replace(lugre, poles=(-5.0, -40.0), zeros=()), "stribeck", np.array([0.4, -0.4]))
+    rippled = replace(rippled, result=SimpleNamespace(plant=with_load(stribeck, rippled.candidate)))
+    starts = within_first(rippled, [rippled, *fitted.values()], np.array([0.4, -0.4]))
+    assert set(starts) == {Candidate("stribeck", 2), Candidate("coulomb", 1)}
+    assert starts[Candidate("stribeck", 2)] == replace(stribeck, name="candidate")
+
+
 def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_it():
     """stribeck+ripple/2z ranked first: its nested structures are the Coulomb law with the zero, then both laws
     without it; started from its fit, the zero is dropped and the poles, DC gain and ripple kept.  A screened

@@ -2,6 +2,7 @@
 chatters is stopped, scored and ranked, never integrated for minutes) and the screening (every candidate fitted
 at SCREEN_RTOL, only those that could still win polished again at the identifier's tolerances)."""
 import math
+from dataclasses import replace
 
 import h5py
 import numpy as np
@@ -127,8 +128,6 @@ def test_a_screened_candidate_is_refitted_while_its_bound_could_beat_the_first()
 
 
 def replace_flags(score, flags):
-    from dataclasses import replace
-
     return replace(score, flags=flags)
 
 
@@ -189,3 +188,22 @@ def test_a_start_that_is_the_structures_fit_is_polished_without_a_swarm(g1_recor
     assert searched.result.stages[0].name == "pso"
     assert polished.screened and searched.screened
     assert abs(polished.bic - searched.bic) < 1.0, (polished.bic, searched.bic)
+
+
+def test_a_starts_log_likelihood_is_the_gaussian_one_of_its_own_simulation(g1_records, tmp_path):
+    """start_neg2loglik at g1's values: N·(ln(2π·RSS/N) + 1) of a simulation written here against the record's
+    velocities; larger at a start 10 % off; inf at values that cannot be simulated."""
+    from servofmu.selection.select import start_neg2loglik
+
+    data, _ = load_selection_data([g1_records["fit"]])
+    g1 = sf.load_plant("g1")
+    t = np.arange(0, 20, DT)
+    v = BatchSimulator(g1).simulate_record(g1.parameter_vector()[None], t, _input(t, 1), rtol=1e-10).v[0]
+    measured = np.loadtxt(g1_records["fit"].with_suffix(".csv"), delimiter=",", skiprows=1)[:, 2]
+    rss = float(np.sum((v - measured) ** 2))
+    job = CandidateJob(Candidate("coulomb", 1), g1, data, data, SelectOptions(), 1, {})
+    assert start_neg2loglik(None, job) == pytest.approx(v.size * (math.log(2 * math.pi * rss / v.size) + 1),
+                                                        abs=0.01)
+    off = g1.with_parameters(g1.parameter_vector() * 1.1)
+    assert start_neg2loglik(None, job) < start_neg2loglik(None, replace(job, start=off))
+    assert start_neg2loglik(None, replace(job, data=None)) == math.inf

@@ -40,6 +40,7 @@ from ..errors import UserError
 from ..identification.confounding import interval_quantile
 from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
 from ..identification.identifier import PSOANNIdentifier, swarm_options
+from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
 from ..identification.restarts import chi2_quantile
 from ..identification.results import Result
@@ -49,9 +50,9 @@ from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
-__all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "rank", "screen_bound",
-           "could_win", "cancels", "validation_margin", "validation_allowance", "DEFAULT_SPREAD", "SCREEN_RTOL",
-           "SCREEN_MARGIN"]
+__all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
+           "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance", "DEFAULT_SPREAD",
+           "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 # The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
@@ -313,6 +314,20 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
         text = " ".join(str(exc).split()) or type(exc).__name__
         return CandidateScore(candidate=job.candidate, status="failed", message=f"{type(exc).__name__}: {text}"
                               if not isinstance(exc, UserError) else text, seconds=time.perf_counter() - start)
+
+
+def start_neg2loglik(_, job: CandidateJob) -> float:
+    """Worker task: −2·ln L of the fitted data at the values of ``job.start`` (inf where they cannot be
+    simulated), at the polish's tolerance."""
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            crit = criterion_for(job.start, job.data, job.threads)
+            theta = np.array([job.start.parameters()[k] for k in identified_names(job.start)], dtype=float)
+            value, _ = _neg2loglik([e for _, e in _signal_errors(crit, job.data, theta)])
+    except Exception:  # noqa: BLE001 — a start that cannot be scored is no better than the fit it would replace
+        return math.inf
+    return value if np.isfinite(value) else math.inf
 
 
 class _CandidateIdentifier(PSOANNIdentifier):

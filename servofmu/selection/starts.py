@@ -16,7 +16,8 @@ from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
 from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
 
 __all__ = ["NESTED_LAW", "with_load", "load_starts", "reduced_starts", "load_leader", "nested_law_starts",
-           "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law", "without_cancelling"]
+           "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law", "without_cancelling",
+           "within_first", "without_load"]
 
 
 # The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
@@ -110,13 +111,51 @@ def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.
     """Starts for the structures nested in the one of ``first`` (the candidate ranked first, with load terms) with
     its load terms — its own law one order lower too where ``orders`` (the selection's) has it — whose fits rank
     below it or that were not fitted: from the fit of ``first`` reduced to them (reduced_to) with its load
-    values, a ripple's included (polished on growing shares of the records, then on all of them).  A ripple's output error is many-valleyed, and a nested structure whose fit ends a valley off —
-    or whose ripple search started from a fit a valley off — is beaten by a richer one whose fit does not."""
+    values, a ripple's included (polished on growing shares of the records, then on all of them).  A ripple's
+    output error is many-valleyed, and a nested structure whose fit ends a valley off — or whose ripple search
+    started from a fit a valley off — is beaten by a richer one whose fit does not."""
     if first.status != "fitted" or not first.candidate.load:
         return {}
     bic = {s.candidate: s.bic for s in scores if s.status == "fitted" and np.isfinite(s.bic)}
     return {target: reduced_to(first.result.plant, target, speeds)
             for target in nested_structures(first.candidate, orders) if bic.get(target, math.inf) > first.bic}
+
+
+def within_first(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
+    """Starts for the fitted candidates nested in the one of ``first`` (the candidate ranked first): some of its
+    load terms, a law its law contains, an order and zeros no more than its own, fewer parameters — from the fit
+    of ``first`` without the other load terms, reduced to them (reduced_to; a zero that cancels a pole dropped
+    with it first, so that the poles kept are the ones with a response)."""
+    if first.status != "fitted":
+        return {}
+    top, plant = first.candidate, first.result.plant
+    laws = [top.law]
+    while NESTED_LAW.get(laws[-1]):
+        laws.append(NESTED_LAW[laws[-1]])
+    poles, zeros = without_cancelling(plant.poles, plant.zeros)
+    bare = replace(plant, poles=poles, zeros=zeros) if poles else plant
+    out = {}
+    for s in scores:
+        c = s.candidate
+        if (s.status == "fitted" and c != top and set(c.load) <= set(top.load) and c.law in laws
+                and c.order <= top.order and c.zeros <= top.zeros and s.parameters < first.parameters):
+            source = bare if bare.order >= c.order and len(bare.all_zeros()) >= c.zeros else plant
+            out[c] = reduced_to(without_load(source, set(top.load) - set(c.load)), c, speeds)
+    return out
+
+
+def without_load(plant, terms):
+    """``plant`` without the load terms ``terms`` (their parameters removed)."""
+    if not terms:
+        return plant
+    data = tomllib.loads(plant.to_toml())
+    load = data.get("load", {})
+    for term in terms:
+        for key in LOAD_TERMS[term]:
+            load.pop(key, None)
+    if not load:
+        data.pop("load", None)
+    return plant_from_dict(data, source="candidate without " + ", ".join(sorted(terms)))
 
 
 def nested_structures(candidate: Candidate, orders=()):
