@@ -190,9 +190,9 @@ def test_a_start_that_is_the_structures_fit_is_polished_without_a_swarm(g1_recor
     assert abs(polished.bic - searched.bic) < 1.0, (polished.bic, searched.bic)
 
 
-def test_a_starts_log_likelihood_is_the_gaussian_one_of_its_own_simulation(g1_records, tmp_path):
+def test_a_starts_log_likelihood_is_the_gaussian_one_of_its_own_simulation(g1_records):
     """start_neg2loglik at g1's values: N·(ln(2π·RSS/N) + 1) of a simulation written here against the record's
-    velocities; larger at a start 10 % off; inf at values that cannot be simulated."""
+    velocities; larger at a start 10 % off; inf for a start that cannot be scored (no data)."""
     from servofmu.selection.select import start_neg2loglik
 
     data, _ = load_selection_data([g1_records["fit"]])
