@@ -15,7 +15,7 @@ from ..model.plant import Friction, plant_from_dict
 from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
 from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
 
-__all__ = ["NESTED_LAW", "with_load", "load_starts", "reduced_starts", "load_leader", "nested_law_starts",
+__all__ = ["NESTED_LAW", "contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader", "nested_law_starts",
            "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law", "without_cancelling",
            "within_first", "without_load"]
 
@@ -24,6 +24,14 @@ __all__ = ["NESTED_LAW", "with_load", "load_starts", "reduced_starts", "load_lea
 # fs = fc.
 NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
 SPEED_QUANTILES = 512  # the data's velocities a Coulomb level is averaged over (with_law)
+
+
+def contained_laws(law: str) -> list[str]:
+    """``law`` and the laws it contains (NESTED_LAW, all the way down): lugre, stribeck, coulomb."""
+    laws = [law]
+    while NESTED_LAW.get(laws[-1]):
+        laws.append(NESTED_LAW[laws[-1]])
+    return laws
 
 
 def with_load(plant, candidate: Candidate, found=None):
@@ -129,9 +137,7 @@ def within_first(first: CandidateScore, scores: list[CandidateScore], speeds: np
     if first.status != "fitted":
         return {}
     top, plant = first.candidate, first.result.plant
-    laws = [top.law]
-    while NESTED_LAW.get(laws[-1]):
-        laws.append(NESTED_LAW[laws[-1]])
+    laws = contained_laws(top.law)
     poles, zeros = without_cancelling(plant.poles, plant.zeros)
     bare = replace(plant, poles=poles, zeros=zeros) if poles else plant
     out = {}
@@ -163,9 +169,7 @@ def nested_structures(candidate: Candidate, orders=()):
     way down) at its order and zero, then, where it has a zero, its own law and those without the zero, then its
     own law one order lower where ``orders`` has it (an order chosen without the load term may hold its force in
     a pole)."""
-    laws = [candidate.law]
-    while NESTED_LAW.get(laws[-1]):
-        laws.append(NESTED_LAW[laws[-1]])
+    laws = contained_laws(candidate.law)
     for law in laws[1:]:
         yield replace(candidate, law=law)
     if candidate.zeros:
