@@ -355,6 +355,63 @@ def test_a_ripple_is_found_from_the_residuals_over_position(tmp_path):
     assert fitted.load.ripple_period == pytest.approx(0.037, rel=2e-3)
 
 
+def test_a_search_that_cannot_pay_for_a_ripple_stops_at_the_coarse_grid(tmp_path):
+    """On a record without a ripple the coarse grid's best drop is noise: the start is the parent's values with
+    that ripple (no joint steps move them), and its ripple lowers −2·ln L by less than the ripple's BIC penalty.
+    The grid's forces simulated side by side on threads give the residuals one simulation at a time gives."""
+    from servofmu.identification.prior import identified_mask
+    from servofmu.selection.data import criterion_for, load_selection_data
+    from servofmu.selection.period import SEARCHED_PERIOD, _Forced, _ripple, ripple_start
+
+    truth = _first_order(-10.0, 1.0, (0.5, 0.4), NO_RIPPLE)
+    data, _ = load_selection_data([_record(tmp_path, "plain", truth, 5)])
+    parent = _first_order(-10.0, 1.0, (0.5, 0.4), NO_RIPPLE)
+    start = ripple_start(parent, data)
+    mask = identified_mask(parent)
+    moved = [n for n, a, b in zip(np.array(parent.parameter_names())[mask], parent.parameter_vector()[mask],
+                                  start.parameter_vector()[mask]) if a != b]
+    assert moved == ["ripple_amplitude", "ripple_period", "ripple_phase"]
+    crit = criterion_for(start, data)
+    rss = [float(np.sum(crit.residuals(p.parameter_vector()[mask][None], 1e-10) ** 2)) for p in (parent, start)]
+    n = crit.residuals(parent.parameter_vector()[mask][None], 1e-10).size
+    assert 0 < n * np.log(rss[0] / rss[1]) < (2 + SEARCHED_PERIOD) * np.log(n)
+    forced = _Forced(parent, data, threads=2)
+    theta = parent.parameter_vector()[mask]
+    forces = [_ripple(k, (0.02, 0.01)) for k in (3.0, 17.0, 40.0)]
+    together = forced.forced(theta, forces)
+    assert all(np.array_equal(a, forced.residuals(theta, f)[0]) for a, f in zip(together, forces))
+    assert not np.array_equal(together[0], together[1])
+
+
+def test_a_shares_jacobian_is_scipys_own_differences_in_one_batch(tmp_path):
+    """continued_start's polish of a share, its Jacobian's columns simulated in one batch call, takes the steps
+    scipy's least_squares takes with its own forward differences (diff_step), to the last digit — at parameters
+    of zero (the ripple's phase) too, and where the Jacobian is asked for away from the last residuals."""
+    from scipy.optimize import least_squares
+
+    from servofmu.identification.prior import identified_mask
+    from servofmu.selection.data import criterion_for, load_selection_data
+    from servofmu.selection.period import DIFFERENCE, RTOL, SHARE_TOL, _batched, _first_share
+
+    truth = _first_order(-10.0, 1.0, (0.5, 0.4),
+                         {"ripple_amplitude": 0.25, "ripple_period": 0.037, "ripple_phase": -1.0})
+    data, _ = load_selection_data([_record(tmp_path, "share", truth, 4)])
+    start = _first_order(-10.3, 0.97, (0.515, 0.39),
+                         {"ripple_amplitude": 0.2, "ripple_period": 0.0371, "ripple_phase": 0.0})
+    crit = criterion_for(start, _first_share(data, 0.2))
+    theta = start.parameter_vector()[identified_mask(start)]
+    assert np.any(theta == 0)
+    residuals, jacobian = _batched(crit)
+    scale = np.maximum(np.abs(theta), 1e-12)
+    ours = least_squares(residuals, theta, jac=jacobian, x_scale=scale, xtol=SHARE_TOL, ftol=SHARE_TOL)
+    theirs = least_squares(lambda th: crit.residuals(th[None], RTOL)[0], theta, x_scale=scale,
+                           diff_step=DIFFERENCE, xtol=SHARE_TOL, ftol=SHARE_TOL)
+    assert ours.nfev == theirs.nfev > 1 and np.array_equal(ours.x, theirs.x)
+    away = jacobian(theta)  # the last residuals were at the end, not here
+    residuals(theta)
+    assert np.array_equal(away, jacobian(theta))
+
+
 def test_a_ripple_is_found_in_closed_loop_records():
     """An axis with a 12 N cogging ripple of 32 mm (40/32 N Coulomb) following a 0.3 m stroke in the example
     drive's loop, 1 µm of position noise and 1 % of command noise: from a fit without the ripple (G and levels

@@ -12,7 +12,8 @@ model's own response.
 
 The grid is uniform in spatial frequency 1/P, COARSE cycles over the travel apart (the drop's peak is about a
 cycle over the travel wide), from two travels to RIPPLE_CYCLES cycles over the travel; the best PEAKS are
-searched again on a grid REFINE times finer.  Each is then moved by Gauss–Newton steps together with the
+searched again on a grid REFINE times finer (unless the best coarse one could not pay for a ripple's
+parameters, UNPAID: then it is the start).  Each is then moved by Gauss–Newton steps together with the
 structure's own parameters (the model's position drifts with its velocity error, and its ripple with it: a gain
 3 % off slips a ripple of 5 cm a period over 0.7 m), and the one whose model ripple — along the model's own
 positions — fits best is polished on growing shares of the records (continued_start) and is the start, from which the
@@ -21,6 +22,8 @@ measured position: its ripple is not searched.
 """
 from __future__ import annotations
 
+import copy
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import fields, replace
 
 import numpy as np
@@ -30,6 +33,7 @@ from scipy.optimize import least_squares
 from ..identification.criterion import RecordData, SineData
 from ..identification.prior import identified_mask, identified_names
 from ..model.plant import Plant
+from ..runtime import available_cores
 from .data import criterion_for
 
 __all__ = ["ripple_start", "continued_start", "travel", "RIPPLE_CYCLES", "HORIZONS", "SEARCHED_PERIOD"]
@@ -55,6 +59,13 @@ HORIZONS = (0.2, 0.3, 0.4, 0.55, 0.7, 0.85)  # shares of the records the start i
 # 1e-8).  The shares only bring the start into its valley, and the candidate's polish on all of the data follows:
 # on coulomb1_ripple (seeds 3, 6, 16, 17) the same structures were chosen, in 16.7–31.2 s instead of 16.8–51.3 s.
 SHARE_TOL = 1e-4
+# The coarse grid's best ripple must lower −2·ln L by more than this share of the ripple's BIC penalty to be
+# searched further (the fine grid, the joint steps, the shares): one that does not cannot pay for its parameters,
+# and its start is the coarse grid's best.  Without a ripple the grid's best drop is the largest of ~200 χ²(2):
+# 7–13 on stribeck2_fv and lugre1_fv (seeds 0–5), against half the penalty, 19 for 2000 samples, and the search's
+# end was at most 6 above the grid's; with one (coulomb1_ripple seeds 0–5) 1800–2900 on the grid, 640–5800 at
+# the end.
+UNPAID = 0.5
 
 
 def _positions(data) -> list[np.ndarray]:
@@ -86,29 +97,41 @@ def _with_force(data, forces: list[np.ndarray]):
 
 
 class _Forced:
-    """The criterion of a structure on ``data`` with a known force along the measured positions added."""
+    """The criterion of a structure on ``data`` with a known force along the measured positions added; the
+    simulations of several forces run side by side on ``threads`` threads (a force is an input, which the batch
+    simulator's rows cannot vary: each is a call of its own, and a call leaves Python while it simulates)."""
 
     def __init__(self, structure: Plant, data, threads: int | None):
         self.crit, self.data, self.positions = criterion_for(structure, data, threads), data, _positions(data)
         self.probe = PROBE * max(structure.friction.fc_pos, structure.friction.fc_neg, 1e-3)
+        self.threads = threads or available_cores()
 
     def residuals(self, theta: np.ndarray, force=None, rtol: float = RTOL) -> np.ndarray:
         """(N, samples) weighted residuals of the rows of ``theta`` with the force ``force(position)`` added,
         simulated at ``rtol``."""
-        self.crit.data = self.data if force is None else _with_force(self.data, [force(x) for x in self.positions])
-        try:  # simulate_errors: the criterion's cache of errors knows the parameters, not the data
-            errors = self.crit.simulate_errors(np.atleast_2d(theta), rtol)
-        finally:
-            self.crit.data = self.data
+        crit = self.crit
+        if force is not None:  # a criterion of its own: its data holds the force (the others' do not)
+            crit = copy.copy(self.crit)
+            crit.data = _with_force(self.data, [force(x) for x in self.positions])
+        # simulate_errors: the criterion's cache of errors knows the parameters, not the data
+        errors = crit.simulate_errors(np.atleast_2d(theta), rtol)
         return np.concatenate([e / s for e, s in zip(errors, self.crit.scales)], axis=1)
 
-    def ripple_columns(self, theta: np.ndarray, k: float, coef=(0.0, 0.0), base=None, rtol: float = RTOL
-                       ) -> np.ndarray:
-        """(samples, 2): the residuals' change per newton of a force sin(2π·k·x), cos(2π·k·x) beside the ripple
-        ``coef`` (its (A·cos φ, A·sin φ)); ``base``: the residuals with ``coef`` alone at ``rtol``, if known."""
-        base = self.residuals(theta, _ripple(k, coef), rtol)[0] if base is None else base
-        return np.column_stack([(self.residuals(theta, _ripple(k, np.add(coef, d)), rtol)[0] - base) / self.probe
-                                for d in ((self.probe, 0.0), (0.0, self.probe))])
+    def forced(self, theta: np.ndarray, forces: list, rtol: float = RTOL) -> list[np.ndarray]:
+        """The residuals of the one candidate ``theta`` with each of ``forces`` added, simulated side by side."""
+        with ThreadPoolExecutor(min(self.threads, len(forces))) as pool:
+            return list(pool.map(lambda f: self.residuals(theta, f, rtol)[0], forces))
+
+    def ripple_columns(self, theta: np.ndarray, ks, base: np.ndarray, coef=(0.0, 0.0), rtol: float = RTOL,
+                       more: tuple = ()) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """For every spatial frequency of ``ks``, (samples, 2): the residuals' change per newton of a force
+        sin(2π·k·x), cos(2π·k·x) beside the ripple ``coef`` (its (A·cos φ, A·sin φ)), whose residuals alone at
+        ``rtol`` are ``base``; and the residuals with each force of ``more``, simulated with them."""
+        forces = [_ripple(k, np.add(coef, d)) for k in ks for d in ((self.probe, 0.0), (0.0, self.probe))]
+        out = self.forced(theta, forces + list(more), rtol)
+        columns = [np.column_stack([(out[2 * i] - base) / self.probe, (out[2 * i + 1] - base) / self.probe])
+                   for i in range(len(ks))]
+        return columns, out[2 * len(ks):]
 
 
 def _ripple(k: float, coef):
@@ -140,8 +163,8 @@ def _joint(forced: _Forced, theta: np.ndarray, free: np.ndarray, k: float, coef
         rr = forced.residuals(steps, _ripple(k, coef))
         jac = ((rr[:free.size] - rr[free.size:]) / (2 * h[:, None])).T
         dk = DIFFERENCE * k
-        along_k = (forced.residuals(theta, _ripple(k + dk, coef))[0] - r) / dk
-        delta, drop = _least_squares(np.column_stack([jac, along_k, forced.ripple_columns(theta, k, coef, r)]), r)
+        (columns,), (moved,) = forced.ripple_columns(theta, [k], r, coef, more=(_ripple(k + dk, coef),))
+        delta, drop = _least_squares(np.column_stack([jac, (moved - r) / dk, columns]), r)
         if not drop > 0:
             break
         for _ in range(4):  # halved while the step does not lower the residuals
@@ -171,43 +194,50 @@ def ripple_start(structure: Plant, data, threads: int | None = None) -> Plant:
 
     def drops(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The least-squares drop of the residuals and the ripple (A·cos φ, A·sin φ) at spatial frequencies k."""
-        found = [_least_squares(forced.ripple_columns(theta0, kj, base=r0_grid, rtol=GRID_RTOL), r0_grid)
-                 for kj in k]
+        columns, _ = forced.ripple_columns(theta0, k, r0_grid, rtol=GRID_RTOL)
+        found = [_least_squares(x, r0_grid) for x in columns]
         return np.array([d for _, d in found]), np.array([c for c, _ in found]).reshape(-1, 2)
 
+    ripple = [names.index(n) for n in ("ripple_amplitude", "ripple_period", "ripple_phase")]
+
+    def with_ripple(theta: np.ndarray, k: float, coef) -> Plant:
+        """``structure`` at ``theta`` with the ripple of spatial frequency k and (A·cos φ, A·sin φ) ``coef``."""
+        theta, vector = theta.copy(), structure.parameter_vector()
+        theta[ripple] = np.hypot(*coef) or forced.probe, 1 / k, np.arctan2(coef[1], coef[0])  # a box needs A > 0
+        vector[mask] = theta
+        return structure.with_parameters(vector)
+
+    n = r0.size
+    penalty = (2 + SEARCHED_PERIOD) * np.log(n)  # what a ripple's three parameters cost in BIC
     step = COARSE / width
     k = np.arange(0.5 / width, RIPPLE_CYCLES / width + step / 2, step)
     drop, coef = drops(k)
+    if not np.any(np.isfinite(drop)):
+        return structure
+    best = int(np.argmax(drop))
+    rss_grid = float(r0_grid @ r0_grid)
+    if not n * np.log(rss_grid / (rss_grid - drop[best])) > UNPAID * penalty:
+        return with_ripple(theta0, k[best], coef[best])
     peaks = []
     for i in np.argsort(-drop):  # the best coarse points at least two steps apart, each searched again
         if np.isfinite(drop[i]) and all(abs(i - j) > 2 for j in peaks):
             peaks.append(i)
         if len(peaks) == PEAKS:
             break
-    if not peaks:
-        return structure
     fine = np.concatenate([k[i] + step * np.arange(-REFINE, REFINE + 1) / REFINE for i in peaks])
     fine = fine[fine > 0]
     fine_drop, fine_coef = drops(fine)
     k, drop, coef = np.concatenate([k, fine]), np.concatenate([drop, fine_drop]), np.concatenate([coef, fine_coef])
     # the best peaks with the structure's parameters moved with the ripple, then judged by the model's own ripple
-    ripple = [names.index(n) for n in ("ripple_amplitude", "ripple_period", "ripple_phase")]
     free = np.array([i for i in range(len(names)) if i not in ripple])
-    tries = []
-    for i in np.argsort(-drop)[:PEAKS]:
-        if np.isfinite(drop[i]):
-            theta, ki, (a, b) = _joint(forced, theta0, free, k[i], coef[i])
-            theta[ripple] = np.hypot(a, b) or forced.probe, 1 / ki, np.arctan2(b, a)  # a swarm box needs A > 0
-            tries.append(theta)
-    rss = np.sum(forced.residuals(np.array(tries)) ** 2, axis=1)
+    tries = [with_ripple(*_joint(forced, theta0, free, k[i], coef[i])) for i in np.argsort(-drop)[:PEAKS]
+             if np.isfinite(drop[i])]
+    rss = np.sum(forced.residuals(np.array([t.parameter_vector()[mask] for t in tries])) ** 2, axis=1)
     rss[~np.isfinite(rss)] = np.inf
-    vector = structure.parameter_vector()
-    vector[mask] = tries[int(np.argmin(rss))]
-    found = structure.with_parameters(vector)
+    found = tries[int(np.argmin(rss))]
     # polished on the records' shares only where the ripple pays for its parameters in BIC: one found in the
     # noise cannot be chosen, and the shares' polishes are most of the search's time
-    n = r0.size
-    pays = n * np.log(float(r0 @ r0) / np.min(rss)) > (2 + SEARCHED_PERIOD) * np.log(n)
+    pays = n * np.log(float(r0 @ r0) / np.min(rss)) > penalty
     return continued_start(found, data, threads) if pays else found
 
 
@@ -229,9 +259,9 @@ def continued_start(structure: Plant, data, threads: int | None = None) -> Plant
         part.scales = crit.scales.copy()  # the weights of all of the data, not of its share's spread
         # scipy's trust-region solver, not the identifier's polish: with that in its place coulomb1_ripple's truth
         # came first in 18 of 20 seeds against 19 (docs/bench-select.md)
+        residuals, jacobian = _batched(part)
         try:
-            theta = least_squares(lambda th: part.residuals(th[None], RTOL)[0], theta,
-                                  x_scale=np.maximum(np.abs(theta), 1e-12), diff_step=DIFFERENCE,
+            theta = least_squares(residuals, theta, jac=jacobian, x_scale=np.maximum(np.abs(theta), 1e-12),
                                   xtol=SHARE_TOL, ftol=SHARE_TOL).x
         except ValueError:  # the share's residuals not finite at its start: the last share's estimate stands
             break
@@ -241,6 +271,31 @@ def continued_start(structure: Plant, data, threads: int | None = None) -> Plant
     vector = structure.parameter_vector()
     vector[mask] = theta
     return structure.with_parameters(vector)
+
+
+def _batched(crit):
+    """The residuals of one candidate on ``crit`` at RTOL, and their Jacobian by the forward differences scipy's
+    least_squares makes with ``diff_step=DIFFERENCE`` (the step DIFFERENCE·|θ|, √eps·max(1, |θ|) where that is
+    no step), its columns simulated in one batch call — side by side on the simulator's threads — from the
+    residuals at θ the solver has just asked for."""
+    last = {}
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        last["theta"], last["r"] = theta.copy(), crit.residuals(theta[None], RTOL)[0]
+        return last["r"]
+
+    def jacobian(theta: np.ndarray) -> np.ndarray:
+        sign = np.where(theta >= 0, 1.0, -1.0)
+        h = DIFFERENCE * sign * np.abs(theta)
+        h = np.where((theta + h) - theta == 0, np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(theta)),
+                     h)
+        rows = theta + np.diag(h)
+        known = "theta" in last and np.array_equal(last["theta"], theta)
+        r = crit.residuals(rows if known else np.vstack([rows, theta]), RTOL)
+        base = last["r"] if known else r[-1]
+        return ((r[:theta.size] - base) / (np.diag(rows) - theta)[:, None]).T
+
+    return residuals, jacobian
 
 
 def _first_share(data, share: float):

@@ -285,8 +285,11 @@ def _fit_groups(pool: Workers, groups: list[tuple[CandidateJob, dict]], run: Run
     jobs = [(g, replace(job, candidate=c, start=s)) for g, (job, starts) in enumerate(groups)
             for c, s in starts.items() if not isinstance(s, Exception)]
     spare = _threads_per_job(pool, len(jobs))
-    if spare > 1:  # fewer fits than local workers: each fit's simulations on the idle cores too
-        jobs = [(g, replace(j, threads=spare)) for g, j in jobs]
+    local = _threads_per_job(pool, 1)
+    # fewer fits than local workers: each fit's simulations on the idle cores too; a ripple's search (the longest
+    # fit of its round, which mostly ends alone) on all of them from the start
+    if local > 1:
+        jobs = [(g, replace(j, threads=local if _searches(j) else spare)) for g, j in jobs]
     jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
     total = done + sum(len(starts) for _, starts in groups)
     count = done + sum(map(len, out))
@@ -316,9 +319,19 @@ def _expected_cost(job: CandidateJob) -> tuple:
     alone, then by the order of G and its zeros (third-order fits with a zero take ten times a first-order one's
     time), then the law."""
     c = job.candidate
-    searched = job.start.load.ripple_amplitude == 0 and "ripple" in c.load and job.mode != "refit"
     swarm = job.mode != "refit" and not job.polished
-    return searched, job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
+    return _searched(job), job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
+
+
+def _searched(job: CandidateJob) -> bool:
+    """Whether the fit starts with a ripple's search (selection.period.ripple_start)."""
+    return job.start.load.ripple_amplitude == 0 and "ripple" in job.candidate.load and job.mode != "refit"
+
+
+def _searches(job: CandidateJob) -> bool:
+    """Whether the fit starts with a search of its own before the polish: a ripple's, or the growing shares of
+    the records (selection.period)."""
+    return _searched(job) or job.continued
 
 
 def _key(score: CandidateScore) -> str:
