@@ -75,6 +75,7 @@ class _Fit:
     intervals: np.ndarray
     covariance: np.ndarray
     jacobian: np.ndarray  # of the weighted residuals by the parameters at theta
+    search_jacobian: np.ndarray  # by the search coordinates at y (the polish's own; the parameters' without one)
 
 
 def check_method(method: str) -> None:
@@ -138,6 +139,10 @@ class PSOANNIdentifier:
     jacobian_ : ndarray, shape (residuals, p)
         The criterion's weighted residuals differentiated by the parameters at ``theta_`` (the polish's last
         Jacobian; central differences without a polish).
+    search_jacobian_ : ndarray, shape (residuals, p)
+        The same by the search coordinates (log-scaled parameters, a Stribeck bump's log of fs − fc) at the fit:
+        the polish's last Jacobian as it computed it; ``jacobian_`` without a polish.  Finite where a parameter
+        sits on its bound (a bump of zero, fs = fc), where the change to the parameters' coordinates is not.
     stages_ : list of Stage
         Outcome of each stage.
     history_ : ndarray
@@ -272,6 +277,7 @@ class PSOANNIdentifier:
         self.intervals_ = chosen.intervals
         self.covariance_ = chosen.covariance
         self.jacobian_ = chosen.jacobian
+        self.search_jacobian_ = chosen.search_jacobian
         self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
         self.theta_ = chosen.theta
         self.fitness_ = chosen.fitness
@@ -305,11 +311,11 @@ class PSOANNIdentifier:
         else:
             theta, fitness = stages[-1].theta, stages[-1].fitness
             r = crit.residuals(theta, POLISH_RTOL)[0]
-            jac = central_jacobian(crit, theta)
+            jac = jac_y = central_jacobian(crit, theta)
         cov, dof = covariance_from_jacobian(r, jac, crit.blocks, getattr(crit, "concurrent", None))
         return _Fit(theta=theta, y=y_best, r=r, fitness=fitness, history=result.cost_history,
                     intervals=intervals_from_covariance(theta, cov, dof, jac),
-                    covariance=with_free_directions(cov, jac), jacobian=jac)
+                    covariance=with_free_directions(cov, jac), jacobian=jac, search_jacobian=jac_y)
 
     def _restart_while_above_floor(self, crit, cost, data, fits: list, box, y0, stages: list) -> "_Fit":
         """Search again while the best fit is above the noise floor (servofmu.identification.restarts), until a

@@ -389,7 +389,10 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     val_neg2, _ = _neg2loglik([e for _, e in validated])
     p = theta.size
     penalty = (p + (SEARCHED_PERIOD - 1) * ("ripple_period" in result.names)) * math.log(max(n, 1))
-    bound = screen_bound(est.jacobian_, crit.scales, [e for _, e in fitted]) + penalty \
+    # the reachable drop is the same in any coordinates, and the search's are finite where a Stribeck bump has
+    # collapsed (fs = fc: the parameters' Jacobian is not, and a bound of −inf sent every such fit to the full
+    # polish — on coulomb1_fv seed 3 seven of them, one for 9.9 s, 3500 above the first by BIC)
+    bound = screen_bound(est.search_jacobian_, crit.scales, [e for _, e in fitted]) + penalty \
         if job.mode == "screen" else math.nan
     undetermined = _undetermined(result)
     allowance = math.nan if undetermined or crit.blocks is None else validation_allowance(
@@ -408,8 +411,8 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
 def screen_bound(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarray]) -> float:
     """The lowest −2·ln L a polish could reach from a fit by the Gauss–Newton model: every signal's RSS after one
     full Gauss–Newton step on its output errors (``errors`` at the fit; ``jacobian`` the polish's last, of the
-    residuals weighted by 1/``scales`` per signal).  At a converged fit it is the fit's own −2·ln L less a
-    fraction of one; far from a minimum, what the linearised model promises there."""
+    residuals weighted by 1/``scales`` per signal, in any coordinates).  At a converged fit it is the fit's own
+    −2·ln L less a fraction of one; far from a minimum, what the linearised model promises there."""
     r = np.concatenate(errors)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jacobian))) or jacobian.shape[0] != r.size:
         return -math.inf  # no Jacobian to bound it by: it could be anything
