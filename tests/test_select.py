@@ -378,7 +378,7 @@ def test_a_search_that_cannot_pay_for_a_ripple_stops_at_the_coarse_grid(tmp_path
     forced = _Forced(parent, data, threads=2)
     theta = parent.parameter_vector()[mask]
     forces = [_ripple(k, (0.02, 0.01)) for k in (3.0, 17.0, 40.0)]
-    together = forced.forced(theta, forces)
+    together = forced.with_forces(theta, forces)
     assert all(np.array_equal(a, forced.residuals(theta, f)[0]) for a, f in zip(together, forces))
     assert not np.array_equal(together[0], together[1])
 

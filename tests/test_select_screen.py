@@ -190,6 +190,37 @@ def test_a_start_that_is_the_structures_fit_is_polished_without_a_swarm(g1_recor
     assert abs(polished.bic - searched.bic) < 1.0, (polished.bic, searched.bic)
 
 
+def test_a_ripple_search_or_a_fit_on_shares_takes_every_local_core(monkeypatch):
+    """In a round of three fits on two local workers, the ripple's search and the fit polished on the records'
+    shares first are sent with both cores' threads (each is its round's longest fit), the plain fit with one; on
+    a Dask cluster every fit keeps one."""
+    from types import SimpleNamespace
+
+    from servofmu.selection import run as select_run
+
+    monkeypatch.setattr(select_run, "available_cores", lambda: 2)
+    g1 = sf.load_plant("g1")
+    rippled = plant_from_dict({"name": "r", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+                               "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4},
+                               "load": {"ripple_amplitude": 0.0, "ripple_period": 1.0, "ripple_phase": 0.0}})
+    base = CandidateJob(Candidate("coulomb", 1), g1, None, None, SelectOptions(), 1, {})
+    groups = [(base, {Candidate("coulomb", 1, 0, ("ripple",)): rippled}),
+              (replace(base, mode="refit", continued=True), {Candidate("coulomb", 2): g1}),
+              (base, {Candidate("stribeck", 1): g1})]
+    for scheduler, expected in ((None, {"coulomb+ripple/1": 2, "coulomb/2": 2, "stribeck/1": 1}),
+                                ("tcp://cluster:8786", {"coulomb+ripple/1": 1, "coulomb/2": 1, "stribeck/1": 1})):
+        sent = {}
+
+        def imap(_, jobs):
+            for i, j in enumerate(jobs):
+                sent[j.candidate.name] = j.threads
+                yield i, CandidateScore(j.candidate, "failed")
+
+        pool = SimpleNamespace(scheduler=scheduler, workers=2, imap=imap)
+        select_run._fit_groups(pool, groups, RunOptions(), 0)
+        assert sent == expected, scheduler
+
+
 def test_a_fit_whose_stribeck_bump_collapsed_has_a_screening_bound(g1_records):
     """A Stribeck fit of g1's Coulomb axis ends with a static level equal to its Coulomb level (no bump): the
     change of coordinates to the parameters has no derivative there (no finite intervals), but the polish's own

@@ -117,7 +117,7 @@ class _Forced:
         errors = crit.simulate_errors(np.atleast_2d(theta), rtol)
         return np.concatenate([e / s for e, s in zip(errors, self.crit.scales)], axis=1)
 
-    def forced(self, theta: np.ndarray, forces: list, rtol: float = RTOL) -> list[np.ndarray]:
+    def with_forces(self, theta: np.ndarray, forces: list, rtol: float = RTOL) -> list[np.ndarray]:
         """The residuals of the one candidate ``theta`` with each of ``forces`` added, simulated side by side."""
         with ThreadPoolExecutor(min(self.threads, len(forces))) as pool:
             return list(pool.map(lambda f: self.residuals(theta, f, rtol)[0], forces))
@@ -128,7 +128,7 @@ class _Forced:
         sin(2π·k·x), cos(2π·k·x) beside the ripple ``coef`` (its (A·cos φ, A·sin φ)), whose residuals alone at
         ``rtol`` are ``base``; and the residuals with each force of ``more``, simulated with them."""
         forces = [_ripple(k, np.add(coef, d)) for k in ks for d in ((self.probe, 0.0), (0.0, self.probe))]
-        out = self.forced(theta, forces + list(more), rtol)
+        out = self.with_forces(theta, forces + list(more), rtol)
         columns = [np.column_stack([(out[2 * i] - base) / self.probe, (out[2 * i + 1] - base) / self.probe])
                    for i in range(len(ks))]
         return columns, out[2 * len(ks):]

@@ -22,7 +22,7 @@ from .candidates import Candidate, candidate_plant, load_candidates, parse_candi
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
 from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank,
-                     start_neg2loglik)
+                     searches_ripple, start_neg2loglik)
 from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
                      within_first)
 
@@ -289,7 +289,7 @@ def _fit_groups(pool: Workers, groups: list[tuple[CandidateJob, dict]], run: Run
     # fewer fits than local workers: each fit's simulations on the idle cores too; a ripple's search (the longest
     # fit of its round, which mostly ends alone) on all of them from the start
     if local > 1:
-        jobs = [(g, replace(j, threads=local if _searches(j) else spare)) for g, j in jobs]
+        jobs = [(g, replace(j, threads=local if searches_ripple(j) or j.continued else spare)) for g, j in jobs]
     jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
     total = done + sum(len(starts) for _, starts in groups)
     count = done + sum(map(len, out))
@@ -320,18 +320,7 @@ def _expected_cost(job: CandidateJob) -> tuple:
     time), then the law."""
     c = job.candidate
     swarm = job.mode != "refit" and not job.polished
-    return _searched(job), job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
-
-
-def _searched(job: CandidateJob) -> bool:
-    """Whether the fit starts with a ripple's search (selection.period.ripple_start)."""
-    return job.start.load.ripple_amplitude == 0 and "ripple" in job.candidate.load and job.mode != "refit"
-
-
-def _searches(job: CandidateJob) -> bool:
-    """Whether the fit starts with a search of its own before the polish: a ripple's, or the growing shares of
-    the records (selection.period)."""
-    return _searched(job) or job.continued
+    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
 
 
 def _key(score: CandidateScore) -> str:

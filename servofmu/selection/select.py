@@ -51,8 +51,8 @@ from .data import criterion_for, data_kind
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
-           "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance", "DEFAULT_SPREAD",
-           "SCREEN_RTOL", "SCREEN_MARGIN"]
+           "searches_ripple", "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance",
+           "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 # The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
@@ -316,6 +316,12 @@ def fit_candidate(_, job: CandidateJob) -> CandidateScore:
                               if not isinstance(exc, UserError) else text, seconds=time.perf_counter() - start)
 
 
+def searches_ripple(job: CandidateJob) -> bool:
+    """Whether the fit begins with a ripple's search (selection.period.ripple_start): a ripple term at zero force
+    in the start (None where the structure has none), in any mode but a refit."""
+    return job.start.load.ripple_amplitude == 0 and job.mode != "refit"
+
+
 def start_neg2loglik(_, job: CandidateJob) -> float:
     """Worker task: −2·ln L of the fitted data at the values of ``job.start`` (inf where they cannot be
     simulated), at the polish's tolerance."""
@@ -359,7 +365,7 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
-    searched = job.start.load.ripple_amplitude == 0 and job.mode != "refit"
+    searched = searches_ripple(job)
     if searched:
         found = ripple_start(job.start, job.data, job.threads)
         searched, job = found is not job.start, replace(job, start=found)

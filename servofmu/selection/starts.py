@@ -15,9 +15,9 @@ from ..model.plant import Friction, plant_from_dict
 from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
 from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
 
-__all__ = ["NESTED_LAW", "contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader", "nested_law_starts",
-           "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law", "without_cancelling",
-           "within_first", "without_load"]
+__all__ = ["NESTED_LAW", "contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader",
+           "nested_law_starts", "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law",
+           "without_cancelling", "within_first", "without_load"]
 
 
 # The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
