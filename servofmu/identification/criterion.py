@@ -35,7 +35,7 @@ __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data",
            "record_errors", "fit_percent", "newey_west_covariance", "bartlett_lags", "long_run_dof",
            "sine_residuals", "sine_residual_jacobian",
            "SineCriterion", "RecordCriterion", "TimeDomainCriterion", "rms", "steady_state_options",
-           "central_jacobian", "intervals_from_jacobian", "covariance_from_jacobian",
+           "central_jacobian", "with_finite_columns", "intervals_from_jacobian", "covariance_from_jacobian",
            "intervals_from_covariance", "undetermined", "output_error_fitness", "SEARCH_RTOL",
            "POLISH_RTOL", "JACOBIAN_RTOL", "JACOBIAN_STEP"]
 
@@ -389,6 +389,29 @@ def central_jacobian(crit: SineCriterion | RecordCriterion, theta: np.ndarray) -
     return ((r[:p] - r[p:]) / (2 * h[:, None])).T
 
 
+def with_finite_columns(crit: SineCriterion | RecordCriterion, theta: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """``jac`` (d residuals / d theta) with each column that is not finite made again by differences in the
+    parameters themselves: at the edge of a parameter's domain the search's coordinates have no finite derivative
+    (a collapsed Stribeck bump, fs = fc: log(fs − fc) = −∞), while the residuals are smooth in the parameters.
+    Central differences where both sides are plants, one-sided ones where only one is (fs below fc is none)."""
+    bad = np.flatnonzero(~np.all(np.isfinite(jac), axis=0))
+    if not bad.size:
+        return jac
+    h = JACOBIAN_STEP * np.maximum(np.abs(theta[bad]), 1e-3)
+    steps = np.zeros((bad.size, theta.size))
+    steps[np.arange(bad.size), bad] = h
+    r = crit.residuals(np.vstack([theta[None], theta + steps, theta - steps]), JACOBIAN_RTOL)
+    r0, up, down = r[0], r[1:bad.size + 1], r[bad.size + 1:]
+    out = np.array(jac, dtype=float)
+    for i, k in enumerate(bad):
+        ok_up, ok_down = np.all(np.isfinite(up[i])), np.all(np.isfinite(down[i]))
+        if ok_up and ok_down:
+            out[:, k] = (up[i] - down[i]) / (2 * h[i])
+        elif ok_up or ok_down:
+            out[:, k] = (up[i] - r0) / h[i] if ok_up else (r0 - down[i]) / h[i]
+    return out
+
+
 def intervals_from_jacobian(theta: np.ndarray, r: np.ndarray, jac: np.ndarray, level: float = 0.95,
                             blocks: list[slice] | None = None,
                             concurrent: list[tuple[int, ...]] | None = None) -> np.ndarray:
@@ -422,16 +445,25 @@ def intervals_from_covariance(theta: np.ndarray, cov: np.ndarray, dof: int, jac:
     if not np.all(np.isfinite(cov)):
         return np.full((theta.size, 2), np.nan)
     half = t_quantile(level, dof) * np.sqrt(np.clip(np.diag(cov), 0, None))
-    half[undetermined(jac)] = np.inf
+    half[undetermined(jac, theta=theta)] = np.inf
     return np.stack([theta - half, theta + half], axis=1)
 
 
-def undetermined(jac: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+# A parameter whose whole value moves the residuals by less than this share of what the most effective one's does
+# has no effect the data shows (a Stribeck level whose Stribeck velocity went to 1e-86 m/s: 1e-10 of the gain's)
+NO_EFFECT = 1e-8
+
+
+def undetermined(jac: np.ndarray, rtol: float = 1e-10, theta: np.ndarray | None = None) -> np.ndarray:
     """(p,) bool: the parameters the data does not determine — those with a share in a direction of parameter
-    space that leaves the residuals unchanged (a null direction of the column-scaled Jacobian).  Their intervals
-    are unbounded: the pseudo-inverse's zero variance there would claim the opposite of the truth."""
+    space that leaves the residuals unchanged (a null direction of the column-scaled Jacobian), and with ``theta``
+    those whose effect (a column times the value) is below NO_EFFECT of the largest.  Their intervals are
+    unbounded: the pseudo-inverse's zero variance there would claim the opposite of the truth."""
     scale = np.linalg.norm(jac, axis=0)
     dead = scale == 0
+    if theta is not None:
+        effect = scale * np.abs(theta)
+        dead |= (effect <= NO_EFFECT * effect.max()) & (theta != 0)
     if dead.all():
         return dead
     _, sv, vt = np.linalg.svd(jac[:, ~dead] / scale[~dead], full_matrices=False)

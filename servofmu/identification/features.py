@@ -71,12 +71,19 @@ def from_targets(structure: Plant, y: np.ndarray) -> np.ndarray:
 
 
 def target_jacobian(structure: Plant, y: np.ndarray) -> np.ndarray:
-    """d y / d theta at the parameters of ``y`` (the coordinate change only; no simulation)."""
+    """d y / d theta at the parameters of ``y`` (the coordinate change only; no simulation).  Not finite where a
+    parameter is at the edge of its domain (fs = fc: log(fs − fc) has no derivative there);
+    criterion.with_finite_columns makes the residuals' derivatives there from the parameters themselves."""
     theta = from_targets(structure, y[None])[0]
     h = 1e-7 * np.maximum(np.abs(theta), 1e-6)
     up = to_targets(structure, theta + np.diag(h))
     down = to_targets(structure, theta - np.diag(h))
-    return ((up - down) / (2 * h[:, None])).T
+    with np.errstate(invalid="ignore"):
+        out = (up - down) / (2 * h[:, None])
+    # a target at ±∞ that a step leaves there (a collapsed Stribeck bump's log(fs − fc) under another parameter's
+    # step) does not change: its derivative is 0, not ∞ − ∞
+    out[up == down] = 0.0
+    return out.T
 
 
 def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:

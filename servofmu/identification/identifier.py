@@ -43,6 +43,7 @@ from .criterion import (
     record_data,
     rms,
     sine_data,
+    with_finite_columns,
 )
 from .confounding import with_free_directions
 from .features import ann_features, feature_names, from_targets, prior_box, target_jacobian
@@ -308,6 +309,8 @@ class PSOANNIdentifier:
             stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0, crit.evaluations - before))
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
             jac = jac_y @ target_jacobian(self.structure, y_best)
+            if not np.all(np.isfinite(jac)):  # a parameter at the edge of its domain (fs = fc)
+                jac = with_finite_columns(crit, theta, jac)
         else:
             theta, fitness = stages[-1].theta, stages[-1].fitness
             r = crit.residuals(theta, POLISH_RTOL)[0]
