@@ -203,6 +203,62 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
                            for s in sel.scores]}
 
 
+SENSITIVITY_STEP = 1e-4  # the relative change of a parameter in the sensitivity check (--sensitivity)
+
+
+def sensitivity(name: str, seed: int, folder: Path) -> dict:
+    """How far the true plant's response on its fit record moves when one identified parameter moves by
+    SENSITIVITY_STEP (relative, a fraction of its standard error): the largest change of the velocity (in noise
+    standard deviations) and of the position (in ripple periods where the plant has one, else in mm), over the
+    parameters; and where the polish of ``select`` ends from the true values and from the true values each moved
+    by SENSITIVITY_STEP (random signs): the difference of their BIC.  A regular axis moves by a fraction of the
+    noise and the two polishes end alike; a chaotic one (a mass in a ripple's wells, driven: a forced pendulum)
+    moves by whole periods, and the truth's minimum is a needle no polish from a start that far off reaches."""
+    from servofmu.identification.prior import identified_mask
+    from servofmu.selection.candidates import parse_candidates
+    from servofmu.selection.data import load_selection_data
+    from servofmu.selection.select import CandidateJob, fit_candidate
+
+    plant, truth, scale = PLANTS[name]
+    rng = np.random.default_rng(1000 * seed + 1)  # the fit record's input, as record() draws it
+    t = np.arange(0, DURATION, DT)
+    u = excitation(t, scale, rng)
+    vector, columns = plant.parameter_vector(), np.flatnonzero(identified_mask(plant))
+    columns = columns[vector[columns] != 0]
+    rows = np.repeat(vector[None], 1 + columns.size, axis=0)
+    rows[1 + np.arange(columns.size), columns] *= 1 + SENSITIVITY_STEP
+    res = BatchSimulator(plant).simulate_record(rows, t, u, rtol=1e-10)
+    noise = np.std(res.v[0]) * 10 ** (-SNR_DB / 20)
+    dv = float(np.max(np.abs(res.v[1:] - res.v[0])) / noise)
+    dx = float(np.max(np.abs(res.position[1:] - res.position[0])))
+    fit = record(plant, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1, scale)
+    data, _ = load_selection_data([fit], 0.0, None)
+    moved = vector.copy()
+    moved[columns] *= 1 + SENSITIVITY_STEP * np.random.default_rng(seed).choice([-1.0, 1.0], columns.size)
+    candidate = parse_candidates([truth])[0]
+    bics = [fit_candidate(None, CandidateJob(candidate, start, data, data, sf.SelectOptions(seed=seed), None, {},
+                                             mode="refit")).bic
+            for start in (plant, plant.with_parameters(moved))]
+    period = plant.load.ripple_period
+    return {"plant": name, "seed": seed, "velocity_noise": dv, "position_m": dx, "period_m": period,
+            "bic_truth": bics[0], "bic_moved": bics[1]}
+
+
+def sensitivity_report(rows: list[dict]) -> str:
+    lines = [f"`scripts/bench_select.py --sensitivity`: each identified parameter of the true plant moved by "
+             f"{SENSITIVITY_STEP:g} (relative) on the fit record; the largest change of the velocity and the position "
+             "over the parameters, and the BIC of the polish (`select`'s, at the identifier's tolerances) from the "
+             f"true values and from the true values all moved by {SENSITIVITY_STEP:g} (random signs).", "",
+             "| plant | seed | velocity change (noise σ) | position change | polish from the truth: BIC | "
+             f"from the truth moved by {SENSITIVITY_STEP:g}: BIC above |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        position = (f"{r['position_m'] / r['period_m']:.3g} periods" if r["period_m"] else
+                    f"{1e3 * r['position_m']:.3g} mm")
+        lines.append(f"| {r['plant']} | {r['seed']} | {r['velocity_noise']:.3g} | {position} | {r['bic_truth']:.1f} | "
+                     f"{r['bic_moved'] - r['bic_truth']:.1f} |")
+    return "\n".join(lines)
+
+
 def _median(rows: list[dict], key: str) -> str:
     values = [r[key] for r in rows if key in r]
     return f"{np.median(values):.1f}" if values else "—"
@@ -267,6 +323,8 @@ def main() -> None:
     parser.add_argument("-o", "--output", default="docs/bench-select.md")
     parser.add_argument("--json", help="also write every selection's row (JSON lines)")
     parser.add_argument("--from-json", help="make the report from the rows of an earlier run (JSON lines)")
+    parser.add_argument("--sensitivity", action="store_true",
+                        help="no selections: how far each plant's response moves with its parameters (sensitivity)")
     args = parser.parse_args()
     if args.from_json:
         rows = [json.loads(line) for line in Path(args.from_json).read_text().splitlines() if line.strip()]
@@ -278,6 +336,17 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown plant {unknown[0]!r}; the plants: {', '.join([*PLANTS, *LOOP_PLANTS])}")
     rows = []
+    if args.sensitivity:
+        if any(p in LOOP_PLANTS for p in args.plants.split(",")):
+            parser.error("--sensitivity takes open-loop plants: " + ", ".join(PLANTS))
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in args.plants.split(","):
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
+                    rows.append(sensitivity(name, seed, Path(tmp)))
+                    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+        Path(args.output).write_text(sensitivity_report(rows) + "\n")
+        print(sensitivity_report(rows))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             for name in args.plants.split(","):

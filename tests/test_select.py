@@ -632,8 +632,11 @@ def test_select_ranks_g1s_structure_first_and_writes_every_output(g1_records, tm
         bic = ranking["bic"][()]
         neg2, n, p = ranking["neg2loglik"][()], ranking["samples"][()], ranking["parameters"][()]
         assert np.allclose(bic[:3], neg2[:3] + p[:3] * np.log(n[:3]))
+        # a regular fit: −2·ln L rises by about 1 at a standard error (select.response_roughness)
+        assert ranking.attrs["roughness"] == selection.roughness and 0.5 < selection.roughness < 2
     page = (tmp_path / "select.html").read_text()
     assert 'id="chosen"' in page and "coulomb/1" in page and "<img" in page
+    assert not selection.rough and 'id="rough"' not in page
 
 
 def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_stays_first(g1_records, tmp_path,

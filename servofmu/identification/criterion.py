@@ -45,7 +45,7 @@ __all__ = ["SineData", "RecordData", "RecordSeries", "sine_data", "record_data",
 # of what it does at 1e-10 (docs/bench-speed.md).  The price is a polish that stops a little earlier on a few
 # plants, still far inside 1e-6: worst relative error 1.3e-9 over bench-identify's 100 random g2 plants, median
 # 2e-10 (docs/bench-identify.md).  A perturbed candidate without steady state is stepped the other way
-# (identifier.polish).
+# (servofmu.identification.polish).
 SEARCH_RTOL = 1e-5
 POLISH_RTOL = 1e-10
 JACOBIAN_RTOL = 1e-9

@@ -7,17 +7,18 @@ the true parameters, which no user has; servofmu.identification.criterion).  Sta
 2. ``pso``: a particle swarm searches a box around it (in the network's output coordinates: logs of
    magnitudes, so the box is relative and positivity is kept); without a network (``method="pso"``) the box is
    the prior's;
-3. ``polish``: Levenberg–Marquardt on the residuals from the search's best point, with a forward-difference
-   Jacobian computed in one batch call; its last Jacobian gives the 95 % intervals (Gauss–Newton covariance
-   s²(JᵀJ)⁻¹, Student t quantile).
+3. ``polish`` (servofmu.identification.polish): Levenberg–Marquardt on the residuals from the search's best
+   point, with a forward-difference Jacobian computed in one batch call; its last Jacobian gives the 95 % intervals
+   (Gauss–Newton covariance s²(JᵀJ)⁻¹, Student t quantile), and for records the fit's roughness is checked
+   (servofmu.identification.roughness: whether the cost is as quadratic as the intervals assume).
 The GA comparators (``ga-ann``, ``aga-ann``) replace stage 2 with the same budget of model evaluations.
 """
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -28,8 +29,6 @@ from ..runtime import Progress
 from ..simulation.batch import BatchSimulator
 from .ann import AnnModel, FeatureLayout, load_ann
 from .criterion import (
-    JACOBIAN_RTOL,
-    JACOBIAN_STEP,
     POLISH_RTOL,
     SEARCH_RTOL,
     RecordCriterion,
@@ -46,22 +45,17 @@ from .criterion import (
     with_finite_columns,
 )
 from .confounding import with_free_directions
+from .roughness import finite_covariance, response_roughness
 from .features import ann_features, feature_names, from_targets, prior_box, target_jacobian
 from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from .methods import METHODS, NEEDS_ANN, SEARCH_NAMES
 from .prior import canonical_order, full_vectors, identified_names
+from .polish import MAX_POLISH_ITERATIONS, polish
 from .pso import PsoOptions, minimize_pso
 from .restarts import RestartOptions, fits_agree, floor_test, noise_half_widths, restart_box, restart_seed
 from .results import Result, Stage, result_from_estimator
 
 __all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance", "swarm_options"]
-
-MAX_POLISH_ITERATIONS = 20
-# The polish goes on while a step lowers Σr² by a noise variance (Σr²/(m − p)) or more: on a record of 2000
-# samples a 1 % smaller residual norm is 40 such variances, and a fit stopped there can lose a selection's ranking
-# (ln N = 7.6 a parameter) to a structure whose own polish went further.
-POLISH_MIN_DROP = 1.0
-
 
 @dataclass(frozen=True, eq=False)
 class _Fit:
@@ -152,6 +146,10 @@ class PSOANNIdentifier:
         Searches after the first (0 when the first fit was at the noise floor).
     floor_ : FloorTest or None
         The kept fit against the noise floor (None for time-domain data, which has no known noise level).
+    roughness_ : float
+        Records: the largest rise of −2·ln L one standard error from the polished fit (about 1; above
+        roughness.ROUGH_RISE the response is chaotic in the parameters and the intervals do not hold); NaN for
+        stepped-sine data or without a polish.
     seconds_, evaluations_ : float, int
         Wall time and model evaluations of the whole fit.
 
@@ -164,6 +162,7 @@ class PSOANNIdentifier:
     """
 
     polish_iterations = MAX_POLISH_ITERATIONS  # Levenberg–Marquardt steps at most (a selection's screening: fewer)
+    check_roughness = True  # roughness_ of a polished records fit (a selection checks only the one it chooses)
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -280,6 +279,10 @@ class PSOANNIdentifier:
         self.jacobian_ = chosen.jacobian
         self.search_jacobian_ = chosen.search_jacobian
         self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
+        # records: whether the cost is as quadratic about the fit as its intervals assume (a chaotic response is not)
+        self.roughness_ = response_roughness(crit, chosen.theta, finite_covariance(chosen.covariance,
+                                                                                   chosen.intervals)) \
+            if self.check_roughness and self.polish else math.nan
         self.theta_ = chosen.theta
         self.fitness_ = chosen.fitness
         self.history_ = chosen.history
@@ -389,70 +392,6 @@ def swarm_options(iterations: int | None = None) -> PsoOptions:
         return PsoOptions()
     check_int("--iterations (swarm iterations)", iterations, 0)
     return PsoOptions(iterations=iterations)
-
-
-# ---------------------------------------------------------------------------
-# Stage 3: the polish
-# ---------------------------------------------------------------------------
-def polish(crit, to_theta, y0: np.ndarray, iterations: int = MAX_POLISH_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
-    """Levenberg–Marquardt on ``crit``'s residuals from ``y0`` (search coordinates; ``to_theta`` maps rows of them
-    to parameters); returns the optimum and the Jacobian there (in search coordinates).
-
-    Stops when a step changes no coordinate by more than 1e-10 (relative) or by more than its standard error
-    (Gauss–Newton, from the step's Jacobian: a smaller move is one the data cannot tell from noise, and at the
-    features' noise floor further steps only wander), or when the best step lowers the residual norm by less than
-    1 % and Σr² by less than POLISH_MIN_DROP noise variances.  The forward-difference Jacobian
-    is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
-    fails both ways ends the polish (NaN intervals rather than false ones)."""
-
-    def residual(y):
-        r = crit.residuals(to_theta(y[None]), POLISH_RTOL)[0]
-        return np.where(np.isfinite(r), r, 1e3)  # a candidate without steady state: far from the data
-
-    def jacobian(y, r):
-        h = JACOBIAN_STEP * np.maximum(np.abs(y), 1.0)
-        cols = crit.residuals(to_theta(y + np.diag(h)), JACOBIAN_RTOL)
-        failed = ~np.all(np.isfinite(cols), axis=1)
-        if failed.any():
-            h[failed] = -h[failed]
-            cols[failed] = crit.residuals(to_theta(y + np.diag(h)[failed]), JACOBIAN_RTOL)
-        return ((cols - r) / h[:, None]).T
-
-    y, r = y0.copy(), residual(y0)
-    jac, damping = jacobian(y, r), 1e-6
-    for _ in range(iterations):
-        if not np.all(np.isfinite(jac)):
-            break
-        a, g = jac.T @ jac, jac.T @ r
-        step = _lowering_step(residual, y, r, jac, a, g, damping)
-        if step is None:
-            break  # no step lowers the residuals (enough to try): converged
-        step, r_new, damping = step
-        improvement = 1 - np.sqrt((r_new @ r_new) / (r @ r))
-        drop = (r @ r - r_new @ r_new) / max(r_new @ r_new, 1e-300) * max(r.size - y.size, 1)  # noise variances
-        y, r, damping = y + step, r_new, max(damping / 10, 1e-9)
-        standard_errors = np.sqrt(np.clip(np.diag(np.linalg.pinv(a)), 0, None) * (r @ r) / max(r.size - y.size, 1))
-        small = np.max(np.abs(step) / np.maximum(np.abs(y), 1e-3)) < 1e-10 or np.all(np.abs(step) <= standard_errors)
-        jac = jacobian(y, r)
-        if small or improvement < 0.01 and drop < POLISH_MIN_DROP:
-            break
-    return y, jac
-
-
-def _lowering_step(residual, y, r, jac, a, g, damping):
-    """(step, its residuals, its damping): the least damped Levenberg–Marquardt step from ``y`` that lowers the
-    residual norm, raising the damping tenfold per failed try; None when none does.  A failed step that not even
-    the linear model r + J·step expected to lower the norm by 1 % ends the tries: the residuals are at their noise
-    floor, where more damping only costs evaluations."""
-    while damping < 1e8:
-        step = np.linalg.solve(a + damping * np.diag(np.diag(a) + 1e-30), -g)
-        r_new = residual(y + step)
-        if r_new @ r_new < r @ r:
-            return step, r_new, damping
-        if np.linalg.norm(r + jac @ step) > 0.99 * np.linalg.norm(r):
-            return None
-        damping *= 10
-    return None
 
 
 # ---------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import json
 import tomllib
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from ..model.plant import Plant, parameter_info, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
 from ..version import __version__
 from .confounding import Confounded, confounded_groups
+from .roughness import rough_line
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
@@ -88,12 +90,15 @@ def result_from_estimator(est, method: str, provenance: dict) -> Result:
 def restart_provenance(est) -> dict:
     """What a result records of the searches repeated because a fit stopped above the noise floor
     (servofmu.identification.restarts): ``restarts``, and for data with a known noise level ``noise_ratio``, the
-    kept fit's RMS residual over the noise's (about 1 at the floor; null when not finite)."""
+    kept fit's RMS residual over the noise's (about 1 at the floor; null when not finite); for a polished records
+    fit ``roughness`` too (servofmu.identification.roughness: about 1 where the intervals hold)."""
     floor = getattr(est, "floor_", None)
     if not hasattr(est, "restarts_"):
         return {}
     ratio = None if floor is None or not np.isfinite(floor.ratio) else float(floor.ratio)
-    return {"restarts": int(est.restarts_), **({"noise_ratio": ratio} if floor is not None else {})}
+    rough = getattr(est, "roughness_", math.nan)
+    return {"restarts": int(est.restarts_), **({"noise_ratio": ratio} if floor is not None else {}),
+            **({"roughness": float(rough)} if np.isfinite(rough) else {})}
 
 
 def restarts_line(provenance: dict) -> str | None:
@@ -200,6 +205,8 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
         lines.append(f"  stage {s.name:<7} fitness {s.fitness:.3e}  {s.seconds:7.3f} s  {s.evaluations} evaluations")
     if restarts_line(result.provenance):
         lines.append(restarts_line(result.provenance))
+    if rough_line(result.provenance.get("roughness")):
+        lines.append(rough_line(result.provenance["roughness"]))
     lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
                                               for n, (lo, hi) in zip(result.names, result.intervals)))
     lines += [group.line() for group in result.confounded()]

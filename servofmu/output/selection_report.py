@@ -12,7 +12,7 @@ import numpy as np
 from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import read_data_file
 from ..runtime import RunOptions, utc_now
-from ..selection.run import Selection, select_files
+from ..selection.run import Selection, rough_warning, select_files
 from ..selection.select import STRONG_EVIDENCE, VALIDATION_LEVEL, SelectOptions
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import pyplot
@@ -94,6 +94,8 @@ def selection_page(selection: Selection) -> str:
     if chosen is not None:
         parts.append(f'<p id="chosen">Chosen: <strong>{escape(chosen.name)}</strong>, {chosen.parameters} '
                      f"identified parameters. Its plant file:</p><pre>{escape(chosen.result.plant.to_toml())}</pre>")
+        if selection.rough:
+            parts.append(f'<p id="rough" class="warning">{escape(rough_warning(selection))}</p>')
     parts += [table("ranking", ["rank", "candidate", "parameters", "BIC", "ΔBIC", "worst validation fit %",
                                 "Δ validation −2 ln L", "residuals white", "flags"], _ranking_rows(selection),
                     numeric_from=2),

@@ -16,17 +16,19 @@ from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
+from ..identification.roughness import ROUGH_RISE, finite_covariance
 from ..runtime import RunOptions, available_cores, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import check_validation, data_kind, estimation_series, load_selection_data
 from .estimate import data_bandwidth, start_estimates
-from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate, rank,
-                     searches_ripple, start_neg2loglik)
+from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate,
+                     rank, response_roughness, searches_ripple, start_neg2loglik)
 from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
                      within_first)
 
-__all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "SELECT_FORMAT"]
+__all__ = ["Selection", "select_files", "selection_outputs", "selection_text", "selection_json", "rough_warning",
+           "SELECT_FORMAT"]
 
 SELECT_FORMAT = "servofmu-selection"
 
@@ -42,6 +44,13 @@ class Selection:
     kind: str
     options: SelectOptions
     outputs: dict
+    roughness: float = math.nan  # identification.roughness.response_roughness of the chosen fit (NaN: not checked)
+
+    @property
+    def rough(self) -> bool:
+        """Whether the chosen fit's response is chaotic in its parameters (roughness.ROUGH_RISE): its intervals do not
+        hold, and the ranking of the structures that share its rough terms is by where their polishes ended."""
+        return bool(self.roughness > ROUGH_RISE)
 
     @property
     def chosen(self) -> CandidateScore | None:
@@ -186,9 +195,22 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
         if screen and rank(scores)[0].candidate != before:
             scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
+        roughness = _roughness(pool, job, rank(scores)[0])
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
-                          validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={})
+                          validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
+                          roughness=roughness)
     return _write(selection, outputs)
+
+
+def _roughness(pool: Workers, job: CandidateJob, first: CandidateScore) -> float:
+    """select.response_roughness of the fit of ``first`` (the candidate ranked first) over its parameters of
+    finite intervals (a step of an unbounded one's standard error goes anywhere); NaN where it was not fitted or
+    has no covariance."""
+    if first.status != "fitted" or first.result is None or first.result.covariance is None:
+        return math.nan
+    check = replace(job, candidate=first.candidate, start=first.result.plant, threads=_threads_per_job(pool, 1),
+                    covariance=finite_covariance(first.result.covariance, first.result.intervals))
+    return next(iter(pool.imap(response_roughness, [check])))[1]
 
 
 # A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (a polish
@@ -356,7 +378,7 @@ def _fill_ranking(f, selection: Selection) -> None:
     s = selection.scores
     chosen = selection.chosen
     g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
-                    "chosen": chosen.name if chosen else "", "criterion": "bic",
+                    "chosen": chosen.name if chosen else "", "criterion": "bic", "roughness": selection.roughness,
                     "data_files": json.dumps(list(selection.data_files)),
                     "validation_file": selection.validation_file,
                     "options": json.dumps({"candidates": selection.options.candidates,
@@ -383,7 +405,7 @@ def _fill_ranking(f, selection: Selection) -> None:
 def selection_json(selection: Selection) -> dict:
     """One object for scripts: the chosen candidate, the outputs, and every candidate's scores in rank order."""
     return {"chosen": selection.chosen.name if selection.chosen else None, "kind": selection.kind,
-            "outputs": selection.outputs,
+            "outputs": selection.outputs, "roughness": selection.roughness,
             "candidates": [{"rank": s.rank, "name": s.name, "status": s.status, "message": s.message,
                             "parameters": s.parameters, "samples": s.samples, "bic": s.bic, "aic": s.aic,
                             "neg2loglik": s.neg2loglik, "validation_fit_percent": s.validation_fit,
@@ -391,6 +413,14 @@ def selection_json(selection: Selection) -> dict:
                             "undetermined": list(s.undetermined), "flags": list(s.flags), "seconds": s.seconds,
                             "screened": s.screened}
                            for s in selection.scores]}
+
+
+def rough_warning(selection: Selection) -> str:
+    """What a rough chosen fit means for the user, in one line."""
+    return (f"warning: the response of {selection.chosen.name} is chaotic in its parameters on these records: one "
+            f"standard error from its fit −2·ln L rises by {selection.roughness:.3g}, not about 1; its intervals do "
+            "not hold, and structures are ranked by where their polishes happened to end (shorter records are "
+            "predictable over more of their length: docs/selection.md, limits)")
 
 
 def selection_text(selection: Selection) -> str:
@@ -411,5 +441,7 @@ def selection_text(selection: Selection) -> str:
                      f"{s.worst_validation_fit:>12.3f}{s.validation_neg2loglik - best_val:>9.1f}{white:>7}  {flags}")
     chosen = selection.chosen
     lines.append(f"chosen: {chosen.name}" if chosen else "no candidate could be fitted")
+    if chosen and selection.rough:
+        lines.append(rough_warning(selection))
     lines.append("wrote " + ", ".join(selection.outputs.values()))
     return "\n".join(lines)

@@ -44,6 +44,8 @@ from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
 from ..identification.restarts import chi2_quantile
 from ..identification.results import Result
+from ..identification.roughness import neg2loglik
+from ..identification.roughness import response_roughness as roughness_of
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
@@ -52,7 +54,7 @@ from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
            "searches_ripple", "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance",
-           "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
+           "response_roughness", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 # The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
@@ -194,6 +196,7 @@ class CandidateJob:
     seeded: bool = False  # the start is a fit (a larger candidate's, the parent's): the swarm's first particle
     polished: bool = False  # the start is a fit of this structure: no swarm, the polish alone from it
     continued: bool = False  # the start polished on growing shares of the records first (period.continued_start)
+    covariance: np.ndarray | None = None  # the start's covariance, where it is a fit (response_roughness)
 
 
 @dataclass(frozen=True)
@@ -248,18 +251,6 @@ def _signal_errors(crit, data, theta: np.ndarray) -> list[tuple[np.ndarray, np.n
         return [(measured, np.concatenate([r[:n] * scale, r[n:2 * n] * scale]))]
     signals = crit.signals()
     return [(y, e[0]) for (_, y), e in zip(signals, crit.errors(theta[None], POLISH_RTOL))]
-
-
-def _neg2loglik(errors: list[np.ndarray]) -> tuple[float, int]:
-    """−2·ln L of Gaussian residuals with every signal's variance estimated (its mean square), and N."""
-    total, n = 0.0, 0
-    for e in errors:
-        rss = float(e @ e)
-        if not np.isfinite(rss):
-            return math.inf, n
-        total += e.size * (math.log(2 * math.pi * max(rss / e.size, 1e-300)) + 1)
-        n += e.size
-    return total, n
 
 
 def _whiteness(crit, data, errors) -> bool | None:
@@ -322,6 +313,19 @@ def searches_ripple(job: CandidateJob) -> bool:
     return job.start.load.ripple_amplitude == 0 and job.mode != "refit"
 
 
+def response_roughness(_, job: CandidateJob) -> float:
+    """Worker task: identification.roughness.response_roughness of the fit ``job.start`` with its covariance
+    ``job.covariance`` on the fitted data (NaN where it cannot be checked)."""
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            crit = criterion_for(job.start, job.data, job.threads)
+            theta = np.array([job.start.parameters()[k] for k in identified_names(job.start)], dtype=float)
+            return roughness_of(crit, theta, job.covariance)
+    except Exception:  # noqa: BLE001 — a check that cannot be made says nothing
+        return math.nan
+
+
 def start_neg2loglik(_, job: CandidateJob) -> float:
     """Worker task: −2·ln L of the fitted data at the values of ``job.start`` (inf where they cannot be
     simulated), at the polish's tolerance."""
@@ -330,7 +334,7 @@ def start_neg2loglik(_, job: CandidateJob) -> float:
             warnings.simplefilter("ignore")
             crit = criterion_for(job.start, job.data, job.threads)
             theta = np.array([job.start.parameters()[k] for k in identified_names(job.start)], dtype=float)
-            value, _ = _neg2loglik([e for _, e in _signal_errors(crit, job.data, theta)])
+            value, _ = neg2loglik([e for _, e in _signal_errors(crit, job.data, theta)])
     except Exception:  # noqa: BLE001 — a start that cannot be scored is no better than the fit it would replace
         return math.inf
     return value if np.isfinite(value) else math.inf
@@ -346,6 +350,7 @@ class _CandidateIdentifier(PSOANNIdentifier):
     rtol_floor = 0.0
     from_start = False
     seeded = False
+    check_roughness = False  # the selection checks the candidate it chooses (run._roughness)
 
     def _criterion(self, data):
         self.criterion_ = criterion_for(self.structure, data, self.threads)
@@ -389,10 +394,10 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     if hasattr(getattr(crit_v, "simulator", None), "rtol_floor"):
         crit_v.simulator.rtol_floor = est.rtol_floor
     fitted = _signal_errors(crit, job.data, theta)
-    neg2, n = _neg2loglik([e for _, e in fitted])
+    neg2, n = neg2loglik([e for _, e in fitted])
     validated = _signal_errors(crit_v, job.validation, theta)
     names = [name for name, _ in crit_v.signals()] if crit_v.blocks is not None else ["harmonics"]
-    val_neg2, _ = _neg2loglik([e for _, e in validated])
+    val_neg2, _ = neg2loglik([e for _, e in validated])
     p = theta.size
     penalty = (p + (SEARCHED_PERIOD - 1) * ("ripple_period" in result.names)) * math.log(max(n, 1))
     # the reachable drop is the same in any coordinates, and the search's are finite where a Stribeck bump has
@@ -426,7 +431,7 @@ def screen_bound(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarr
     step = np.linalg.lstsq(jac, r, rcond=None)[0]
     left = r - jac @ step
     sizes = np.cumsum([x.size for x in errors])[:-1]
-    return _neg2loglik(np.split(left, sizes))[0]
+    return neg2loglik(np.split(left, sizes))[0]
 
 
 def could_win(score: CandidateScore, chosen: CandidateScore) -> bool:

@@ -1,0 +1,81 @@
+"""Whether a fit's cost is what its intervals assume: locally quadratic, or chaotic in the parameters.
+
+The 95 % intervals (and the Cramér–Rao bound) describe a cost that is a paraboloid within a few standard errors of
+the fit: one standard error along a parameter's profile direction, ±C·e_k/√C_kk (C the covariance; the other
+parameters following as they are correlated with it), raises −2·ln L by 1.  A record on which the response loses
+its way — a mass moved by a force through a position ripple's wells (a driven pendulum, with a second-order G) —
+is chaotic in the parameters: a ten-thousandth of a pole moves the simulated position by periods of the ripple,
+the cost is rough at every scale, and a polish ends in whichever spike of it it reaches (docs/selection.md,
+limits).  There −2·ln L rises by thousands at a standard error: :func:`response_roughness` measures the largest
+rise, ROUGH_RISE marks it.  Stepped-sine data (steady states, no trajectory to lose) is not checked.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .criterion import POLISH_RTOL
+
+__all__ = ["ROUGH_RISE", "neg2loglik", "response_roughness", "rough_line", "finite_covariance"]
+
+# The rise of −2·ln L at one standard error that marks a fit's response as chaotic in its parameters: a quadratic
+# cost rises by 1; a first-order axis with a ripple (its phase's valley curving) by up to 31 in the tests' records;
+# the forced pendulum of docs/selection.md by 2000–3600, and by hundreds at a tenth of a standard error
+ROUGH_RISE = 200.0
+
+
+def neg2loglik(errors: list[np.ndarray]) -> tuple[float, int]:
+    """−2·ln L of Gaussian residuals with every signal's variance estimated (its mean square), and N."""
+    total, n = 0.0, 0
+    for e in errors:
+        rss = float(e @ e)
+        if not np.isfinite(rss):
+            return math.inf, n
+        total += e.size * (math.log(2 * math.pi * max(rss / e.size, 1e-300)) + 1)
+        n += e.size
+    return total, n
+
+
+def finite_covariance(covariance, intervals) -> np.ndarray:
+    """``covariance`` with the rows and columns of the parameters whose intervals are unbounded set to NaN: a step
+    of an undetermined parameter's standard error goes anywhere (its variance was set, not measured)."""
+    out = np.array(covariance, dtype=float)
+    unbounded = ~np.all(np.isfinite(np.asarray(intervals, dtype=float)), axis=1)
+    out[unbounded, :] = np.nan
+    out[:, unbounded] = np.nan
+    return out
+
+
+def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH_RTOL) -> float:
+    """The largest rise of −2·ln L (every signal's variance estimated) of ``crit``'s data from ``theta`` over
+    steps of one standard error along each parameter's profile direction, ±C·e_k/√C_kk — about 1 for a locally
+    quadratic cost, at least 1 where parameters of NaN variance are left out.  NaN for stepped-sine criteria
+    (no trajectory), a covariance that is missing or not finite, or steps that cannot be simulated."""
+    if covariance is None or getattr(crit, "blocks", None) is None:
+        return math.nan
+    covariance = np.asarray(covariance, dtype=float)
+    with np.errstate(invalid="ignore"):
+        sd = np.sqrt(np.diag(covariance))
+    live = np.flatnonzero(np.isfinite(sd) & (sd > 0))
+    steps = np.zeros((live.size, theta.size))
+    steps[:, live] = (covariance[np.ix_(live, live)] / sd[live]).T
+    if not live.size or not np.all(np.isfinite(steps)):
+        return math.nan
+    rows = np.vstack([theta, theta + steps, theta - steps])
+    with np.errstate(all="ignore"):
+        errors = crit.simulate_errors(rows, rtol)
+    values = np.array([neg2loglik([e[i] for e in errors])[0] for i in range(rows.shape[0])])
+    rises = values[1:] - values[0]
+    rises = rises[np.isfinite(rises)]
+    return float(np.max(rises)) if rises.size and np.isfinite(values[0]) else math.nan
+
+
+def rough_line(roughness: float | None) -> str | None:
+    """The warning a rough fit's table ends with (None for a regular one, or one not checked)."""
+    if roughness is None or not roughness > ROUGH_RISE:
+        return None
+    return (f"warning: the response is chaotic in the parameters on these records — one standard error from the "
+            f"fit −2·ln L rises by {roughness:.3g}, not about 1: the intervals do not hold, and the fit is one of "
+            "many spikes of a rough cost (shorter records are predictable over more of their length; "
+            "docs/selection.md, limits)")

@@ -1,0 +1,85 @@
+"""A chaotic response is told from a regular one (select.response_roughness): at one standard error from a fit a
+locally quadratic cost rises by 1; on a record where a mass moves through a ripple's wells under a force (a forced
+pendulum: G of second order with a position ripple) the truth's own fit rises by thousands there, and the
+selection says so."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from servofmu.model.plant import plant_from_dict
+from servofmu.identification.criterion import RecordData, RecordSeries
+from servofmu.selection.candidates import parse_candidates
+from servofmu.identification.roughness import ROUGH_RISE
+from servofmu.selection.select import CandidateJob, SelectOptions, fit_candidate, response_roughness
+from servofmu.simulation.batch import BatchSimulator
+
+DT, DURATION = 0.01, 20.0
+
+
+def ripple_axis(poles, dc_gain, levels, ripple):
+    amplitude, period, phase = ripple
+    return plant_from_dict({"name": "axis", "linear": {"poles": [[p, 0.0] for p in poles], "dc_gain": dc_gain},
+                            "friction": {"model": "coulomb", "fc_pos": levels[0], "fc_neg": levels[1]},
+                            "load": {"ripple_amplitude": amplitude, "ripple_period": period,
+                                     "ripple_phase": phase}})
+
+
+def record(plant, seed: int) -> RecordData:
+    """20 s at 100 Hz: 2 N at 1 Hz with 0.6 N at 3.1 Hz, then 0.7 N at 0.6 Hz with 0.3 N at 4.3 Hz, 40 dB of
+    white noise on the velocity."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, DURATION, DT)
+    ph = rng.uniform(0, 2 * np.pi, 4)
+    u = np.where(t < DURATION / 2, 2 * np.sin(2 * np.pi * t + ph[0]) + 0.6 * np.sin(2 * np.pi * 3.1 * t + ph[1]),
+                 0.7 * np.sin(2 * np.pi * 0.6 * t + ph[2]) + 0.3 * np.sin(2 * np.pi * 4.3 * t + ph[3]))
+    v = BatchSimulator(plant).simulate_record(plant.parameter_vector()[None], t, u, rtol=1e-10).v[0]
+    v = v + 0.01 * np.std(v) * rng.standard_normal(v.size)
+    return RecordData((RecordSeries("v", t, u, v, "v", "zoh", np.ones(t.size, bool)),), "records")
+
+
+def roughness_of_truths_fit(plant, truth: str, seed: int) -> float:
+    """The truth's structure polished from the true values (select's refit), and its roughness."""
+    data = record(plant, seed)
+    job = CandidateJob(parse_candidates([truth])[0], plant, data, data, SelectOptions(seed=seed), 2, {},
+                       mode="refit")
+    fit = fit_candidate(None, job)
+    assert fit.status == "fitted", fit.message
+    check = CandidateJob(job.candidate, fit.result.plant, data, data, job.options, 2, {},
+                         covariance=fit.result.covariance)
+    return response_roughness(None, check)
+
+
+@pytest.mark.parametrize("seed", [3, 6])
+def test_a_first_order_ripple_axis_is_regular_and_a_second_order_one_chaotic(seed):
+    # first order: velocity follows the force, the position cannot run away from the record's — the cost is about
+    # quadratic at a standard error, as the covariance promises: a rise of 1, 3 on seed 6, 31 on seed 3 along the
+    # ripple phase's curving valley
+    regular = roughness_of_truths_fit(ripple_axis([-10.0], 1.0, (0.5, 0.4), (0.2, 0.05, 0.7)), "coulomb+ripple/1",
+                                      seed)
+    assert 0.5 < regular < ROUGH_RISE / 4
+    # second order (bench_select's coulomb2_ripple): a standard error from the truth's own fit the response has
+    # slipped wells along the way (2000–3600)
+    chaotic = roughness_of_truths_fit(ripple_axis([-5.0, -40.0], 2.0, (0.3, 0.25), (0.15, 0.04, -1.1)),
+                                      "coulomb+ripple/2", seed)
+    assert chaotic > 5 * ROUGH_RISE
+
+
+def test_roughness_is_not_checked_without_a_covariance():
+    plant = ripple_axis([-10.0], 1.0, (0.5, 0.4), (0.2, 0.05, 0.7))
+    data = record(plant, 0)
+    job = CandidateJob(parse_candidates(["coulomb+ripple/1"])[0], plant, data, data, SelectOptions(), 1, {})
+    assert np.isnan(response_roughness(None, job))
+
+
+def test_identify_says_when_its_intervals_do_not_hold():
+    from servofmu.identification.identifier import PSOANNIdentifier
+    from servofmu.identification.results import table_text
+
+    for plant, rough in ((ripple_axis([-10.0], 1.0, (0.5, 0.4), (0.2, 0.05, 0.7)), False),
+                         (ripple_axis([-5.0, -40.0], 2.0, (0.3, 0.25), (0.15, 0.04, -1.1)), True)):
+        est = PSOANNIdentifier(plant, method="pso", seed=0, threads=2).fit(record(plant, 3))
+        result = est.result({})
+        assert (est.roughness_ > ROUGH_RISE) == rough, est.roughness_
+        assert result.provenance["roughness"] == est.roughness_
+        assert ("chaotic in the parameters" in table_text(result)) == rough
