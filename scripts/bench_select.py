@@ -192,6 +192,10 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
             "compiled": compiled,  # simulator libraries the selection compiled (not in the cache yet)
             "load": [load, os.getloadavg()[0]], "fits": len(sel.scores),
             "screened": sum(getattr(s, "screened", False) for s in sel.scores),
+            # the chosen fit's roughness (about 1 where regular), on all of the records and where the selection was
+            # made again on their start (the share of them it was made on: 1 = all)
+            "roughness": getattr(sel, "roughness", None), "roughness_whole": getattr(sel, "roughness_whole", None),
+            "horizon": getattr(sel, "horizon", 1.0),
             "slowest": max((s.seconds, s.name) for s in sel.scores),
             "levels": [chosen.result.plant.friction.fc_pos, chosen.result.plant.friction.fc_neg]
             if chosen and chosen.result else None,

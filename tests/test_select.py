@@ -390,15 +390,15 @@ def test_a_shares_jacobian_is_scipys_own_differences_in_one_batch(tmp_path):
     from scipy.optimize import least_squares
 
     from servofmu.identification.prior import identified_mask
-    from servofmu.selection.data import criterion_for, load_selection_data
-    from servofmu.selection.period import DIFFERENCE, RTOL, SHARE_TOL, _batched, _first_share
+    from servofmu.selection.data import criterion_for, first_share, load_selection_data
+    from servofmu.selection.period import DIFFERENCE, RTOL, SHARE_TOL, _batched
 
     truth = _first_order(-10.0, 1.0, (0.5, 0.4),
                          {"ripple_amplitude": 0.25, "ripple_period": 0.037, "ripple_phase": -1.0})
     data, _ = load_selection_data([_record(tmp_path, "share", truth, 4)])
     start = _first_order(-10.3, 0.97, (0.515, 0.39),
                          {"ripple_amplitude": 0.2, "ripple_period": 0.0371, "ripple_phase": 0.0})
-    crit = criterion_for(start, _first_share(data, 0.2))
+    crit = criterion_for(start, first_share(data, 0.2))
     theta = start.parameter_vector()[identified_mask(start)]
     assert np.any(theta == 0)
     residuals, jacobian = _batched(crit)

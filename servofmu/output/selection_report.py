@@ -94,7 +94,7 @@ def selection_page(selection: Selection) -> str:
     if chosen is not None:
         parts.append(f'<p id="chosen">Chosen: <strong>{escape(chosen.name)}</strong>, {chosen.parameters} '
                      f"identified parameters. Its plant file:</p><pre>{escape(chosen.result.plant.to_toml())}</pre>")
-        if selection.rough:
+        if rough_warning(selection):
             parts.append(f'<p id="rough" class="warning">{escape(rough_warning(selection))}</p>')
     parts += [table("ranking", ["rank", "candidate", "parameters", "BIC", "ΔBIC", "worst validation fit %",
                                 "Δ validation −2 ln L", "residuals white", "flags"], _ranking_rows(selection),

@@ -3,7 +3,7 @@
 validation file checked to hold the same signals."""
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +15,7 @@ from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_s
 from .estimate import Series, series_of_experiments, series_of_records
 
 __all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
-           "BoundedSimulator", "STEPS_PER_SAMPLE", "steps_per_sample"]
+           "BoundedSimulator", "STEPS_PER_SAMPLE", "steps_per_sample", "first_share", "fitted_seconds"]
 
 # The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
 # for a failed integration), at the polish's tolerance BUDGET_RTOL: the bench's true plants need at most 28 per
@@ -162,6 +162,23 @@ def criterion_for(structure, data, threads: int | None = None):
     if isinstance(data, RecordData):
         return RecordCriterion(structure, data, BoundedSimulator(structure, threads=threads))
     return data.criterion(structure, threads)
+
+
+def first_share(data, share: float):
+    """``data`` (records, open- or closed-loop) with every record cut after the first ``share`` of its fitted time
+    span (every per-sample array of the record cut alike)."""
+    def cut(r):
+        t = r.time[r.fitted]
+        n = int(np.searchsorted(r.time, t[0] + share * (t[-1] - t[0]), side="right"))
+        arrays = {f.name: getattr(r, f.name) for f in fields(r)}
+        return replace(r, **{k: a[:n] for k, a in arrays.items()
+                             if isinstance(a, np.ndarray) and a.shape == r.time.shape})
+    return replace(data, records=tuple(cut(r) for r in data.records))
+
+
+def fitted_seconds(data) -> float:
+    """The longest fitted time span of a record of ``data`` (s)."""
+    return max(float(r.time[r.fitted][-1] - r.time[r.fitted][0]) for r in data.records)
 
 
 def estimation_series(data, files: list[DataFile]) -> list[Series]:

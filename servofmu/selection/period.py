@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import copy
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import fields, replace
+from dataclasses import replace
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
@@ -34,7 +34,7 @@ from ..identification.criterion import RecordData, SineData
 from ..identification.prior import identified_mask, identified_names
 from ..model.plant import Plant
 from ..runtime import available_cores
-from .data import criterion_for
+from .data import criterion_for, first_share
 
 __all__ = ["ripple_start", "continued_start", "travel", "RIPPLE_CYCLES", "HORIZONS", "SEARCHED_PERIOD"]
 
@@ -255,7 +255,7 @@ def continued_start(structure: Plant, data, threads: int | None = None) -> Plant
     crit, mask = criterion_for(structure, data, threads), identified_mask(structure)
     theta = start = structure.parameter_vector()[mask]
     for share in HORIZONS:
-        part = criterion_for(structure, _first_share(data, share), threads)
+        part = criterion_for(structure, first_share(data, share), threads)
         part.scales = crit.scales.copy()  # the weights of all of the data, not of its share's spread
         # scipy's trust-region solver, not the identifier's polish: with that in its place coulomb1_ripple's truth
         # came first in 18 of 20 seeds against 19 (docs/bench-select.md)
@@ -296,15 +296,3 @@ def _batched(crit):
         return ((r[:theta.size] - base) / (np.diag(rows) - theta)[:, None]).T
 
     return residuals, jacobian
-
-
-def _first_share(data, share: float):
-    """``data`` with every record cut after the first ``share`` of its fitted time span (every per-sample array
-    of the record cut alike)."""
-    def cut(r):
-        t = r.time[r.fitted]
-        n = int(np.searchsorted(r.time, t[0] + share * (t[-1] - t[0]), side="right"))
-        arrays = {f.name: getattr(r, f.name) for f in fields(r)}
-        return replace(r, **{k: a[:n] for k, a in arrays.items()
-                             if isinstance(a, np.ndarray) and a.shape == r.time.shape})
-    return replace(data, records=tuple(cut(r) for r in data.records))

@@ -20,7 +20,8 @@ from ..identification.roughness import ROUGH_RISE, finite_covariance
 from ..runtime import RunOptions, available_cores, temporary_folder, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
-from .data import check_validation, data_kind, estimation_series, load_selection_data
+from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
+                   load_selection_data)
 from .estimate import data_bandwidth, start_estimates
 from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate,
                      rank, response_roughness, searches_ripple, start_neg2loglik)
@@ -45,6 +46,9 @@ class Selection:
     options: SelectOptions
     outputs: dict
     roughness: float = math.nan  # identification.roughness.response_roughness of the chosen fit (NaN: not checked)
+    horizon: float = 1.0  # the share of every record's fitted span the candidates were fitted and ranked on
+    roughness_whole: float = math.nan  # the roughness of the first-ranked fit on all of the records
+    horizon_seconds: float = math.nan  # that share of the longest record, in seconds
 
     @property
     def rough(self) -> bool:
@@ -156,50 +160,81 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                        None if run.scheduler is None and run.workers == 0 else 1, provenance,
                        mode="screen" if screen else "full")
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
-        scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
-        series = estimation_series(data, files)
-        speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
-        default, seeded = options.candidates is None, replace(job, seeded=True)
-        # one round: smaller candidates again from larger ones' fits without their roots beyond the data, and, on
-        # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
-        # again below where it does not stay first)
-        leader = rank(scores)[0]
-        reduced, loads = _fit_groups(pool, [
-            (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
-            (seeded, load_starts(leader) if default else {})], run, len(scores))
-        scores = _keep_better(scores, reduced)
-        springs = spring_starts(scores) if default else {}
-        if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
-            scores = _fit_all(pool, seeded, springs, run, scores)
-        first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
-        scores = _with_new(_keep_better(scores, loads), loads)
-        if default and first.status == "fitted" and load_candidates(first.candidate):
-            if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
-                loads = _fit_all(pool, seeded, load_starts(first), run, [])
-                scores = _with_new(_keep_better(scores, loads), loads)
-            laws = nested_law_starts(load_leader(scores), scores, speeds)
-            if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
-                scores = _fit_all(pool, seeded, laws, run, scores)
-            # a nested structure (a law it contains, or one order lower: a far pole may stand in for the term)
-            # worse than the one with load terms ranked first, or not fitted: from the first one's fit, again
-            # from a nested one that then ranks first (each time a smaller structure: it ends)
-            again = from_winner(rank(scores)[0], scores, speeds, options.orders)
-            while again:
-                refitted = _fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
-                scores = _with_new(_keep_better(scores, refitted), refitted)
-                top = rank(scores)[0]
-                again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
-        if screen:
-            scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
-        before = rank(scores)[0].candidate
-        scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
-        if screen and rank(scores)[0].candidate != before:
-            scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
-        roughness = _roughness(pool, job, rank(scores)[0])
+        scores = _rounds(pool, job, candidates, files, run)
+        roughness = whole = _roughness(pool, job, rank(scores)[0])
+        share = 1.0
+        # a response chaotic in the parameters over the records (a polish ends in whichever spike of the cost it
+        # reaches, and so does every candidate's): the selection again on their first half, quarter, eighth, the
+        # first over which the chosen fit is regular standing for it
+        while roughness > ROUGH_RISE and share / 2 >= SHORTEST_SHARE:
+            share /= 2
+            short = replace(job, data=first_share(data, share), validation=first_share(job.validation, share),
+                            provenance={**job.provenance, "horizon": share})
+            again = _rounds(pool, short, candidates, files, run)
+            roughness = _roughness(pool, short, rank(again)[0])
+            if not roughness > ROUGH_RISE:
+                scores = again
+                break
+        else:
+            roughness, share = whole, 1.0
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
-                          roughness=roughness)
+                          roughness=roughness, horizon=share, roughness_whole=whole,
+                          horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan)
     return _write(selection, outputs)
+
+
+# The shortest share of the records a selection on chaotic records is made again on (docs/selection.md, limits)
+SHORTEST_SHARE = 1 / 8
+
+
+def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files, run: RunOptions
+            ) -> list[CandidateScore]:
+    """Every candidate fitted and scored on ``job``'s data and validation, in the selection's rounds: the first
+    stage, the smaller candidates from larger ones' fits, the load terms, the nested structures, the screened
+    candidates that could win polished in full, the first's fit handed to the candidates nested in it."""
+    data, options = job.data, job.options
+    screen = job.mode == "screen"
+    scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
+    series = estimation_series(data, files)
+    speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
+    default, seeded = options.candidates is None, replace(job, seeded=True)
+    # one round: smaller candidates again from larger ones' fits without their roots beyond the data, and, on
+    # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
+    # again below where it does not stay first)
+    leader = rank(scores)[0]
+    reduced, loads = _fit_groups(pool, [
+        (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
+        (seeded, load_starts(leader) if default else {})], run, len(scores))
+    scores = _keep_better(scores, reduced)
+    springs = spring_starts(scores) if default else {}
+    if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
+        scores = _fit_all(pool, seeded, springs, run, scores)
+    first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
+    scores = _with_new(_keep_better(scores, loads), loads)
+    if default and first.status == "fitted" and load_candidates(first.candidate):
+        if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
+            loads = _fit_all(pool, seeded, load_starts(first), run, [])
+            scores = _with_new(_keep_better(scores, loads), loads)
+        laws = nested_law_starts(load_leader(scores), scores, speeds)
+        if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
+            scores = _fit_all(pool, seeded, laws, run, scores)
+        # a nested structure (a law it contains, or one order lower: a far pole may stand in for the term)
+        # worse than the one with load terms ranked first, or not fitted: from the first one's fit, again
+        # from a nested one that then ranks first (each time a smaller structure: it ends)
+        again = from_winner(rank(scores)[0], scores, speeds, options.orders)
+        while again:
+            refitted = _fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
+            scores = _with_new(_keep_better(scores, refitted), refitted)
+            top = rank(scores)[0]
+            again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
+    if screen:
+        scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
+    before = rank(scores)[0].candidate
+    scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
+    if screen and rank(scores)[0].candidate != before:
+        scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
+    return scores
 
 
 def _roughness(pool: Workers, job: CandidateJob, first: CandidateScore) -> float:
@@ -379,6 +414,7 @@ def _fill_ranking(f, selection: Selection) -> None:
     chosen = selection.chosen
     g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
                     "chosen": chosen.name if chosen else "", "criterion": "bic", "roughness": selection.roughness,
+                    "roughness_whole": selection.roughness_whole, "horizon": selection.horizon,
                     "data_files": json.dumps(list(selection.data_files)),
                     "validation_file": selection.validation_file,
                     "options": json.dumps({"candidates": selection.options.candidates,
@@ -405,7 +441,8 @@ def _fill_ranking(f, selection: Selection) -> None:
 def selection_json(selection: Selection) -> dict:
     """One object for scripts: the chosen candidate, the outputs, and every candidate's scores in rank order."""
     return {"chosen": selection.chosen.name if selection.chosen else None, "kind": selection.kind,
-            "outputs": selection.outputs, "roughness": selection.roughness,
+            "outputs": selection.outputs, "roughness": selection.roughness, "horizon": selection.horizon,
+            "roughness_whole": selection.roughness_whole,
             "candidates": [{"rank": s.rank, "name": s.name, "status": s.status, "message": s.message,
                             "parameters": s.parameters, "samples": s.samples, "bic": s.bic, "aic": s.aic,
                             "neg2loglik": s.neg2loglik, "validation_fit_percent": s.validation_fit,
@@ -415,12 +452,23 @@ def selection_json(selection: Selection) -> dict:
                            for s in selection.scores]}
 
 
-def rough_warning(selection: Selection) -> str:
-    """What a rough chosen fit means for the user, in one line."""
-    return (f"warning: the response of {selection.chosen.name} is chaotic in its parameters on these records: one "
-            f"standard error from its fit −2·ln L rises by {selection.roughness:.3g}, not about 1; its intervals do "
-            "not hold, and structures are ranked by where their polishes happened to end (shorter records are "
-            "predictable over more of their length: docs/selection.md, limits)")
+def rough_warning(selection: Selection) -> str | None:
+    """What a chaotic response means for the user, in one line: the records were cut where the whole of them was
+    chaotic (the selection made on their predictable start), or the chosen fit is still rough; None otherwise."""
+    if selection.chosen is None:
+        return None
+    if selection.horizon < 1:
+        return (f"note: the response is chaotic in the parameters over the whole records (one standard error from "
+                f"the fit ranked first −2·ln L rose by {selection.roughness_whole:.3g}, not about 1): the candidates "
+                f"were fitted and ranked on the first {selection.horizon:g} of every record "
+                f"({selection.horizon_seconds:.3g} s of the longest), where it rises by {selection.roughness:.3g} "
+                "(docs/selection.md, limits)")
+    if selection.rough:
+        return (f"warning: the response of {selection.chosen.name} is chaotic in its parameters on these records: "
+                f"one standard error from its fit −2·ln L rises by {selection.roughness:.3g}, not about 1, and over "
+                f"no start of the records down to {SHORTEST_SHARE:g} of them is it regular: its intervals do not "
+                "hold, and structures are ranked by where their polishes happened to end (docs/selection.md, limits)")
+    return None
 
 
 def selection_text(selection: Selection) -> str:
@@ -441,7 +489,7 @@ def selection_text(selection: Selection) -> str:
                      f"{s.worst_validation_fit:>12.3f}{s.validation_neg2loglik - best_val:>9.1f}{white:>7}  {flags}")
     chosen = selection.chosen
     lines.append(f"chosen: {chosen.name}" if chosen else "no candidate could be fitted")
-    if chosen and selection.rough:
+    if rough_warning(selection):
         lines.append(rough_warning(selection))
     lines.append("wrote " + ", ".join(selection.outputs.values()))
     return "\n".join(lines)
