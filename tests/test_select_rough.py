@@ -83,3 +83,37 @@ def test_identify_says_when_its_intervals_do_not_hold():
         assert (est.roughness_ > ROUGH_RISE) == rough, est.roughness_
         assert result.provenance["roughness"] == est.roughness_
         assert ("chaotic in the parameters" in table_text(result)) == rough
+
+
+def test_a_selection_on_chaotic_records_is_made_again_on_their_predictable_start(tmp_path):
+    import h5py
+
+    import servofmu as sf
+    from servofmu.measurement.records import import_records
+    from servofmu.runtime import RunOptions
+    from servofmu.selection.run import selection_text
+
+    plant = ripple_axis([-5.0, -40.0], 2.0, (0.3, 0.25), (0.15, 0.04, -1.1))
+    files = {}
+    for role, seed in (("fit", 1001), ("val", 1002)):  # bench_select.py's coulomb2_ripple, seed 0
+        r = record(plant, seed).records[0]
+        csv = tmp_path / f"{role}.csv"
+        np.savetxt(csv, np.column_stack([r.time, r.u, r.y]), delimiter=",", header="t,u,v", comments="")
+        files[role] = tmp_path / f"{role}.h5"
+        import_records([csv], files[role], "t", "u", "v")
+    out = tmp_path / "select.h5"
+    selection = sf.select_files([files["fit"]], files["val"], out,
+                                sf.SelectOptions(candidates=("coulomb+ripple/2", "coulomb/2")), RunOptions(workers=0))
+    # the whole 20 s are chaotic for the fit ranked first; their first half (the larger force) is not, and there
+    # the truth's structure is chosen, near the true values
+    assert selection.roughness_whole > ROUGH_RISE and selection.roughness < ROUGH_RISE
+    assert selection.horizon == 0.5 and selection.horizon_seconds == pytest.approx(10.0, abs=0.02)
+    assert selection.chosen.name == "coulomb+ripple/2"
+    fitted = selection.chosen.result.plant
+    assert fitted.load.ripple_period == pytest.approx(0.04, rel=1e-3)
+    assert sorted(p.real for p in fitted.poles) == pytest.approx([-40.0, -5.0], rel=0.02)
+    assert selection.chosen.result.provenance["horizon"] == 0.5
+    assert "fitted and ranked on the first 0.5 of every record" in selection_text(selection)
+    with h5py.File(out) as f:
+        assert f["selection"].attrs["horizon"] == 0.5
+        assert f["selection"].attrs["roughness_whole"] == selection.roughness_whole

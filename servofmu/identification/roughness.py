@@ -6,7 +6,7 @@ parameters following as they are correlated with it), raises −2·ln L by 1.  A
 its way — a mass moved by a force through a position ripple's wells (a driven pendulum, with a second-order G) —
 is chaotic in the parameters: a ten-thousandth of a pole moves the simulated position by periods of the ripple,
 the cost is rough at every scale, and a polish ends in whichever spike of it it reaches (docs/selection.md,
-limits).  There −2·ln L rises by thousands at a standard error: :func:`response_roughness` measures the largest
+chaotic records).  There −2·ln L rises by thousands at a standard error: :func:`response_roughness` measures the largest
 rise, ROUGH_RISE marks it.  Stepped-sine data (steady states, no trajectory to lose) is not checked.
 """
 from __future__ import annotations
@@ -20,8 +20,8 @@ from .criterion import POLISH_RTOL
 __all__ = ["ROUGH_RISE", "neg2loglik", "response_roughness", "rough_line", "finite_covariance"]
 
 # The rise of −2·ln L at one standard error that marks a fit's response as chaotic in its parameters: a quadratic
-# cost rises by 1; a first-order axis with a ripple (its phase's valley curving) by up to 31 in the tests' records;
-# the forced pendulum of docs/selection.md by 2000–3600, and by hundreds at a tenth of a standard error
+# cost rises by 1; the chosen fits of bench_select's regular plants by 1.0–9.1 (median 1.15), a first-order axis
+# with a ripple by 31 along one test record's ripple phase; the forced pendulum of docs/selection.md by 280–3500
 ROUGH_RISE = 200.0
 
 
@@ -78,4 +78,4 @@ def rough_line(roughness: float | None) -> str | None:
     return (f"warning: the response is chaotic in the parameters on these records — one standard error from the "
             f"fit −2·ln L rises by {roughness:.3g}, not about 1: the intervals do not hold, and the fit is one of "
             "many spikes of a rough cost (shorter records are predictable over more of their length; "
-            "docs/selection.md, limits)")
+            "docs/selection.md, chaotic records)")

@@ -45,9 +45,11 @@ class Selection:
     kind: str
     options: SelectOptions
     outputs: dict
-    roughness: float = math.nan  # identification.roughness.response_roughness of the chosen fit (NaN: not checked)
+    # identification.roughness.response_roughness of the fits ranked first and of the lowest BIC, the larger (NaN:
+    # not checked), on the records as fitted and on all of them
+    roughness: float = math.nan
     horizon: float = 1.0  # the share of every record's fitted span the candidates were fitted and ranked on
-    roughness_whole: float = math.nan  # the roughness of the first-ranked fit on all of the records
+    roughness_whole: float = math.nan
     horizon_seconds: float = math.nan  # that share of the longest record, in seconds
 
     @property
@@ -161,17 +163,17 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                        mode="screen" if screen else "full")
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         scores = _rounds(pool, job, candidates, files, run)
-        roughness = whole = _roughness(pool, job, rank(scores)[0])
+        roughness = whole = _roughness(pool, job, scores)
         share = 1.0
         # a response chaotic in the parameters over the records (a polish ends in whichever spike of the cost it
         # reaches, and so does every candidate's): the selection again on their first half, quarter, eighth, the
-        # first over which the chosen fit is regular standing for it
+        # first over which the best fits are regular standing for it
         while roughness > ROUGH_RISE and share / 2 >= SHORTEST_SHARE:
             share /= 2
             short = replace(job, data=first_share(data, share), validation=first_share(job.validation, share),
                             provenance={**job.provenance, "horizon": share})
             again = _rounds(pool, short, candidates, files, run)
-            roughness = _roughness(pool, short, rank(again)[0])
+            roughness = _roughness(pool, short, again)
             if not roughness > ROUGH_RISE:
                 scores = again
                 break
@@ -184,7 +186,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     return _write(selection, outputs)
 
 
-# The shortest share of the records a selection on chaotic records is made again on (docs/selection.md, limits)
+# The shortest share of the records a selection on chaotic records is made again on (docs/selection.md)
 SHORTEST_SHARE = 1 / 8
 
 
@@ -237,15 +239,22 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     return scores
 
 
-def _roughness(pool: Workers, job: CandidateJob, first: CandidateScore) -> float:
-    """select.response_roughness of the fit of ``first`` (the candidate ranked first) over its parameters of
-    finite intervals (a step of an unbounded one's standard error goes anywhere); NaN where it was not fitted or
-    has no covariance."""
-    if first.status != "fitted" or first.result is None or first.result.covariance is None:
+def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore]) -> float:
+    """The larger select.response_roughness of the fits ranked first and of the lowest BIC, over their parameters
+    of finite intervals (a step of an unbounded one's standard error goes anywhere): a chaotic response shows in
+    the structure that explains the data best, which a flag (a validation record that is a lottery too) may rank
+    below one that cannot be chaotic; NaN where neither has a covariance."""
+    ranked = rank(scores)
+    fitted = [s for s in ranked if s.status == "fitted" and np.isfinite(s.bic) and s.result is not None
+              and s.result.covariance is not None]
+    if not fitted:
         return math.nan
-    check = replace(job, candidate=first.candidate, start=first.result.plant, threads=_threads_per_job(pool, 1),
-                    covariance=finite_covariance(first.result.covariance, first.result.intervals))
-    return next(iter(pool.imap(response_roughness, [check])))[1]
+    picks = {s.candidate: s for s in (fitted[0], min(fitted, key=lambda s: s.bic))}
+    threads = _threads_per_job(pool, len(picks))
+    checks = [replace(job, candidate=s.candidate, start=s.result.plant, threads=threads,
+                      covariance=finite_covariance(s.result.covariance, s.result.intervals)) for s in picks.values()]
+    values = [v for _, v in pool.imap(response_roughness, checks) if np.isfinite(v)]
+    return max(values, default=math.nan)
 
 
 # A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (a polish
@@ -459,15 +468,16 @@ def rough_warning(selection: Selection) -> str | None:
         return None
     if selection.horizon < 1:
         return (f"note: the response is chaotic in the parameters over the whole records (one standard error from "
-                f"the fit ranked first −2·ln L rose by {selection.roughness_whole:.3g}, not about 1): the candidates "
+                f"the best fits −2·ln L rose by {selection.roughness_whole:.3g}, not about 1): the candidates "
                 f"were fitted and ranked on the first {selection.horizon:g} of every record "
                 f"({selection.horizon_seconds:.3g} s of the longest), where it rises by {selection.roughness:.3g} "
-                "(docs/selection.md, limits)")
+                "(docs/selection.md, chaotic records)")
     if selection.rough:
         return (f"warning: the response of {selection.chosen.name} is chaotic in its parameters on these records: "
                 f"one standard error from its fit −2·ln L rises by {selection.roughness:.3g}, not about 1, and over "
                 f"no start of the records down to {SHORTEST_SHARE:g} of them is it regular: its intervals do not "
-                "hold, and structures are ranked by where their polishes happened to end (docs/selection.md, limits)")
+                "hold, and structures are ranked by where their polishes happened to end (docs/selection.md, chaotic "
+                "records)")
     return None
 
 
