@@ -240,16 +240,19 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
 
 
 def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore]) -> float:
-    """The larger select.response_roughness of the fits ranked first and of the lowest BIC, over their parameters
-    of finite intervals (a step of an unbounded one's standard error goes anywhere): a chaotic response shows in
-    the structure that explains the data best, which a flag (a validation record that is a lottery too) may rank
-    below one that cannot be chaotic; NaN where neither has a covariance."""
+    """The larger select.response_roughness of the fits ranked first and of the lowest BIC among those with every
+    parameter determined, over their parameters of finite intervals (a step of an unbounded one's standard error
+    goes anywhere): a chaotic response shows in the structure that explains the data best, which a flag (a
+    validation record that is a lottery too) may rank below one that cannot be chaotic — but a step of a standard
+    error as large as the value itself (an undetermined parameter) is far from quadratic in any structure
+    (coulomb1_spring seed 1: 1125 at such a fit); NaN where neither has a covariance."""
     ranked = rank(scores)
     fitted = [s for s in ranked if s.status == "fitted" and np.isfinite(s.bic) and s.result is not None
               and s.result.covariance is not None]
     if not fitted:
         return math.nan
-    picks = {s.candidate: s for s in (fitted[0], min(fitted, key=lambda s: s.bic))}
+    determined = [s for s in fitted if not s.undetermined]
+    picks = {s.candidate: s for s in [fitted[0]] + [min(determined, key=lambda s: s.bic)] * bool(determined)}
     threads = _threads_per_job(pool, len(picks))
     checks = [replace(job, candidate=s.candidate, start=s.result.plant, threads=threads,
                       covariance=finite_covariance(s.result.covariance, s.result.intervals)) for s in picks.values()]
