@@ -91,7 +91,7 @@ def test_a_selection_on_chaotic_records_is_made_again_on_their_predictable_start
     import servofmu as sf
     from servofmu.measurement.records import import_records
     from servofmu.runtime import RunOptions
-    from servofmu.selection.run import selection_text
+    from servofmu.selection.summary import selection_text
 
     plant = ripple_axis([-5.0, -40.0], 2.0, (0.3, 0.25), (0.15, 0.04, -1.1))
     files = {}

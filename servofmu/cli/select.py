@@ -21,7 +21,7 @@ def cmd_select(args) -> None:
     import json
 
     from ..output.selection_report import select_with_report
-    from ..selection.run import selection_json, selection_text
+    from ..selection.summary import selection_json, selection_text
     from ..selection.select import SelectOptions
 
     options = SelectOptions(candidates=tuple(args.candidates.split(",")) if args.candidates else None,

@@ -12,7 +12,8 @@ import numpy as np
 from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import read_data_file
 from ..runtime import RunOptions, utc_now
-from ..selection.run import Selection, rough_warning, select_files
+from ..selection.run import Selection, select_files
+from ..selection.summary import rough_warning
 from ..selection.select import STRONG_EVIDENCE, VALIDATION_LEVEL, SelectOptions
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import pyplot
