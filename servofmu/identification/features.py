@@ -52,21 +52,23 @@ def to_targets(structure: Plant, theta: np.ndarray) -> np.ndarray:
 
 
 def from_targets(structure: Plant, y: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`to_targets`."""
+    """Inverse of :func:`to_targets`.  A coordinate too large for exp gives an infinite parameter (a
+    Levenberg–Marquardt trial step along a flat log(fs − fc)): a candidate the simulation rejects, not an error."""
     names, y = identified_names(structure), np.atleast_2d(np.asarray(y, dtype=float))
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     out = y.copy()
-    for i, n in enumerate(names):
-        if n.endswith("_re"):
-            zeta, wn = np.clip(np.exp(y[:, i]), 0.0, 0.999), np.exp(y[:, i + 1])
-            out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
-        elif n.endswith("_im") or n.startswith("fs_"):
-            continue
-        elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
-            out[:, i] = np.sign(nominal[n]) * np.exp(y[:, i])
-    for i, n in enumerate(names):
-        if n.startswith("fs_"):
-            out[:, i] = out[:, names.index("fc_" + n[3:])] + np.exp(y[:, i])
+    with np.errstate(over="ignore"):
+        for i, n in enumerate(names):
+            if n.endswith("_re"):
+                zeta, wn = np.clip(np.exp(y[:, i]), 0.0, 0.999), np.exp(y[:, i + 1])
+                out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
+            elif n.endswith("_im") or n.startswith("fs_"):
+                continue
+            elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
+                out[:, i] = np.sign(nominal[n]) * np.exp(y[:, i])
+        for i, n in enumerate(names):
+            if n.startswith("fs_"):
+                out[:, i] = out[:, names.index("fc_" + n[3:])] + np.exp(y[:, i])
     return out
 
 
