@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import json
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
