@@ -161,23 +161,26 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                        None if run.scheduler is None and run.workers == 0 else 1, provenance,
                        mode="screen" if screen else "full")
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
-        scores = _rounds(pool, job, candidates, files, run)
-        roughness = whole = _roughness(pool, job, scores)
-        share = 1.0
+        scores, roughness, stopped = _rounds(pool, job, candidates, files, run, stop_if_rough=True)
+        whole, share = roughness, 1.0
         # a response chaotic in the parameters over the records (a polish ends in whichever spike of the cost it
         # reaches, and so does every candidate's): the selection again on their first half, quarter, eighth, the
-        # first over which the best fits are regular standing for it
+        # first over which the best fits are regular standing for it.  A share's rounds are not stopped early: a
+        # start of the records is often regular for the final fits where the screened ones ranked first before
+        # them are not (coulomb2_ripple seed 11: on its first quarter a rise above EARLY_ROUGH_RISE once its ripple
+        # terms were fitted, 7.4 at the end)
         while roughness > ROUGH_RISE and share / 2 >= SHORTEST_SHARE:
             share /= 2
             short = replace(job, data=first_share(data, share), validation=first_share(job.validation, share),
                             provenance={**job.provenance, "horizon": share})
-            again = _rounds(pool, short, candidates, files, run)
-            roughness = _roughness(pool, short, again)
+            again, roughness, _ = _rounds(pool, short, candidates, files, run)
             if not roughness > ROUGH_RISE:
                 scores = again
                 break
         else:
             roughness, share = whole, 1.0
+            if stopped:  # no start is regular either: the whole records' selection, its rounds in full
+                scores, _, _ = _rounds(pool, job, candidates, files, run)
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
                           roughness=roughness, horizon=share, roughness_whole=whole,
@@ -189,11 +192,23 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
 SHORTEST_SHARE = 1 / 8
 
 
-def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files, run: RunOptions
-            ) -> list[CandidateScore]:
+# The rise that stops a selection's rounds once its ripple terms are fitted (_rounds): five times ROUGH_RISE, for
+# the fits there are screened and the one ranked first provisional — on coulomb1_ripple seed 1 a screened
+# `lugre+ripple/1` rose by 358 where the final fits of the same records rise by 1.2; coulomb2_ripple's whole
+# records by 280–3 500 at the end of their rounds.
+EARLY_ROUGH_RISE = 5 * ROUGH_RISE
+
+
+def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files, run: RunOptions,
+            stop_if_rough: bool = False) -> tuple[list[CandidateScore], float, bool]:
     """Every candidate fitted and scored on ``job``'s data and validation, in the selection's rounds: the first
     stage, the smaller candidates from larger ones' fits, the load terms, the nested structures, the screened
-    candidates that could win polished in full, the first's fit handed to the candidates nested in it."""
+    candidates that could win polished in full, the first's fit handed to the candidates nested in it; and the
+    best fits' roughness (_roughness), and whether the rounds were stopped before their end.  A ripple is what
+    makes a response chaotic (a mass driven through its wells), so where one ranks first once the load terms and
+    the laws nested in them are fitted the roughness is taken there too, and with ``stop_if_rough`` the rounds
+    stop where it is above EARLY_ROUGH_RISE: every later round would fit a lottery (coulomb2_ripple seed 2: 24 of
+    the whole records' 40 s came after that point)."""
     data, options = job.data, job.options
     screen = job.mode == "screen"
     scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
@@ -220,6 +235,10 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
         laws = nested_law_starts(load_leader(scores), scores, speeds)
         if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
             scores = _fit_all(pool, seeded, laws, run, scores)
+        if stop_if_rough and "ripple" in rank(scores)[0].candidate.load:
+            roughness = _roughness(pool, job, scores)
+            if roughness > EARLY_ROUGH_RISE:
+                return scores, roughness, True
         # a nested structure (a law it contains, or one order lower: a far pole may stand in for the term)
         # worse than the one with load terms ranked first, or not fitted: from the first one's fit, again
         # from a nested one that then ranks first (each time a smaller structure: it ends)
@@ -235,7 +254,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
     if screen and rank(scores)[0].candidate != before:
         scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
-    return scores
+    return scores, _roughness(pool, job, scores), False
 
 
 def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore]) -> float:
