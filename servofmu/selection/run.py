@@ -180,7 +180,8 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         else:
             roughness, share = whole, 1.0
             if stopped:  # no start is regular either: the whole records' selection, its rounds in full
-                scores, _, _ = _rounds(pool, job, candidates, files, run)
+                scores, roughness, _ = _rounds(pool, job, candidates, files, run)
+                whole = roughness
     selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
                           roughness=roughness, horizon=share, roughness_whole=whole,
