@@ -126,7 +126,6 @@ def test_a_selection_on_chaotic_records_is_made_again_on_their_predictable_start
         assert f["selection"].attrs["roughness_whole"] == selection.roughness_whole
 
 
-
 def _counting(monkeypatch, roughness):
     """select_files' rounds recorded as (samples, stop_if_rough), the winners' fits handed on as their samples,
     and every roughness check made to return ``roughness(samples)``."""
