@@ -141,7 +141,7 @@ def _counting(monkeypatch, roughness):
     monkeypatch.setattr(selection_run, "from_winner", lambda first, *args: (
         handed.append(first.samples) or from_winner(first, *args)))
     monkeypatch.setattr(selection_run, "_roughness",
-                        lambda pool, job, scores: roughness(job.data.records[0].time.size))
+                        lambda pool, job, scores, checked=None: roughness(job.data.records[0].time.size))
     return rounds, handed
 
 

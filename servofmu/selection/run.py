@@ -212,6 +212,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     the whole records' 40 s came after that point)."""
     data, options = job.data, job.options
     screen = job.mode == "screen"
+    checked = {}  # the roughness of the fits checked: the end's check repeats none the early one made
     scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
     series = estimation_series(data, files)
     speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
@@ -237,7 +238,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
         if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
             scores = _fit_all(pool, seeded, laws, run, scores)
         if stop_if_rough and "ripple" in rank(scores)[0].candidate.load:
-            roughness = _roughness(pool, job, scores)
+            roughness = _roughness(pool, job, scores, checked)
             if roughness > EARLY_ROUGH_RISE:
                 return scores, roughness, True
         # a nested structure (a law it contains, or one order lower: a far pole may stand in for the term)
@@ -255,16 +256,18 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
     if screen and rank(scores)[0].candidate != before:
         scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
-    return scores, _roughness(pool, job, scores), False
+    return scores, _roughness(pool, job, scores, checked), False
 
 
-def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore]) -> float:
+def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore], checked: dict | None = None
+               ) -> float:
     """The larger select.response_roughness of the fits ranked first and of the lowest BIC among those with every
     parameter determined, over their parameters of finite intervals (a step of an unbounded one's standard error
     goes anywhere): a chaotic response shows in the structure that explains the data best, which a flag (a
     validation record that is a lottery too) may rank below one that cannot be chaotic — but a step of a standard
     error as large as the value itself (an undetermined parameter) is far from quadratic in any structure
-    (coulomb1_spring seed 1: 1125 at such a fit); NaN where neither has a covariance."""
+    (coulomb1_spring seed 1: 1125 at such a fit); NaN where neither has a covariance.  ``checked`` holds the
+    fits checked before (their results and values, by the results' ids), and takes the new ones."""
     ranked = rank(scores)
     fitted = [s for s in ranked if s.status == "fitted" and np.isfinite(s.bic) and s.result is not None
               and s.result.covariance is not None]
@@ -272,11 +275,15 @@ def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore]) -
         return math.nan
     determined = [s for s in fitted if not s.undetermined]
     picks = {s.candidate: s for s in [fitted[0]] + [min(determined, key=lambda s: s.bic)] * bool(determined)}
-    threads = _threads_per_job(pool, len(picks))
+    checked = {} if checked is None else checked
+    new = [s for s in picks.values() if id(s.result) not in checked]
+    threads = _threads_per_job(pool, len(new))
     checks = [replace(job, candidate=s.candidate, start=s.result.plant, threads=threads,
-                      covariance=finite_covariance(s.result.covariance, s.result.intervals)) for s in picks.values()]
-    values = [v for _, v in pool.imap(response_roughness, checks) if np.isfinite(v)]
-    return max(values, default=math.nan)
+                      covariance=finite_covariance(s.result.covariance, s.result.intervals)) for s in new]
+    for i, value in pool.imap(response_roughness, checks):  # as they finish
+        checked[id(new[i].result)] = (new[i].result, value)  # the result held: its id is not given to another
+    values = [checked[id(s.result)][1] for s in picks.values()]
+    return max((v for v in values if np.isfinite(v)), default=math.nan)
 
 
 # A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (a polish
