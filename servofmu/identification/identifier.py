@@ -45,7 +45,7 @@ from .criterion import (
     with_finite_columns,
 )
 from .confounding import with_free_directions
-from .roughness import finite_covariance, response_roughness
+from .roughness import curvature, finite_covariance, response_roughness
 from .features import ann_features, feature_names, from_targets, prior_box, target_jacobian
 from .ga import AdaptiveGaOptions, GaOptions, minimize_ga
 from .methods import METHODS, NEEDS_ANN, SEARCH_NAMES
@@ -256,10 +256,11 @@ class PSOANNIdentifier:
         self.data_ = data
         start = time.perf_counter()
         crit = self._criterion(data)
+        search = self._search_criterion(data, crit)
         self.names_ = identified_names(self.structure)
 
         def cost(y):
-            return rms(crit.residuals(self._to_theta(y), self.search_rtol))
+            return rms(search.residuals(self._to_theta(y), self.search_rtol))
 
         stages = []
         if self.method in NEEDS_ANN:
@@ -281,24 +282,30 @@ class PSOANNIdentifier:
         self.fit_percent_ = crit.fit_percent(chosen.theta, POLISH_RTOL) if crit.blocks is not None else None
         # records: whether the cost is as quadratic about the fit as its intervals assume (a chaotic response is not)
         self.roughness_ = response_roughness(crit, chosen.theta, finite_covariance(chosen.covariance,
-                                                                                   chosen.intervals)) \
-            if self.check_roughness and self.polish else math.nan
+                                                                                   chosen.intervals),
+                                             information=curvature(chosen.jacobian, crit.blocks, chosen.r)) \
+            if self.check_roughness and self.polish and crit.blocks is not None else math.nan
         self.theta_ = chosen.theta
         self.fitness_ = chosen.fitness
         self.history_ = chosen.history
         self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
         self.stages_ = stages
         self.seconds_ = time.perf_counter() - start
-        self.evaluations_ = crit.evaluations
+        self.evaluations_ = crit.evaluations + (search.evaluations if search is not crit else 0)
         return self
+
+    def _search_criterion(self, data, crit):
+        """What the search scores its candidates by: the fit's criterion ``crit`` (a selection's may score a swarm
+        on a shorter stretch of long records)."""
+        return crit
 
     def _search_and_polish(self, crit, cost, lower, upper, guesses, seed, stages: list) -> "_Fit":
         """One search from ``guesses`` in the box and its polish, their stages appended to ``stages``."""
-        t0, before = time.perf_counter(), crit.evaluations
+        t0 = time.perf_counter()
         search, result = self._search(cost, lower, upper, guesses, seed)
         y_best = result.position
         stages.append(Stage(search, self._to_theta(y_best[None])[0], float(result.cost), time.perf_counter() - t0,
-                            crit.evaluations - before))
+                            int(result.evaluations)))
         time_domain = crit.blocks is not None
         if self.polish:
             t0, before = time.perf_counter(), crit.evaluations

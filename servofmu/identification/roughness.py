@@ -17,7 +17,7 @@ import numpy as np
 
 from .criterion import POLISH_RTOL
 
-__all__ = ["ROUGH_RISE", "neg2loglik", "response_roughness", "rough_line", "finite_covariance"]
+__all__ = ["ROUGH_RISE", "neg2loglik", "curvature", "response_roughness", "rough_line", "finite_covariance"]
 
 # The rise of −2·ln L at one standard error that marks a fit's response as chaotic in its parameters: a quadratic
 # cost rises by 1; the fits of bench_select's plants without a second-order ripple by a median of 1.15 (198 of 200
@@ -48,11 +48,30 @@ def finite_covariance(covariance, intervals) -> np.ndarray:
     return out
 
 
-def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH_RTOL) -> float:
+def curvature(jacobian: np.ndarray, blocks: list[slice], residuals: np.ndarray) -> np.ndarray | None:
+    """The Gauss–Newton curvature of −2·ln L (every signal's variance estimated) at a fit: Σ_k N_k/RSS_k·J_kᵀJ_k
+    over the signals k (``blocks`` of the weighted ``residuals`` and of the rows of their ``jacobian``), so that a
+    step s raises −2·ln L by sᵀFs where the cost is quadratic; None where it is not finite."""
+    jacobian, residuals = np.asarray(jacobian, dtype=float), np.asarray(residuals, dtype=float)
+    if jacobian.ndim != 2 or jacobian.shape[0] != residuals.size or not blocks:
+        return None
+    info = np.zeros((jacobian.shape[1],) * 2)
+    for b in blocks:
+        rss = float(residuals[b] @ residuals[b])
+        info += residuals[b].size / max(rss, 1e-300) * (jacobian[b].T @ jacobian[b])
+    return info if np.all(np.isfinite(info)) else None
+
+
+def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH_RTOL,
+                       information: np.ndarray | None = None) -> float:
     """The largest rise of −2·ln L (every signal's variance estimated) of ``crit``'s data from ``theta`` over
     steps of one standard error along each parameter's profile direction, ±C·e_k/√C_kk — about 1 for a locally
-    quadratic cost, at least 1 where parameters of NaN variance are left out.  NaN for stepped-sine criteria
-    (no trajectory), a covariance that is missing or not finite, or steps that cannot be simulated."""
+    quadratic cost, at least 1 where parameters of NaN variance are left out.  With the cost's Gauss–Newton
+    ``information`` (:func:`curvature`) each step is scaled to where the quadratic rises by exactly 1: the
+    Newey–West covariance of coloured residuals (a real axis's model error, correlated over hundreds of samples)
+    is wider than the curvature says, and its standard error alone raised a regular fit of a drive's log by 550.
+    NaN for stepped-sine criteria (no trajectory), a covariance that is missing or not finite, or steps that
+    cannot be simulated."""
     if covariance is None or getattr(crit, "blocks", None) is None:
         return math.nan
     covariance = np.asarray(covariance, dtype=float)
@@ -63,6 +82,10 @@ def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH
     steps[:, live] = (covariance[np.ix_(live, live)] / sd[live]).T
     if not live.size or not np.all(np.isfinite(steps)):
         return math.nan
+    if information is not None:
+        predicted = np.einsum("ij,jk,ik->i", steps, np.asarray(information, dtype=float), steps)
+        scale = np.where(np.isfinite(predicted) & (predicted > 0), 1 / np.sqrt(np.abs(predicted)), 1.0)
+        steps *= scale[:, None]
     rows = np.vstack([theta, theta + steps, theta - steps])
     with np.errstate(all="ignore"):
         errors = crit.simulate_errors(rows, rtol)

@@ -10,12 +10,15 @@ import numpy as np
 
 from ..errors import UserError
 from ..identification.criterion import RecordData, SineCriterion, RecordCriterion, SineData, record_data, sine_data
+from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
 from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
+from ..simulation.closed_loop import LoopSimulator
 from .estimate import Series, series_of_experiments, series_of_records
 
 __all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
-           "BoundedSimulator", "STEPS_PER_SAMPLE", "steps_per_sample", "first_share", "fitted_seconds"]
+           "BoundedSimulator", "BoundedLoopSimulator", "without_quantiser", "search_share", "SEARCH_SAMPLES",
+           "STEPS_PER_SAMPLE", "steps_per_sample", "first_share", "fitted_seconds"]
 
 # The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
 # for a failed integration), at the polish's tolerance BUDGET_RTOL: the bench's true plants need at most 28 per
@@ -154,14 +157,60 @@ class BoundedSimulator(BatchSimulator):
         return out
 
 
+class BoundedLoopSimulator(LoopSimulator):
+    """The loop simulator with BoundedSimulator's step budget and tolerance floor: a candidate whose loop chatters
+    (fast poles and a steep friction sign fed back through the velocity loop) cannot hold up a selection."""
+
+    stopped = 0
+    rtol_floor = 0.0
+
+    def simulate_loop(self, params, time, reference, controller, rtol: float = 1e-8, max_steps: int = 50_000_000,
+                      disturbance=None, encoder_error=None):
+        """As :meth:`LoopSimulator.simulate_loop`, with at most steps_per_sample(rtol) steps per sample and a
+        tolerance of at least ``rtol_floor``."""
+        rtol = max(rtol, self.rtol_floor)
+        budget = min(max_steps, int(steps_per_sample(rtol) * max(np.size(time), 1)))
+        out = super().simulate_loop(params, time, reference, controller, rtol=rtol, max_steps=budget,
+                                    disturbance=disturbance, encoder_error=encoder_error)
+        valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
+        self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.position), axis=1)))
+        return out
+
+
 def criterion_for(structure, data, threads: int | None = None):
-    """The identifier's criterion of ``structure`` on ``data``, records simulated within the step budget
-    (BoundedSimulator); closed-loop data brings its own."""
+    """The identifier's criterion of ``structure`` on ``data``, records and loops simulated within the step budget
+    (BoundedSimulator, BoundedLoopSimulator)."""
     if isinstance(data, SineData):
         return SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
     if isinstance(data, RecordData):
         return RecordCriterion(structure, data, BoundedSimulator(structure, threads=threads))
-    return data.criterion(structure, threads)
+    return ClosedLoopCriterion(structure, data, BoundedLoopSimulator(structure, threads=threads))
+
+
+def without_quantiser(data):
+    """Closed-loop ``data`` with its encoder's quantisation not modelled (one loop per candidate instead of
+    ENCODER_REALISATIONS): what a screening fit simulates, whose ranking the quantiser's few-per-mille effect on
+    the friction levels does not change (docs/selection.md); other data as it is."""
+    if isinstance(data, ClosedLoopData) and data.encoder_resolution > 0:
+        return replace(data, encoder_resolution=0.0)
+    return data
+
+
+# The samples of the fitted records a swarm's particles are scored on at most (search_share): a swarm finds the
+# valley, which the polish on every sample then descends; 4000 is the length of the benchmark's records, whose
+# selections the 20-seed benchmark measures (docs/bench-select.md)
+SEARCH_SAMPLES = 4000
+
+
+def search_share(data):
+    """The records a swarm scores its particles on: the first share of every record's fitted span that holds
+    SEARCH_SAMPLES fitted samples in all, where the records hold more (a drive's log at 1 kHz and beyond: the
+    swarm's 510 simulations of every sample were most of a selection's time), else ``data`` itself; stepped-sine
+    data as it is."""
+    if isinstance(data, SineData):
+        return data
+    total = sum(int(np.count_nonzero(r.fitted)) for r in data.records)
+    return data if total <= SEARCH_SAMPLES else first_share(data, SEARCH_SAMPLES / total)
 
 
 def first_share(data, share: float):

@@ -28,7 +28,7 @@ from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions,
 from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
                      within_first)
 
-__all__ = ["Selection", "select_files", "selection_outputs", "SELECT_FORMAT"]
+__all__ = ["Selection", "select_files", "selection_outputs", "ranked_share_of", "RANKED_SAMPLES", "SELECT_FORMAT"]
 
 SELECT_FORMAT = "servofmu-selection"
 
@@ -50,6 +50,10 @@ class Selection:
     horizon: float = 1.0  # the share of every record's fitted span the candidates were fitted and ranked on
     roughness_whole: float = math.nan
     horizon_seconds: float = math.nan  # that share of the longest record, in seconds
+    # long records (more than RANKED_SAMPLES fitted samples): the share of every record the candidates were ranked
+    # on, and the chosen structure polished again from its fit there on the whole records (its result written)
+    ranked_share: float = 1.0
+    final: CandidateScore | None = None
 
     @property
     def rough(self) -> bool:
@@ -156,10 +160,17 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                   "data_sha256": ", ".join(f.sha256 for f in files),  # of the bytes read and fitted
                   "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
-    screen = options.screen and data_kind(data) == "records"
-    job = CandidateJob(candidates[0], None, data, validation, options,
-                       None if run.scheduler is None and run.workers == 0 else 1, provenance,
-                       mode="screen" if screen else "full")
+    screen = options.screen and data_kind(data) != "sine"
+    whole_job = CandidateJob(candidates[0], None, data, validation, options,
+                             None if run.scheduler is None and run.workers == 0 else 1, provenance,
+                             mode="screen" if screen else "full")
+    # long records (a drive's log at 1 kHz and beyond): the candidates ranked on their first RANKED_SAMPLES, the
+    # chosen one polished on the whole of them at the end
+    ranked_share = ranked_share_of(data)
+    job = whole_job if ranked_share == 1 else replace(
+        whole_job, data=first_share(data, ranked_share), validation=first_share(validation, ranked_share_of(validation)),
+        provenance={**provenance, "ranked_share": ranked_share})
+    data = job.data
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
         scores, roughness, stopped = _rounds(pool, job, candidates, files, run, stop_if_rough=True)
         whole, share = roughness, 1.0
@@ -182,11 +193,42 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
             if stopped:  # no start is regular either: the whole records' selection, its rounds in full
                 scores, roughness, _ = _rounds(pool, job, candidates, files, run)
                 whole = roughness
-    selection = Selection(scores=tuple(rank(scores)), data_files=tuple(map(str, data_files)),
+        scores = rank(scores)
+        final = _final_fit(pool, whole_job, scores, run) if ranked_share < 1 and share == 1 else None
+    selection = Selection(scores=tuple(scores), data_files=tuple(map(str, data_files)),
                           validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
                           roughness=roughness, horizon=share, roughness_whole=whole,
-                          horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan)
+                          horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan,
+                          ranked_share=ranked_share, final=final)
     return _write(selection, outputs)
+
+
+# The fitted samples (all records together) the candidates of a selection are ranked on at most: a longer log's
+# first share (ranked_share_of).  The selection's time grows with them — on a drive's 1 kHz log of 12 400 samples,
+# 400 s of CPU for the default candidates in its loop — and 4000 is the length of the benchmark's records, on
+# which the 20-seed benchmark measures the choices (docs/bench-select.md)
+RANKED_SAMPLES = 4000
+
+
+def ranked_share_of(data) -> float:
+    """The share of every record's fitted span a selection ranks its candidates on: 1, or where the records hold
+    more than RANKED_SAMPLES fitted samples, the share that leaves that many (stepped-sine data: 1)."""
+    if data_kind(data) == "sine":
+        return 1.0
+    total = sum(int(np.count_nonzero(r.fitted)) for r in data.records)
+    return 1.0 if total <= RANKED_SAMPLES else RANKED_SAMPLES / total
+
+
+def _final_fit(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
+               ) -> CandidateScore | None:
+    """The candidate ranked first polished on the whole records and validation from its fit on their share (the
+    identifier's tolerances, the encoder's quantiser modelled), scored there; None when none was fitted or the
+    polish failed (the share's fit then stands)."""
+    first = scores[0] if scores else None
+    if first is None or first.status != "fitted" or first.result is None:
+        return None
+    again = _fit_all(pool, replace(job, mode="refit"), {first.candidate: first.result.plant}, run, [])
+    return again[0] if again and again[0].status == "fitted" else None
 
 
 # The shortest share of the records a selection on chaotic records is made again on (docs/selection.md)
@@ -273,13 +315,15 @@ def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore], c
               and s.result.covariance is not None]
     if not fitted:
         return math.nan
+    # where no fit has every parameter determined (a real axis's log often leaves some undetermined), the first's
     determined = [s for s in fitted if not s.undetermined]
-    picks = {s.candidate: s for s in [fitted[0]] + [min(determined, key=lambda s: s.bic)] * bool(determined)}
+    picks = {s.candidate: s for s in [fitted[0], min(determined, key=lambda s: s.bic, default=fitted[0])]}
     checked = {} if checked is None else checked
     new = [s for s in picks.values() if id(s.result) not in checked]
     threads = _threads_per_job(pool, len(new))
     checks = [replace(job, candidate=s.candidate, start=s.result.plant, threads=threads,
-                      covariance=finite_covariance(s.result.covariance, s.result.intervals)) for s in new]
+                      covariance=finite_covariance(s.result.covariance, s.result.intervals),
+                      information=s.information) for s in new]
     for i, value in pool.imap(response_roughness, checks):  # as they finish
         checked[id(new[i].result)] = (new[i].result, value)  # the result held: its id is not given to another
     values = [checked[id(s.result)][1] for s in picks.values()]
@@ -304,8 +348,9 @@ def _refit_contenders(pool: Workers, job: CandidateJob, scores: list[CandidateSc
     message saying why)."""
     scores = list(scores)
     while True:
-        first = rank(scores)[0]
-        todo = {s.candidate: s for s in scores if could_win(s, first)}
+        ranked = rank(scores)  # with the screened fits' own flags
+        first = ranked[0]
+        todo = {s.candidate: s for s in ranked if could_win(s, first)}
         if not todo:
             return scores
         again = {s.candidate: s for s in _fit_all(pool, job, {c: s.result.plant for c, s in todo.items()}, run, [])}
@@ -434,6 +479,7 @@ def _write(selection: Selection, outputs: dict[str, Path]) -> Selection:
         write_hdf5(outputs["selection"], lambda f: _fill_ranking(f, selection), start_from=base)
     chosen = selection.chosen
     if chosen is not None:
+        chosen = selection.final or chosen  # the chosen structure's fit on the whole records, where it was ranked on a share
         plant = replace(chosen.result.plant, name="selected")
         header = (f"# chosen by servofmu select: {chosen.name} (rank 1 of {len(selection.scores)}; BIC "
                   f"{chosen.bic:.6g}); identified from {', '.join(selection.data_files)}\n")
@@ -453,6 +499,8 @@ def _fill_ranking(f, selection: Selection) -> None:
     g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
                     "chosen": chosen.name if chosen else "", "criterion": "bic", "roughness": selection.roughness,
                     "roughness_whole": selection.roughness_whole, "horizon": selection.horizon,
+                    "ranked_share": selection.ranked_share,
+                    "final_bic": selection.final.bic if selection.final else math.nan,
                     "data_files": json.dumps(list(selection.data_files)),
                     "validation_file": selection.validation_file,
                     "options": json.dumps({"candidates": selection.options.candidates,

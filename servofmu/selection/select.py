@@ -44,12 +44,12 @@ from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
 from ..identification.restarts import chi2_quantile
 from ..identification.results import Result
-from ..identification.roughness import neg2loglik
+from ..identification.roughness import curvature, neg2loglik
 from ..identification.roughness import response_roughness as roughness_of
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
-from .data import criterion_for, data_kind
+from .data import criterion_for, data_kind, search_share, without_quantiser
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
@@ -197,6 +197,7 @@ class CandidateJob:
     polished: bool = False  # the start is a fit of this structure: no swarm, the polish alone from it
     continued: bool = False  # the start polished on growing shares of the records first (period.continued_start)
     covariance: np.ndarray | None = None  # the start's covariance, where it is a fit (response_roughness)
+    information: np.ndarray | None = None  # and its cost's Gauss–Newton curvature (roughness.curvature)
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,7 @@ class CandidateScore:
     validation_allowance: float = math.nan
     flags: tuple[str, ...] = ()
     rank: int = 0
+    information: np.ndarray | None = None  # the fit's Gauss–Newton curvature of −2·ln L (roughness.curvature)
 
     @property
     def name(self) -> str:
@@ -321,7 +323,7 @@ def response_roughness(_, job: CandidateJob) -> float:
             warnings.simplefilter("ignore")
             crit = criterion_for(job.start, job.data, job.threads)
             theta = np.array([job.start.parameters()[k] for k in identified_names(job.start)], dtype=float)
-            return roughness_of(crit, theta, job.covariance)
+            return roughness_of(crit, theta, job.covariance, information=job.information)
     except Exception:  # noqa: BLE001 — a check that cannot be made says nothing
         return math.nan
 
@@ -358,6 +360,16 @@ class _CandidateIdentifier(PSOANNIdentifier):
             self.criterion_.simulator.rtol_floor = self.rtol_floor
         return self.criterion_
 
+    def _search_criterion(self, data, crit):
+        """The swarm's particles scored on the records' first SEARCH_SAMPLES samples (data.search_share) where they
+        are longer: the swarm finds the valley, the polish descends it on every sample."""
+        share = search_share(data)
+        if share is data:
+            return crit
+        search = criterion_for(self.structure, share, self.threads)
+        search.simulator.rtol_floor = self.rtol_floor
+        return search
+
     def _search(self, cost, lower, upper, y0, seed):
         centre = (lower + upper) / 2  # the prior box's centre: the structure's values
         if not self.from_start:  # a start that is a fit is a particle: the search ends no worse than the fit
@@ -370,6 +382,8 @@ class _CandidateIdentifier(PSOANNIdentifier):
 
 def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     """The fit and scores of one candidate (exceptions to the caller)."""
+    if job.mode == "screen":  # a screening fit's loops without the encoder's quantiser (data.without_quantiser)
+        job = replace(job, data=without_quantiser(job.data), validation=without_quantiser(job.validation))
     searched = searches_ripple(job)
     if searched:
         found = ripple_start(job.start, job.data, job.threads)
@@ -416,7 +430,10 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),
         undetermined=undetermined, seconds=time.perf_counter() - start, screened=job.mode == "screen",
-        bic_bound=bound, validation_allowance=allowance)
+        bic_bound=bound, validation_allowance=allowance,
+        information=curvature(est.jacobian_, crit.blocks, np.concatenate([e / w for (_, e), w in
+                                                                          zip(fitted, crit.scales)]))
+        if crit.blocks is not None and est.jacobian_ is not None else None)
 
 
 def screen_bound(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarray]) -> float:
@@ -436,12 +453,15 @@ def screen_bound(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarr
 
 def could_win(score: CandidateScore, chosen: CandidateScore) -> bool:
     """Whether a screened candidate could still be chosen over ``chosen`` (the candidate ranked first) once
-    polished in full: ``chosen`` itself, every candidate when ``chosen`` is flagged (a flag another candidate may
-    lose decides before BIC), and every one whose lowest reachable BIC (``bic_bound``) less SCREEN_MARGIN is not
-    above ``chosen``'s BIC."""
+    polished in full: ``chosen`` itself, every candidate without a flag of its own when ``chosen`` is flagged (a
+    flag decides before BIC), and every one whose lowest reachable BIC (``bic_bound``) less SCREEN_MARGIN is not
+    above ``chosen``'s BIC.  ``score.flags`` are those :func:`rank` gave its screened fit: on a real axis's log
+    every candidate may carry one (a model error thousands above the noise flags all but one on validation, and
+    no structure has every parameter determined), and a flagged candidate far above the first by BIC stays below
+    it once polished (before, every candidate was polished again there: 23 full polishes on a drive's log)."""
     if not score.screened or score.status != "fitted":
         return False
-    return score.candidate == chosen.candidate or bool(chosen.flags) or not \
+    return score.candidate == chosen.candidate or (bool(chosen.flags) and not score.flags) or not \
         score.bic_bound - SCREEN_MARGIN > chosen.bic
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from .run import SHORTEST_SHARE, Selection
+from .run import RANKED_SAMPLES, SHORTEST_SHARE, Selection
 
 __all__ = ["selection_text", "selection_json", "rough_warning"]
 
@@ -13,7 +13,9 @@ def selection_json(selection: Selection) -> dict:
     """One object for scripts: the chosen candidate, the outputs, and every candidate's scores in rank order."""
     return {"chosen": selection.chosen.name if selection.chosen else None, "kind": selection.kind,
             "outputs": selection.outputs, "roughness": selection.roughness, "horizon": selection.horizon,
-            "roughness_whole": selection.roughness_whole,
+            "roughness_whole": selection.roughness_whole, "ranked_share": selection.ranked_share,
+            "final_bic": selection.final.bic if selection.final else None,
+            "undetermined": list((selection.final or selection.chosen).undetermined) if selection.chosen else [],
             "candidates": [{"rank": s.rank, "name": s.name, "status": s.status, "message": s.message,
                             "parameters": s.parameters, "samples": s.samples, "bic": s.bic, "aic": s.aic,
                             "neg2loglik": s.neg2loglik, "validation_fit_percent": s.validation_fit,
@@ -43,6 +45,24 @@ def rough_warning(selection: Selection) -> str | None:
     return None
 
 
+def long_records_lines(selection: Selection) -> list[str]:
+    """Where the candidates were ranked on a share of long records: that share and the chosen structure's fit on
+    the whole records; and what the chosen fit does not determine (the combinations the data fixes instead)."""
+    lines = []
+    if selection.ranked_share < 1 and selection.chosen is not None:
+        final = selection.final
+        lines.append(f"ranked on the first {selection.ranked_share:.3g} of every record ({RANKED_SAMPLES} fitted "
+                     "samples: long records); " + (f"{final.name} then polished on the whole records (BIC "
+                                                   f"{final.bic:.6g}, worst validation fit {final.worst_validation_fit:.3f} %)"
+                                                   if final is not None else "its polish on the whole records failed: "
+                                                   "the share's fit is written"))
+    chosen = selection.final or selection.chosen
+    if chosen is not None and chosen.result is not None:
+        for group in chosen.result.confounded():
+            lines.append(group.line())
+    return lines
+
+
 def selection_text(selection: Selection) -> str:
     """The ranking as a plain-text table, the chosen candidate and the files written."""
     lines = [f"{'rank':>4}  {'candidate':<22}{'p':>3}{'BIC':>13}{'ΔBIC':>10}{'val. fit %':>12}{'Δ val.':>9}"
@@ -61,6 +81,7 @@ def selection_text(selection: Selection) -> str:
                      f"{s.worst_validation_fit:>12.3f}{s.validation_neg2loglik - best_val:>9.1f}{white:>7}  {flags}")
     chosen = selection.chosen
     lines.append(f"chosen: {chosen.name}" if chosen else "no candidate could be fitted")
+    lines += long_records_lines(selection)
     if rough_warning(selection):
         lines.append(rough_warning(selection))
     lines.append("wrote " + ", ".join(selection.outputs.values()))
