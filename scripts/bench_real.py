@@ -52,11 +52,12 @@ offset = -1.0
 """
 
 
-def run(args: list[str], folder: Path) -> tuple[float, str]:
-    """Run a servofmu command in ``folder``; its wall time and standard output (a failure stops the benchmark)."""
+def run(args: list[str], folder: Path, allowed=(0,)) -> tuple[float, str]:
+    """Run a servofmu command in ``folder``; its wall time and standard output (an exit status not ``allowed``
+    stops the benchmark: validate exits with 1 where its verdict is "failed")."""
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "servofmu", *args], cwd=folder, capture_output=True, text=True)
-    if done.returncode != 0:
+    if done.returncode not in allowed:
         raise SystemExit(f"servofmu {' '.join(args)} failed:\n{done.stderr}")
     return time.perf_counter() - t0, done.stdout
 
@@ -131,13 +132,13 @@ def main() -> None:
             ["select", "first.h5", "--validate", "second.h5", "--closed-loop", str(CONTROLLER), "-o", "select.h5"],
             folder)
         (folder / "simple.toml").write_text(SIMPLE)
-        tables, figures = {}, {}
+        tables, figures, validations = {}, {}, {}
         for label, structure in (("chosen", "select.toml"), ("simple", "simple.toml")):
             times[f"identify --closed-loop ({label}, whole log)"], tables[label] = run(
                 ["identify", "whole.h5", "--structure", structure, "--closed-loop", str(CONTROLLER),
                  "-o", f"{label}.h5"], folder)
-            times[f"validate --closed-loop ({label}, whole log)"], _ = run(
-                ["validate", f"{label}.h5", "whole.h5", "--closed-loop", str(CONTROLLER)], folder)
+            times[f"validate --closed-loop ({label}, whole log)"], validations[label] = run(
+                ["validate", f"{label}.h5", "whole.h5", "--closed-loop", str(CONTROLLER)], folder, allowed=(0, 1))
             figures[label] = replay(folder / f"{label}.h5", folder / "whole.h5", controller)
         cosim, times["export + controller + system + cosim (chosen)"] = cosim_replay(
             folder / "chosen.h5", folder / "whole.h5", folder, controller)
@@ -148,7 +149,8 @@ def main() -> None:
               selection.strip(), "```", ""]
     for label in ("chosen", "simple"):
         lines += [f"## identify --closed-loop on the whole log: {label} structure", "", "```", tables[label].strip(),
-                  "```", ""]
+                  "```", "", "`validate --closed-loop` of it on the same log:", "", "```",
+                  validations[label].strip(), "```", ""]
     lines += ["## The log replayed", "",
               "Relative 2-norm errors (%) from the 50th sample on, as the published figures; free run: the model "
               "driven by the logged force in open loop, RMS and largest position error after its first 20 samples.",

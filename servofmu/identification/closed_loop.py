@@ -21,11 +21,12 @@ and in the result's provenance.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import ServofmuWarning, UserError
 from ..measurement.clock import ClockFit, fit_clock
 from ..measurement.datafile import read_data_file
 from ..model.controller import ControllerSpec, load_controller
@@ -36,7 +37,7 @@ from .identifier import identification_provenance
 from .prior import full_vectors
 
 __all__ = ["ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion", "closed_loop_data",
-           "load_closed_loop_inputs", "clock_lines", "ENCODER_REALISATIONS"]
+           "load_closed_loop_inputs", "clock_lines", "check_log", "ENCODER_REALISATIONS"]
 
 ENCODER_REALISATIONS = 4  # encoder-error sequences a candidate's loop is averaged over (docs/bench-closed-loop.md)
 
@@ -122,6 +123,8 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
                             "simulates the loop from the recorded reference")
         if s.position is None:
             raise UserError(f"{data_file.path}: record {r.name} has no measured position")
+        check_log(f"{data_file.path}: record {r.name}", s.reference[fitted], s.position[fitted], s.u[fitted],
+                  None if s.disturbance is None else s.disturbance[fitted], controller)
         t = s.time
         clock = fit_clock(t, ts, where=lambda i: f"{data_file.path}: record {r.name}: sample {i + 1} "
                                                  f"(t = {t[i]:.9g} s)")
@@ -129,6 +132,46 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
         out.append(ClosedLoopSeries(r.name, grid, s.reference, s.position, s.u, fitted, s.disturbance, clock))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
     return ClosedLoopData(tuple(out), law, str(data_file.path), controller["encoder_resolution"])
+
+
+# The share of a log's samples at its command's largest magnitude from which the drive is taken to saturate there
+SATURATED_SHARE = 0.01
+# The share of a log's samples at the controller's output limit beyond which identify warns: the plant is driven by
+# the limit there, and the loop's own law (the gains it was logged with) leaves no trace in those samples
+MOSTLY_SATURATED = 0.25
+
+
+def check_log(where: str, reference: np.ndarray, position: np.ndarray, command: np.ndarray,
+              disturbance: np.ndarray | None, controller: ControllerSpec) -> None:
+    """Refuse in one line a drive's log that a closed-loop fit cannot use: nothing excites the loop (a constant
+    reference and no injected signal), the encoder or the command never changes, the logged command beyond the
+    controller file's output limit or held at a level below it (a drive that saturates where the file says it
+    cannot); warn where the command sits at the limit in more than MOSTLY_SATURATED of the samples."""
+    injected = disturbance is not None and np.ptp(disturbance) > 0
+    if np.ptp(reference) == 0 and not injected:
+        raise UserError(f"{where}: the reference is constant ({reference[0]:.6g} m) and no test signal is injected: "
+                        "nothing excites the loop, so neither G nor the friction can be identified from it (log a "
+                        "move of the axis, or a test signal with --disturbance)")
+    if np.ptp(position) == 0:
+        raise UserError(f"{where}: the encoder position never changes ({position[0]:.6g} m): the axis does not "
+                        "move, or the --output-variable column is not its position")
+    if np.ptp(command) == 0:
+        raise UserError(f"{where}: the force command never changes ({command[0]:.6g} N): is --input the drive's "
+                        "output command?")
+    own = command - disturbance if disturbance is not None else command  # the controller's part, limited
+    limit, top = controller["force_limit"], float(np.max(np.abs(own)))
+    if top > limit * (1 + 1e-6):
+        raise UserError(f"{where}: the logged command reaches {top:.6g} N, beyond the output limit of "
+                        f"{controller.source} ({limit:.6g} N): its [output] limit or the --input-scale is wrong")
+    held = float(np.mean(np.abs(own) >= top * (1 - 1e-9)))
+    if held > SATURATED_SHARE and top < limit * (1 - 1e-6):
+        raise UserError(f"{where}: the command is held at ±{top:.6g} N, its largest magnitude, in {100 * held:.3g} % "
+                        f"of the samples: the drive saturates there, and {controller.source} says its output limit "
+                        f"is {limit:.6g} N (set [output] limit to the drive's own, in N)")
+    if held > MOSTLY_SATURATED:
+        warnings.warn(f"{where}: the command is at the output limit ±{limit:.6g} N in {100 * held:.3g} % of the "
+                      "samples: there the axis is driven by the limit, not by the loop, and only the rest of the "
+                      "log shows the controller's law", ServofmuWarning, stacklevel=3)
 
 
 class ClosedLoopCriterion(TimeDomainCriterion):

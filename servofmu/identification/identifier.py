@@ -41,6 +41,7 @@ from .criterion import (
     intervals_from_covariance,
     record_data,
     rms,
+    search_share,
     sine_data,
     with_finite_columns,
 )
@@ -295,9 +296,11 @@ class PSOANNIdentifier:
         return self
 
     def _search_criterion(self, data, crit):
-        """What the search scores its candidates by: the fit's criterion ``crit`` (a selection's may score a swarm
-        on a shorter stretch of long records)."""
-        return crit
+        """What the search scores its candidates by: the fit's criterion ``crit``, or on records longer than
+        SEARCH_SAMPLES the same criterion on their first SEARCH_SAMPLES samples (criterion.search_share): the swarm
+        finds the valley, the polish descends it on every sample."""
+        share = search_share(data)
+        return crit if share is data else PSOANNIdentifier._criterion(self, share)
 
     def _search_and_polish(self, crit, cost, lower, upper, guesses, seed, stages: list) -> "_Fit":
         """One search from ``guesses`` in the box and its polish, their stages appended to ``stages``."""

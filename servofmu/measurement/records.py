@@ -285,6 +285,26 @@ def _clock(path: Path, t: np.ndarray, required: bool) -> ClockFit | None:
         return None
 
 
+# A step of a position record between two samples this many times its 99th-percentile step, and a tenth of its
+# whole travel or more, is no motion but an encoder counter's overflow (or a reset)
+WRAP_RATIO = 50.0
+
+
+def check_wrap(path: Path, t: np.ndarray, x: np.ndarray, column: str) -> None:
+    """Refuse a position record that jumps between two samples by far more than it ever moves in one (an encoder
+    counter that wrapped: every simulation of the axis would have to follow the jump)."""
+    step = np.abs(np.diff(x))
+    travel = float(np.ptp(x))
+    if step.size < 2 or travel == 0:
+        return
+    jumps = np.flatnonzero((step > WRAP_RATIO * np.percentile(step, 99)) & (step >= 0.1 * travel))
+    if jumps.size:
+        i = int(jumps[0])
+        raise UserError(f"{path}: column {column!r} jumps by {x[i + 1] - x[i]:+.6g} m from sample {i + 1} to {i + 2} "
+                        f"(t = {t[i + 1]:.9g} s), {step[i] / np.percentile(step, 99):.3g} times its usual step "
+                        f"({jumps.size} such jumps): an encoder counter's overflow? unwrap the position first")
+
+
 def load_record(path: str | Path, time: str, input: str, output: str, kind: str = "velocity",
                 cutoff: float | None = None, frequency: float | None = None, index: int = 0,
                 intersample: str = "zoh", loop: LoopChannels | None = None) -> Record:
@@ -308,6 +328,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     fs = 1.0 / float(np.median(np.diff(t)))
     position = None
     if kind == "position":
+        check_wrap(path, t, y, output)
         cutoff = fs / 10 if cutoff is None else cutoff
         position, v = y, velocity_from_position(t, y, cutoff)
         how = (f"zero-phase 4th-order Butterworth low-pass at {cutoff:g} Hz (forward-backward) of position, "

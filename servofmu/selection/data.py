@@ -3,13 +3,14 @@
 validation file checked to hold the same signals."""
 from __future__ import annotations
 
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import RecordData, SineCriterion, RecordCriterion, SineData, record_data, sine_data
+from ..identification.criterion import (SEARCH_SAMPLES, RecordData, SineCriterion, RecordCriterion, SineData, first_share,
+                                        record_data, search_share, sine_data)
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
 from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
@@ -196,33 +197,6 @@ def without_quantiser(data):
     return data
 
 
-# The samples of the fitted records a swarm's particles are scored on at most (search_share): a swarm finds the
-# valley, which the polish on every sample then descends; 4000 is the length of the benchmark's records, whose
-# selections the 20-seed benchmark measures (docs/bench-select.md)
-SEARCH_SAMPLES = 4000
-
-
-def search_share(data):
-    """The records a swarm scores its particles on: the first share of every record's fitted span that holds
-    SEARCH_SAMPLES fitted samples in all, where the records hold more (a drive's log at 1 kHz and beyond: the
-    swarm's 510 simulations of every sample were most of a selection's time), else ``data`` itself; stepped-sine
-    data as it is."""
-    if isinstance(data, SineData):
-        return data
-    total = sum(int(np.count_nonzero(r.fitted)) for r in data.records)
-    return data if total <= SEARCH_SAMPLES else first_share(data, SEARCH_SAMPLES / total)
-
-
-def first_share(data, share: float):
-    """``data`` (records, open- or closed-loop) with every record cut after the first ``share`` of its fitted time
-    span (every per-sample array of the record cut alike)."""
-    def cut(r):
-        t = r.time[r.fitted]
-        n = int(np.searchsorted(r.time, t[0] + share * (t[-1] - t[0]), side="right"))
-        arrays = {f.name: getattr(r, f.name) for f in fields(r)}
-        return replace(r, **{k: a[:n] for k, a in arrays.items()
-                             if isinstance(a, np.ndarray) and a.shape == r.time.shape})
-    return replace(data, records=tuple(cut(r) for r in data.records))
 
 
 def fitted_seconds(data) -> float:

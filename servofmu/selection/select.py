@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..identification.confounding import interval_quantile
-from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
+from ..identification.criterion import POLISH_RTOL, SineData, fit_percent, search_share
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
@@ -49,7 +49,7 @@ from ..identification.roughness import response_roughness as roughness_of
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
 from .candidates import Candidate, spring_form
-from .data import criterion_for, data_kind, search_share, without_quantiser
+from .data import criterion_for, data_kind, without_quantiser
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
@@ -361,8 +361,8 @@ class _CandidateIdentifier(PSOANNIdentifier):
         return self.criterion_
 
     def _search_criterion(self, data, crit):
-        """The swarm's particles scored on the records' first SEARCH_SAMPLES samples (data.search_share) where they
-        are longer: the swarm finds the valley, the polish descends it on every sample."""
+        """As the identifier's (criterion.search_share), simulated within the step budget at the fit's tolerance
+        floor."""
         share = search_share(data)
         if share is data:
             return crit
