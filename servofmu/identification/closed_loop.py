@@ -134,8 +134,9 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
     return ClosedLoopData(tuple(out), law, str(data_file.path), controller["encoder_resolution"])
 
 
-# The share of a log's samples at its command's largest magnitude from which the drive is taken to saturate there
-SATURATED_SHARE = 0.01
+# The share (and the number) of a log's samples at its command's largest magnitude from which the drive is taken to
+# saturate there: a command's largest value is one sample of a log that never saturates
+SATURATED_SHARE, HELD_SAMPLES = 0.01, 5
 # The share of a log's samples at the controller's output limit beyond which identify warns: the plant is driven by
 # the limit there, and the loop's own law (the gains it was logged with) leaves no trace in those samples
 MOSTLY_SATURATED = 0.25
@@ -163,8 +164,9 @@ def check_log(where: str, reference: np.ndarray, position: np.ndarray, command: 
     if top > limit * (1 + 1e-6):
         raise UserError(f"{where}: the logged command reaches {top:.6g} N, beyond the output limit of "
                         f"{controller.source} ({limit:.6g} N): its [output] limit or the --input-scale is wrong")
-    held = float(np.mean(np.abs(own) >= top * (1 - 1e-9)))
-    if held > SATURATED_SHARE and top < limit * (1 - 1e-6):
+    at_top = np.abs(own) >= top * (1 - 1e-9)
+    held = float(np.mean(at_top))
+    if held > SATURATED_SHARE and np.count_nonzero(at_top) >= HELD_SAMPLES and top < limit * (1 - 1e-6):
         raise UserError(f"{where}: the command is held at ±{top:.6g} N, its largest magnitude, in {100 * held:.3g} % "
                         f"of the samples: the drive saturates there, and {controller.source} says its output limit "
                         f"is {limit:.6g} N (set [output] limit to the drive's own, in N)")
