@@ -164,6 +164,13 @@ def main() -> None:
                      f"{f['free_run_rms_mm']:.3g} | {f['free_run_max_mm']:.3g} |")
     lines.append(f"| chosen, co-simulated on libcosim (SSP) | {cosim['position']:.4f} | – | {cosim['force']:.2f} | – "
                  "| – |")
+    lines += ["", "How to read it: the replays are of the log the models were identified from (as the published "
+              "figures are), so they show the fit, not a prediction; `select` ranked on the first half's start and "
+              "validated on the second half. On a real axis the model error is far above the encoder's noise and "
+              "correlated with the motion, so `validate`'s residual test of independence from the reference fails "
+              "for every structure; what the log does not separate is named above under \"not separated by the "
+              "data\", with the combinations it does determine. The free run integrates the logged force in open "
+              "loop: a mass turns every force error into a drift of the position, which no loop corrects."]
     lines += ["", "## Time of every step (s, wall)", "", "| step | s |", "|---|---|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in times.items()]
     args.out.write_text("\n".join(lines) + "\n")
