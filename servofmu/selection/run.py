@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import UserError, check_int
 from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
+from ..identification.criterion import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.results import write_comparison, write_result
 from ..identification.roughness import ROUGH_RISE, finite_covariance
@@ -28,7 +29,7 @@ from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions,
 from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
                      within_first)
 
-__all__ = ["Selection", "select_files", "selection_outputs", "ranked_share_of", "RANKED_SAMPLES", "SELECT_FORMAT"]
+__all__ = ["Selection", "select_files", "selection_outputs", "RANKED_SAMPLES", "SELECT_FORMAT"]
 
 SELECT_FORMAT = "servofmu-selection"
 
@@ -50,8 +51,8 @@ class Selection:
     horizon: float = 1.0  # the share of every record's fitted span the candidates were fitted and ranked on
     roughness_whole: float = math.nan
     horizon_seconds: float = math.nan  # that share of the longest record, in seconds
-    # long records (more than RANKED_SAMPLES fitted samples): the share of every record the candidates were ranked
-    # on, and the chosen structure polished again from its fit there on the whole records (its result written)
+    # long records (more than RANKED_SAMPLES fitted samples): the share of their fitted samples the candidates were
+    # ranked on, and the chosen structure polished again from its fit there on the whole records (its result written)
     ranked_share: float = 1.0
     final: CandidateScore | None = None
 
@@ -164,11 +165,12 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     whole_job = CandidateJob(candidates[0], None, data, validation, options,
                              None if run.scheduler is None and run.workers == 0 else 1, provenance,
                              mode="screen" if screen else "full")
-    # long records (a drive's log at 1 kHz and beyond): the candidates ranked on their first RANKED_SAMPLES, the
-    # chosen one polished on the whole of them at the end
-    ranked_share = ranked_share_of(data)
-    job = whole_job if ranked_share == 1 else replace(
-        whole_job, data=first_share(data, ranked_share), validation=first_share(validation, ranked_share_of(validation)),
+    # long records (a drive's log at 1 kHz and beyond): the candidates ranked on RANKED_SAMPLES of them (open-loop
+    # records at a reduced rate, then their first share), the chosen one polished on the whole of them at the end
+    ranked = shortened(data, RANKED_SAMPLES)
+    ranked_share = 1.0 if ranked is data else fitted_total(ranked) / fitted_total(data)
+    job = whole_job if ranked is data else replace(
+        whole_job, data=ranked, validation=shortened(validation, RANKED_SAMPLES),
         provenance={**provenance, "ranked_share": ranked_share})
     data = job.data
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
@@ -203,20 +205,11 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     return _write(selection, outputs)
 
 
-# The fitted samples (all records together) the candidates of a selection are ranked on at most: a longer log's
-# first share (ranked_share_of).  The selection's time grows with them — on a drive's 1 kHz log of 12 400 samples,
-# 400 s of CPU for the default candidates in its loop — and 4000 is the length of the benchmark's records, on
-# which the 20-seed benchmark measures the choices (docs/bench-select.md)
+# The fitted samples (all records together) the candidates of a selection are ranked on at most (criterion.shortened:
+# open-loop records at a reduced rate, then a first share).  The selection's time grows with them — on a drive's
+# 1 kHz log of 12 400 samples, 400 s of CPU for the default candidates in its loop — and 4000 is the length of the
+# benchmark's records, on which the 20-seed benchmark measures the choices (docs/bench-select.md)
 RANKED_SAMPLES = 4000
-
-
-def ranked_share_of(data) -> float:
-    """The share of every record's fitted span a selection ranks its candidates on: 1, or where the records hold
-    more than RANKED_SAMPLES fitted samples, the share that leaves that many (stepped-sine data: 1)."""
-    if data_kind(data) == "sine":
-        return 1.0
-    total = sum(int(np.count_nonzero(r.fitted)) for r in data.records)
-    return 1.0 if total <= RANKED_SAMPLES else RANKED_SAMPLES / total
 
 
 def _final_fit(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
