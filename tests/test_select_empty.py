@@ -111,3 +111,11 @@ def test_long_records_are_ranked_on_their_first_share_and_the_chosen_polished_on
     assert "ranked on 0.4 of the records' fitted samples" in selection_text(selection)
     with h5py.File(tmp_path / "s.h5") as f:
         assert f["selection"].attrs["ranked_share"] == pytest.approx(0.4)
+
+
+def test_a_candidate_whose_swarm_passes_its_time_budget_is_polished_from_its_best_and_says_so(records, tmp_path):
+    selection = _select(records, tmp_path, budget=1e-9)
+    assert selection.chosen is not None
+    for s in selection.scores:
+        assert "time budget: the swarm stopped after 0 of 5 iterations (1e-09 s)" in s.message
+        assert s.result.stages[0].evaluations == 10  # the first particles only, then the polish

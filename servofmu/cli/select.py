@@ -26,7 +26,8 @@ def cmd_select(args) -> None:
 
     options = SelectOptions(candidates=tuple(args.candidates.split(",")) if args.candidates else None,
                             orders=args.orders, seed=args.seed, iterations=args.iterations, skip=args.skip,
-                            closed_loop=args.closed_loop)
+                            closed_loop=args.closed_loop,
+                            **({} if args.budget is None else {"budget": args.budget}))
     with ProgressBar(args, "candidate") as bar:
         selection = select_with_report(args.data, args.validate, args.output, options, run_options(args, bar),
                                        args.plant, args.result, args.report)
@@ -51,6 +52,8 @@ def register(sub) -> None:
                    help="records: leave the first SECONDS of every record out (as identify --skip)")
     p.add_argument("--iterations", type=int, metavar="N", help="swarm iterations per candidate (default 50)")
     p.add_argument("--seed", type=int, default=0, help="seed of every candidate's swarm (default 0)")
+    p.add_argument("--budget", type=float, metavar="SECONDS", help="seconds a candidate's swarm may take before "
+                   "its polish goes on from its best (default 60; the candidate's row says where it was cut)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: this process)")
     p.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT (default: local processes)")
     p.add_argument("--json", action="store_true", help="print the ranking as one JSON object")

@@ -164,6 +164,7 @@ class PSOANNIdentifier:
 
     polish_iterations = MAX_POLISH_ITERATIONS  # Levenberg–Marquardt steps at most (a selection's screening: fewer)
     check_roughness = True  # roughness_ of a polished records fit (a selection checks only the one it chooses)
+    search_deadline: float | None = None  # time.perf_counter() at which the swarm stops (a selection's budget)
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -211,7 +212,10 @@ class PSOANNIdentifier:
     def _search(self, cost, lower, upper, y0, seed):
         search = SEARCH_NAMES[self.method]
         if search == "pso":
-            return search, minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=seed, progress=self.progress)
+            deadline = self.search_deadline
+            stop = None if deadline is None else (lambda: time.perf_counter() > deadline)
+            return search, minimize_pso(cost, lower, upper, self.pso, x0=y0, seed=seed, progress=self.progress,
+                                        stop=stop)
         budget = self.pso.particles * (self.pso.iterations + 1)  # the swarm's number of model evaluations
         options = GaOptions(max_evaluations=budget) if search == "ga" else AdaptiveGaOptions(max_evaluations=budget)
         return search, minimize_ga(cost, lower, upper, options, x0=y0, seed=seed, progress=self.progress)

@@ -6,6 +6,7 @@ w_min = 0.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,12 +82,14 @@ def update_position(X, V, lower, upper) -> tuple[np.ndarray, np.ndarray]:
 
 
 def minimize_pso(cost: CostFunction, lower, upper, options: PsoOptions = PsoOptions(), x0=None,
-                 seed: int | np.random.Generator = 0, progress: Progress | None = None) -> OptimizeResult:
+                 seed: int | np.random.Generator = 0, progress: Progress | None = None,
+                 stop: Callable[[], bool] | None = None) -> OptimizeResult:
     """Minimise ``cost`` over the box [lower, upper] (each (dims,)) with a particle swarm.
 
     ``x0``: an initial guess (dims,) or several (k, dims), placed as the first particles
     (clipped into the box); the identifier passes the ANN estimate here.  ``seed``: an int
-    or a numpy Generator; the run is a deterministic function of it.
+    or a numpy Generator; the run is a deterministic function of it.  ``stop``: asked before every iteration; the
+    swarm ends there (``stopped_early``) when it says so (a selection's time budget per candidate).
     """
     lower, upper = check_box(lower, upper)
     guesses = check_initial(x0, lower, upper, options.particles)
@@ -102,7 +105,7 @@ def minimize_pso(cost: CostFunction, lower, upper, options: PsoOptions = PsoOpti
     evaluations, done, stopped = options.particles, 0, False
 
     for k in range(options.iterations):
-        if options.cost_tolerance is not None and pbest_cost[best] <= options.cost_tolerance:
+        if options.cost_tolerance is not None and pbest_cost[best] <= options.cost_tolerance or stop and stop():
             stopped = True
             break
         w = inertia_weight(k, options.iterations, options.w_max, options.w_min)

@@ -82,6 +82,10 @@ def _check_options(options: SelectOptions) -> list[Candidate]:
     swarm_options(options.iterations)
     if not (isinstance(options.spread, (int, float)) and math.isfinite(options.spread) and options.spread > 0):
         raise UserError(f"spread must be a positive number, not {options.spread!r}")
+    if not (isinstance(options.budget, (int, float)) and not isinstance(options.budget, bool) and options.budget > 0
+            and math.isfinite(options.budget)):
+        raise UserError(f"--budget (seconds a candidate's swarm may take) must be a positive number, not "
+                        f"{options.budget!r}")
     return parse_candidates(options.candidates, options.orders)
 
 
@@ -501,7 +505,8 @@ def _fill_ranking(f, selection: Selection) -> None:
                                            "iterations": selection.options.iterations,
                                            "spread": selection.options.spread, "skip": selection.options.skip,
                                            "closed_loop": selection.options.closed_loop,
-                                           "screen": selection.options.screen})})
+                                           "screen": selection.options.screen,
+                                           "budget": selection.options.budget})})
     store_array(g, "name", [x.name for x in s])
     store_array(g, "group", [_key(x) if x.status == "fitted" else "" for x in s])
     store_array(g, "status", [x.status for x in s])

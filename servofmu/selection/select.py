@@ -54,7 +54,7 @@ from .period import SEARCHED_PERIOD, continued_start, ripple_start
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
            "searches_ripple", "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance",
-           "response_roughness", "DEFAULT_SPREAD", "SCREEN_RTOL", "SCREEN_MARGIN"]
+           "response_roughness", "DEFAULT_SPREAD", "DEFAULT_BUDGET", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
 VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
 # The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
@@ -70,6 +70,10 @@ LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any o
 # fit at fc− 0.01 ± 0.07 N, another of the same cost at 0.40)
 COULOMB_LEVELS = ("fc_pos", "fc_neg")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
+# The seconds a candidate's swarm may take (SelectOptions.budget): the benchmark's slowest swarm took 10 s, a
+# drive log's 5 s; a candidate whose simulations crawl (a stiff LuGre loop, a third-order chattering one) is cut
+# there rather than holding up the selection
+DEFAULT_BUDGET = 60.0
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
 # The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
 # simulations take a quarter of the steps they take at the polish's 1e-10, and the residuals err by ~1e-7 of the
@@ -162,6 +166,9 @@ class SelectOptions:
         Records: fit every candidate with its polish at SCREEN_RTOL first, and polish again at the identifier's
         tolerance only the candidates whose screened BIC could still win (docs/selection.md); False: every
         candidate at the full tolerance.
+    budget : float
+        Seconds a candidate's swarm may take: it stops at the iteration that passes them, the polish goes on from
+        its best, and the candidate's row says so (its fit then depends on the machine's speed).
     """
 
     candidates: tuple[str, ...] | None = None
@@ -172,6 +179,7 @@ class SelectOptions:
     skip: float = 0.0
     closed_loop: str | None = None
     screen: bool = True
+    budget: float = DEFAULT_BUDGET
 
 
 @dataclass(frozen=True)
@@ -400,7 +408,12 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     # polish alone from there (a swarm's particles, scored at its coarser tolerance, led the polish to another)
     est.from_start = job.mode == "refit" or searched or job.polished
     est.seeded = job.seeded
+    est.search_deadline = time.perf_counter() + job.options.budget
     est.fit(job.data)
+    swarm = len(est.history_) - 1  # the swarm's iterations (its first particles are the history's first entry)
+    budget = f"time budget: the swarm stopped after {swarm} of {est.pso.iterations} iterations " \
+             f"({job.options.budget:g} s)" if not est.from_start and swarm < est.pso.iterations and \
+        time.perf_counter() > est.search_deadline else ""
     result = est.result(dict(job.provenance, candidate=job.candidate.name))
     theta = np.asarray(est.theta_, dtype=float)
     crit = est.criterion_  # its simulations of the fit are reused: the scores ask for the same errors
@@ -425,7 +438,8 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     stopped = getattr(getattr(est.criterion_, "simulator", None), "stopped", 0)
     return CandidateScore(
         candidate=job.candidate, status="fitted", result=result, parameters=p, samples=n, neg2loglik=neg2,
-        message=f"{stopped} simulations stopped at the step budget or failed" if stopped else "",
+        message="; ".join(m for m in (budget, f"{stopped} simulations stopped at the step budget or failed"
+                                       * bool(stopped)) if m),
         aic=neg2 + 2 * p, bic=neg2 + penalty,
         validation_fit={k: fit_percent(y, e) for k, (y, e) in zip(names, validated)},
         validation_neg2loglik=val_neg2, white=_whiteness(crit_v, job.validation, validated),

@@ -51,8 +51,10 @@ def long_records_lines(selection: Selection) -> list[str]:
     lines = []
     if selection.ranked_share < 1 and selection.chosen is not None:
         final = selection.final
-        lines.append(f"ranked on {selection.ranked_share:.3g} of the records' fitted samples ({RANKED_SAMPLES}: "
-                     "long records, open-loop ones at a reduced rate, then their first share); " + (f"{final.name} then polished on the whole records (BIC "
+        how = "at a reduced rate, then their first share" if selection.kind == "records" else \
+            "their first share: a loop runs at its drive's rate"
+        lines.append(f"ranked on {selection.ranked_share:.3g} of the records' fitted samples ({RANKED_SAMPLES}, "
+                     f"{how}); " + (f"{final.name} then polished on the whole records (BIC "
                                                    f"{final.bic:.6g}, worst validation fit {final.worst_validation_fit:.3f} %)"
                                                    if final is not None else "its polish on the whole records failed: "
                                                    "the share's fit is written"))
