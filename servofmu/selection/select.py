@@ -42,7 +42,7 @@ from ..identification.criterion import POLISH_RTOL, SineData, fit_percent, searc
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
-from ..identification.restarts import chi2_quantile
+from ..identification.restarts import RestartOptions, chi2_quantile
 from ..identification.results import Result
 from ..identification.roughness import curvature, neg2loglik
 from ..identification.roughness import response_roughness as roughness_of
@@ -70,6 +70,12 @@ LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any o
 # fit at fc− 0.01 ± 0.07 N, another of the same cost at 0.40)
 COULOMB_LEVELS = ("fc_pos", "fc_neg")
 DEFAULT_SPREAD = 1.5  # the swarm's box: factors in [1/2.5, 2.5] around the linear estimate
+# Searches after the first of a candidate whose stepped-sine fit stays above the noise floor (the identifier's: up
+# to 6, until two agree).  A wrong structure never reaches the floor and its searches never agree, so each took
+# seven: on noise-free g1 data the default selection spent 350 s of CPU, 300 of them in the restarts of the 14
+# structures that are not g1's.  One more search keeps a second chance for a right structure whose swarm missed,
+# beside the starts the selection hands on from the other candidates' fits.
+SELECT_RESTARTS = 1
 # The seconds a candidate's swarm may take (SelectOptions.budget): the benchmark's slowest swarm took 10 s, a
 # drive log's 5 s; a candidate whose simulations crawl (a stiff LuGre loop, a third-order chattering one) is cut
 # there rather than holding up the selection
@@ -400,6 +406,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         job = replace(job, start=continued_start(job.start, job.data, job.threads))
     est = _CandidateIdentifier(job.start, method="pso", pso=swarm_options(job.options.iterations),
                                spread=job.options.spread, seed=job.options.seed, threads=job.threads,
+                               restarts=RestartOptions(restarts=SELECT_RESTARTS),
                                **({"search_rtol": SCREEN_SEARCH_RTOL} if job.mode == "screen" else {}))
     est.rtol_floor = SCREEN_RTOL if job.mode == "screen" else 0.0
     if job.mode == "screen":
