@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 import servofmu as sf
-from servofmu.identification.criterion import record_data, reduction_factor
+from servofmu.identification.criterion import record_data
+from servofmu.identification.shortening import reduction_factor
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.records import import_records
 from servofmu.runtime import RunOptions

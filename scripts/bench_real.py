@@ -9,7 +9,8 @@ loop; the log and its loop as documented beside it) through servofmu's commands,
    computed here as the published figures are: relative 2-norm errors of position, velocity — the position
    low-passed at 100 Hz by a 4th-order Butterworth filter forward and backward, then a central difference — and
    force, from the 50th sample on), and in open loop from the logged force (free run: the position's RMS error);
-5. the chosen model's loop as an SSP system co-simulated on libcosim, against the same log.
+5. the chosen model's loop as an SSP system co-simulated on libcosim, against the same log;
+6. the chosen model put to use: `compensate` on its own system, `tune` of the drive's gains on it.
 
 Usage: python scripts/bench_real.py LOG.mat [--out docs/bench-real.md]
 """
@@ -142,6 +143,12 @@ def main() -> None:
             figures[label] = replay(folder / f"{label}.h5", folder / "whole.h5", controller)
         cosim, times["export + controller + system + cosim (chosen)"] = cosim_replay(
             folder / "chosen.h5", folder / "whole.h5", folder, controller)
+        # the identified axis put to use: its friction fed forward in the drive's loop (the chosen model's system
+        # of step 5 stands for the axis), and the drive's gains tuned on it for a stroke of the log's size and speed
+        times["compensate (chosen, on its own model's system)"], compensation = run(
+            ["compensate", "chosen.h5", "--axis", "axis.ssp"], folder)
+        times["tune (chosen: a 0.2 m stroke at 0.13 m/s)"], tuning = run(
+            ["tune", "chosen.h5", str(CONTROLLER), "--stroke", "0.2", "--speed", "0.13", "-o", "tuned.toml"], folder)
     lines += ["# A real machine's log, end to end", "",
               f"`python scripts/bench_real.py {args.log.name}` — the EMPS axis's estimation log (1 kHz, {n} samples; "
               "docs/control.md for the loop, `docs/examples/emps_drive.toml` its drive), on a 2-core machine.", "",
@@ -164,6 +171,10 @@ def main() -> None:
                      f"{f['free_run_rms_mm']:.3g} | {f['free_run_max_mm']:.3g} |")
     lines.append(f"| chosen, co-simulated on libcosim (SSP) | {cosim['position']:.4f} | – | {cosim['force']:.2f} | – "
                  "| – |")
+    lines += ["", "## The identified axis put to use", "", "`compensate chosen.h5 --axis axis.ssp` (the chosen "
+              "model's own system from the log's reference: what feeding its friction forward buys on the model) "
+              "and `tune chosen.h5 emps_drive.toml --stroke 0.2 --speed 0.13` (the drive's gains tuned on the model "
+              "under the sensitivity bound):", "", "```", compensation.strip(), "", tuning.strip(), "```"]
     lines += ["", "How to read it: the replays are of the log the models were identified from (as the published "
               "figures are), so they show the fit, not a prediction; `select` ranked on the first half's start and "
               "validated on the second half. On a real axis the model error is far above the encoder's noise and "

@@ -10,8 +10,9 @@ from scipy.integrate import solve_ivp
 
 import servofmu as sf
 from servofmu.simulation.batch import BatchSimulator
-from servofmu.identification.criterion import (RATE_FACTOR, RecordData, RecordSeries, input_bandwidth,
-                                               reduced_rate, reduction_factor, shortened)
+from servofmu.identification.criterion import RecordData, RecordSeries
+from servofmu.identification.shortening import (RATE_FACTOR, input_bandwidth, reduced_rate, reduction_factor,
+                                                shortened)
 from servofmu.identification.closed_loop import ClosedLoopData, ClosedLoopSeries
 from servofmu.model.controller import load_controller
 

@@ -41,7 +41,6 @@ from .criterion import (
     intervals_from_covariance,
     record_data,
     rms,
-    search_share,
     sine_data,
     with_finite_columns,
 )
@@ -55,6 +54,7 @@ from .polish import MAX_POLISH_ITERATIONS, polish
 from .pso import PsoOptions, minimize_pso
 from .restarts import RestartOptions, fits_agree, floor_test, noise_half_widths, restart_box, restart_seed
 from .results import Result, Stage, result_from_estimator
+from .shortening import search_share
 
 __all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance", "swarm_options"]
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identification.criterion import (SEARCH_SAMPLES, RecordData, SineCriterion, RecordCriterion, SineData, first_share,
-                                        record_data, search_share, sine_data)
+from ..identification.criterion import RecordCriterion, RecordData, SineCriterion, SineData, record_data, sine_data
+from ..identification.shortening import SEARCH_SAMPLES, first_share, search_share
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
 from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets

@@ -4,70 +4,31 @@ cluster, ranked, and written: SELECT.h5 (every candidate's result and the rankin
 structure as a plant file and its result as a RESULT.h5."""
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import UserError, check_int
-from ..fileio import claim_output, file_sha256, holds_outputs, output_mode, store_array, write_hdf5
-from ..identification.criterion import fitted_total, shortened
+from ..fileio import claim_output, file_sha256, holds_outputs, output_mode
+from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
-from ..identification.results import write_comparison, write_result
 from ..identification.roughness import ROUGH_RISE, finite_covariance
-from ..runtime import RunOptions, available_cores, temporary_folder, utc_now
+from ..runtime import RunOptions, available_cores, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
                    load_selection_data)
 from .estimate import data_bandwidth, start_estimates
+from .store import SELECT_FORMAT, Selection, write_selection
 from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate,
                      rank, response_roughness, searches_ripple, start_neg2loglik)
 from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
                      within_first)
 
 __all__ = ["Selection", "select_files", "selection_outputs", "RANKED_SAMPLES", "SELECT_FORMAT"]
-
-SELECT_FORMAT = "servofmu-selection"
-
-
-@dataclass(frozen=True)
-class Selection:
-    """A selection's outcome: the candidates' scores in rank order (``scores[0]`` is chosen when it was fitted),
-    the files fitted and validated on, the kind of data, the options and the outputs written."""
-
-    scores: tuple[CandidateScore, ...]
-    data_files: tuple[str, ...]
-    validation_file: str
-    kind: str
-    options: SelectOptions
-    outputs: dict
-    # identification.roughness.response_roughness of the fits ranked first and of the lowest BIC, the larger (NaN:
-    # not checked), on the records as fitted and on all of them
-    roughness: float = math.nan
-    horizon: float = 1.0  # the share of every record's fitted span the candidates were fitted and ranked on
-    roughness_whole: float = math.nan
-    horizon_seconds: float = math.nan  # that share of the longest record, in seconds
-    # long records (more than RANKED_SAMPLES fitted samples): the share of their fitted samples the candidates were
-    # ranked on, and the chosen structure polished again from its fit there on the whole records (its result written)
-    ranked_share: float = 1.0
-    final: CandidateScore | None = None
-
-    @property
-    def rough(self) -> bool:
-        """Whether the chosen fit's response is chaotic in its parameters (roughness.ROUGH_RISE): its intervals do not
-        hold, and the ranking of the structures that share its rough terms is by where their polishes ended."""
-        return bool(self.roughness > ROUGH_RISE)
-
-    @property
-    def chosen(self) -> CandidateScore | None:
-        """The first-ranked candidate, None when no fit succeeded."""
-        first = self.scores[0] if self.scores else None
-        return first if first is not None and first.status == "fitted" and math.isfinite(first.bic) else None
-
 
 def selection_outputs(output: str | Path, plant_output=None, result_output=None) -> dict[str, Path]:
     """The files a selection writes: SELECT.h5, the chosen plant file (default SELECT.toml beside it) and the
@@ -206,7 +167,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                           roughness=roughness, horizon=share, roughness_whole=whole,
                           horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan,
                           ranked_share=ranked_share, final=final)
-    return _write(selection, outputs)
+    return write_selection(selection, outputs)
 
 
 # The fitted samples (all records together) the candidates of a selection are ranked on at most (criterion.shortened:
@@ -458,65 +419,3 @@ def _expected_cost(job: CandidateJob) -> tuple:
     c = job.candidate
     swarm = job.mode != "refit" and not job.polished
     return searches_ripple(job), job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
-
-
-def _key(score: CandidateScore) -> str:
-    """The group of a candidate in SELECT.h5's /methods: its name with '/' as '_' (coulomb_2z)."""
-    return score.name.replace("/", "_")
-
-
-def _write(selection: Selection, outputs: dict[str, Path]) -> Selection:
-    """SELECT.h5 (a comparison file of the fitted candidates' results plus /selection), and for a chosen candidate
-    its plant file and result."""
-    fitted = {_key(s): s.result for s in selection.scores if s.status == "fitted"}
-    written = {"selection": str(outputs["selection"])}
-    with temporary_folder("select") as tmp:
-        base = tmp / "candidates.h5"
-        write_comparison(base, fitted)
-        write_hdf5(outputs["selection"], lambda f: _fill_ranking(f, selection), start_from=base)
-    chosen = selection.chosen
-    if chosen is not None:
-        chosen = selection.final or chosen  # the chosen structure's fit on the whole records, where it was ranked on a share
-        plant = replace(chosen.result.plant, name="selected")
-        header = (f"# chosen by servofmu select: {chosen.name} (rank 1 of {len(selection.scores)}; BIC "
-                  f"{chosen.bic:.6g}); identified from {', '.join(selection.data_files)}\n")
-        from ..fileio import atomic_write
-
-        atomic_write(outputs["plant"], header + plant.to_toml())
-        write_result(outputs["result"], chosen.result, overwrite=True)  # claimed before any work
-        written.update(plant=str(outputs["plant"]), result=str(outputs["result"]))
-    return replace(selection, outputs=written)
-
-
-def _fill_ranking(f, selection: Selection) -> None:
-    """/selection: the ranking as columns in rank order, and the run's settings as attributes."""
-    g = f.create_group("selection")
-    s = selection.scores
-    chosen = selection.chosen
-    g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
-                    "chosen": chosen.name if chosen else "", "criterion": "bic", "roughness": selection.roughness,
-                    "roughness_whole": selection.roughness_whole, "horizon": selection.horizon,
-                    "ranked_share": selection.ranked_share,
-                    "final_bic": selection.final.bic if selection.final else math.nan,
-                    "data_files": json.dumps(list(selection.data_files)),
-                    "validation_file": selection.validation_file,
-                    "options": json.dumps({"candidates": selection.options.candidates,
-                                           "orders": list(selection.options.orders), "seed": selection.options.seed,
-                                           "iterations": selection.options.iterations,
-                                           "spread": selection.options.spread, "skip": selection.options.skip,
-                                           "closed_loop": selection.options.closed_loop,
-                                           "screen": selection.options.screen,
-                                           "budget": selection.options.budget})})
-    store_array(g, "name", [x.name for x in s])
-    store_array(g, "group", [_key(x) if x.status == "fitted" else "" for x in s])
-    store_array(g, "status", [x.status for x in s])
-    store_array(g, "message", [x.message for x in s])
-    store_array(g, "flags", [",".join(x.flags) for x in s])
-    store_array(g, "undetermined", [",".join(x.undetermined) for x in s])
-    for column in ("parameters", "samples", "rank"):
-        store_array(g, column, np.array([getattr(x, column) for x in s], dtype=np.int64))
-    for column in ("neg2loglik", "aic", "bic", "validation_neg2loglik", "seconds", "worst_validation_fit"):
-        store_array(g, column, np.array([getattr(x, column) for x in s], dtype=float))
-    store_array(g, "screened", np.array([int(x.screened) for x in s], dtype=np.int8))
-    store_array(g, "white", np.array([-1 if x.white is None else int(x.white) for x in s], dtype=np.int8))
-    store_array(g, "validation_fit", [json.dumps(x.validation_fit) for x in s])

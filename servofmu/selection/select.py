@@ -38,11 +38,12 @@ import numpy as np
 
 from ..errors import UserError
 from ..identification.confounding import interval_quantile
-from ..identification.criterion import POLISH_RTOL, SineData, fit_percent, search_share
+from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
+from ..identification.shortening import search_share
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
-from ..identification.restarts import RestartOptions, chi2_quantile
+from ..identification.restarts import RestartOptions
 from ..identification.results import Result
 from ..identification.roughness import curvature, neg2loglik
 from ..identification.roughness import response_roughness as roughness_of
@@ -51,18 +52,12 @@ from ..model.plant import Plant
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind, without_quantiser
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
+from .validation import SCREEN_RTOL, validation_allowance, validation_margin
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
            "searches_ripple", "screen_bound", "could_win", "cancels", "validation_margin", "validation_allowance",
            "response_roughness", "DEFAULT_SPREAD", "DEFAULT_BUDGET", "SCREEN_RTOL", "SCREEN_MARGIN"]
 
-VALIDATION_LEVEL = 0.999  # the χ² quantile of the validation flag's margin (validation_margin)
-# The validation allowance's Jacobian: differences of a tenth of each parameter's standard error (a ripple's
-# period over a longer travel is far from linear over a whole one: its allowance came out seven times larger),
-# simulated at the screening's tolerance, whose error (~1e-7 of the signal) is a two-hundredth of the change such
-# a step makes (~2e-5 at 40 dB and 2000 samples): at the polish's 1e-10 its p + 1 simulations added 6 % to a
-# selection's time
-VALIDATION_STEP = 0.1
 LOCATION_PARAMETERS = ("x0", "ripple_phase")  # where zero is a value like any other (not "undetermined")
 # The Coulomb levels are tested by their mean: no candidate has a law without one side, and their difference is
 # a constant force while the axis moves, which a load's offset or a spring's rest position shares (where a fit
@@ -81,10 +76,6 @@ SELECT_RESTARTS = 1
 # there rather than holding up the selection
 DEFAULT_BUDGET = 60.0
 CANCELLATION = 0.1  # a zero this close to a pole (relative) cancels it: the pair is flagged
-# The screening fit's integrator tolerance (the polish's residuals, its Jacobian and the scores): records'
-# simulations take a quarter of the steps they take at the polish's 1e-10, and the residuals err by ~1e-7 of the
-# signal, against noise of 1e-2 (40 dB): the BIC moves by ~0.04, against ln N = 7.6 per parameter.
-SCREEN_RTOL = 1e-7
 # The screening fit's swarm tolerance (the identifier's SEARCH_RTOL is 1e-5): a quarter less time per simulation,
 # and the swarm only ranks its particles, whose costs differ by far more than 1e-4 of the signal.
 SCREEN_SEARCH_RTOL = 1e-4
@@ -101,50 +92,6 @@ SCREEN_MARGIN = 20.0
 # BIC).  And a candidate more than this above the best BIC is no right structure, whose estimation error alone
 # would explain a validation loss (validation_allowance).
 STRONG_EVIDENCE = 10.0
-
-
-def validation_margin(parameters: int) -> float:
-    """Validation −2·ln L a candidate of ``parameters`` identified parameters may lose to the best one before it is
-    flagged: the VALIDATION_LEVEL quantile of χ²(p).  A right structure's estimate θ̂ predicts new data worse than
-    its true values by (θ̂ − θ)ᵀ I (θ̂ − θ), χ²(p) when the validation record informs as the fitted one does — the
-    estimation error of all p parameters, not of one (stribeck2 seed 0: the truth's own structure lost 21.9 to
-    lugre/2 on validation with a fit as good as the true values' on the fitted record)."""
-    return chi2_quantile(VALIDATION_LEVEL, max(parameters, 1))
-
-
-def validation_allowance(jacobian: np.ndarray, scales: np.ndarray, errors: list[np.ndarray], crit_v,
-                         theta: np.ndarray, validated: list[np.ndarray]) -> float:
-    """The VALIDATION_LEVEL quantile of what a right structure's estimation error costs on the validation
-    record: (θ̂ − θ)ᵀ F_v (θ̂ − θ) with θ̂ − θ ~ N(0, F⁻¹), F and F_v the Fisher informations of the fitted and
-    the validation records (Gauss–Newton, every signal's residuals in units of its noise), a sum Σ λᵢ·χ²(1) over
-    the eigenvalues λ of F⁻¹F_v (F_v from differences of VALIDATION_STEP standard errors at SCREEN_RTOL), its
-    quantile from a χ² of the same mean and variance (Satterthwaite).  Where the
-    validation record informs as the fitted one does (every λ = 1) it is validation_margin(p); a ripple's period
-    met over a longer travel there raises its λ a hundredfold.  ``jacobian``: the polish's last, of the residuals
-    weighted by 1/``scales`` per signal; ``errors`` and ``validated``: every signal's output errors at θ̂ on the
-    two records.  NaN where it cannot be computed (stepped-sine data, a simulation that failed)."""
-    if not hasattr(crit_v, "errors") or not np.all(np.isfinite(jacobian)) or \
-            jacobian.shape[0] != sum(e.size for e in errors):
-        return math.nan
-    noise = np.concatenate([np.full(e.size, s / np.sqrt(max(e @ e / e.size, 1e-300)))  # weighted → noise units
-                            for e, s in zip(errors, scales)])
-    fisher = (jacobian * noise[:, None]).T @ (jacobian * noise[:, None])
-    covariance = np.linalg.pinv(fisher)
-    se = np.sqrt(np.clip(np.diag(covariance), 0, None))
-    step = np.where(np.isfinite(se) & (se > 0), VALIDATION_STEP * se, 1e-6 * np.maximum(np.abs(theta), 1e-6))
-    rows = np.vstack([theta, theta + np.diag(step)])
-    columns = []
-    for e, e0 in zip(crit_v.errors(rows, SCREEN_RTOL), validated):
-        sigma = np.sqrt(max(e0 @ e0 / e0.size, 1e-300))  # the noise: the validation errors at θ̂ (full tolerance)
-        columns.append((e[1:] - e[0]) / step[:, None] / sigma)
-    jv = np.concatenate(columns, axis=1).T
-    if not np.all(np.isfinite(jv)):
-        return math.nan
-    lam = np.clip(np.linalg.eigvals(covariance @ (jv.T @ jv)).real, 0, None)
-    mean, square = float(lam.sum()), float(lam @ lam)
-    if not mean > 0:
-        return math.nan
-    return square / mean * chi2_quantile(VALIDATION_LEVEL, mean ** 2 / square)
 
 
 @dataclass(frozen=True)
