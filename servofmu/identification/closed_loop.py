@@ -123,11 +123,11 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
                             "simulates the loop from the recorded reference")
         if s.position is None:
             raise UserError(f"{data_file.path}: record {r.name} has no measured position")
-        check_log(f"{data_file.path}: record {r.name}", s.reference[fitted], s.position[fitted], s.u[fitted],
-                  None if s.disturbance is None else s.disturbance[fitted], controller)
         t = s.time
         clock = fit_clock(t, ts, where=lambda i: f"{data_file.path}: record {r.name}: sample {i + 1} "
                                                  f"(t = {t[i]:.9g} s)")
+        check_log(f"{data_file.path}: record {r.name}", s.reference[fitted], s.position[fitted], s.u[fitted],
+                  None if s.disturbance is None else s.disturbance[fitted], controller)
         grid = t[0] + ts * np.arange(t.size)
         out.append(ClosedLoopSeries(r.name, grid, s.reference, s.position, s.u, fitted, s.disturbance, clock))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)

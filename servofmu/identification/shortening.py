@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import fields, replace
 
 import numpy as np
-from scipy.signal import resample_poly
 
 from .criterion import RecordData, RecordSeries, SineData
 
@@ -111,4 +110,6 @@ def reduced_rate(data):
 def _decimated(x: np.ndarray, q: int) -> np.ndarray:
     """``x`` low-passed and kept at every q-th sample from the first (the filter's delay compensated; the ends
     extended along a line rather than by zeros)."""
+    from scipy.signal import resample_poly  # scipy only where a record is reduced: identify loads it lazily
+
     return resample_poly(np.asarray(x, dtype=float), 1, q, window=("kaiser", KAISER_BETA), padtype="line")

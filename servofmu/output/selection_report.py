@@ -14,7 +14,8 @@ from ..measurement.datafile import read_data_file
 from ..runtime import RunOptions, utc_now
 from ..selection.run import Selection, select_files
 from ..selection.summary import rough_warning
-from ..selection.select import STRONG_EVIDENCE, VALIDATION_LEVEL, SelectOptions
+from ..selection.select import STRONG_EVIDENCE, SelectOptions
+from ..selection.validation import VALIDATION_LEVEL
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import pyplot
 from .validate import Validation, validate
