@@ -76,3 +76,47 @@ def test_long_records_are_shortened_to_their_budget_and_a_loop_only_in_time(fast
                           load_controller("axis_controller"), "loop")
     cut = shortened(loop, 500).records[0]
     assert np.allclose(np.diff(cut.time), 1e-3) and cut.time.size == 500
+
+
+def _newey_west_segment_by_segment(r, jac, blocks, concurrent=None):
+    """The leave-one-segment-out Newey–West covariance as long_run's docstring states it, one segment at a time."""
+    from servofmu.identification.long_run import SEGMENT_GRIDS, bartlett_lags
+    gram = jac.T @ jac
+    bread, omega = np.linalg.pinv(gram), np.zeros((jac.shape[1],) * 2)
+    for group in concurrent or [(k,) for k in range(len(blocks))]:
+        parts = [blocks[k] for k in group]
+        n = parts[0].stop - parts[0].start
+        lags = max(bartlett_lags(r[b]) for b in parts)
+        span = lags + 1
+        offsets = sorted({k * span // SEGMENT_GRIDS for k in range(SEGMENT_GRIDS)})
+        for offset in offsets:
+            g = sum(jac[b] * r[b, None] for b in parts)
+            edges = [0] + list(range(offset or span, n, span)) + [n]
+            for start, stop in zip(edges[:-1], edges[1:]):
+                rows = np.concatenate([np.arange(b.start + start, b.start + stop) for b in parts])
+                js = jac[rows]
+                shift = (js @ (np.linalg.pinv(gram - js.T @ js) @ (js.T @ r[rows]))).reshape(len(parts), -1)
+                for b, d in zip(parts, shift):
+                    g[start:stop] += jac[b.start + start:b.start + stop] * d[:, None]
+            omega += (g.T @ g) / len(offsets)
+            for lag in range(1, lags + 1):
+                gamma = g[lag:].T @ g[:-lag]
+                omega += (1 - lag / (lags + 1)) * (gamma + gamma.T) / len(offsets)
+    return bread @ omega @ bread
+
+
+@pytest.mark.parametrize("color", [0.0, 0.9])
+@pytest.mark.parametrize("concurrent", [None, [(0, 1)]])
+def test_the_batched_newey_west_covariance_is_the_segment_by_segment_one(color, concurrent):
+    """The segments of a whole span are refitted in one batch (a 6·10⁵-sample record: 3·10⁵ segments per grid):
+    the same covariance as segment by segment, white and coloured residuals, one signal or two sampled together."""
+    from servofmu.identification.long_run import newey_west_covariance
+    rng = np.random.default_rng(3)
+    n = 1001
+    e = rng.standard_normal(2 * n)
+    for k in range(1, e.size):
+        e[k] += color * e[k - 1]
+    jac = rng.standard_normal((2 * n, 3))
+    blocks = [slice(0, n), slice(n, 2 * n)]
+    expected = _newey_west_segment_by_segment(e, jac, blocks, concurrent)
+    assert np.allclose(newey_west_covariance(e, jac, blocks, concurrent), expected, rtol=1e-12, atol=0)

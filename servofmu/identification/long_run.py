@@ -65,15 +65,48 @@ def newey_west_covariance(r: np.ndarray, jac: np.ndarray, blocks: list[slice],
         for offset in offsets:
             g = plain.copy()  # the scores on the leave-one-segment-out residuals of this grid of segments
             edges = [0] + list(range(offset or span, n, span)) + [n]
+            # the segments of a whole span at once (a batch of p×p pseudo-inverses: a 6·10⁵-sample record has
+            # 3·10⁵ two-sample segments per grid), the first and last, shorter, one by one
+            whole = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b - a == span]
+            if whole:
+                _shift_segments(g, jac, r, gram, parts, whole[0][0], whole[-1][1], span)
             for start, stop in zip(edges[:-1], edges[1:]):
-                rows = np.concatenate([np.arange(b.start + start, b.start + stop) for b in parts])
-                js = jac[rows]
-                shift = (js @ (np.linalg.pinv(gram - js.T @ js) @ (js.T @ r[rows]))).reshape(len(parts), -1)
-                for b, d in zip(parts, shift):
-                    g[start:stop] += jac[b.start + start:b.start + stop] * d[:, None]
+                if stop - start != span:
+                    _shift_segments(g, jac, r, gram, parts, start, stop, stop - start)
             weight = 1 / len(offsets)
             omega += weight * (g.T @ g)
             for lag in range(1, lags + 1):
                 gamma = g[lag:].T @ g[:-lag]
                 omega += weight * (1 - lag / (lags + 1)) * (gamma + gamma.T)
     return bread @ omega @ bread
+
+
+def _shift_segments(g: np.ndarray, jac: np.ndarray, r: np.ndarray, gram: np.ndarray, parts: list[slice], start: int,
+                    stop: int, span: int) -> None:
+    """Add to the scores ``g`` (of a group's samples start..stop, consecutive segments of ``span``) each segment's
+    leave-it-out shift J_S·(JᵀJ − J_SᵀJ_S)⁻¹·J_Sᵀr_S, every block of ``parts`` sharing its segment's refit."""
+    count, p = (stop - start) // span, jac.shape[1]
+    js = [jac[b.start + start:b.start + stop].reshape(count, span, p) for b in parts]
+    rs = [r[b.start + start:b.start + stop].reshape(count, span) for b in parts]
+    jtj = sum(np.einsum("nsp,nsq->npq", j, j) for j in js)
+    jtr = sum(np.einsum("nsp,ns->np", j, e) for j, e in zip(js, rs))
+    coef = np.einsum("npq,nq->np", _inverses(gram - jtj), jtr)
+    for j in js:
+        d = np.einsum("nsp,np->ns", j, coef)
+        g[start:stop] += (j * d[..., None]).reshape(-1, p)
+
+
+def _inverses(a: np.ndarray) -> np.ndarray:
+    """The inverses of a batch of matrices (LU, faster than the SVD), their pseudo-inverses where one is singular or
+    so ill-conditioned that its inverse does not reproduce the identity (a segment whose removal leaves a parameter
+    unseen)."""
+    with np.errstate(all="ignore"):
+        try:
+            out = np.linalg.inv(a)
+        except np.linalg.LinAlgError:
+            return np.linalg.pinv(a)
+        error = np.abs(np.einsum("npq,nqr->npr", a, out) - np.eye(a.shape[-1]))
+        bad = ~np.all(np.isfinite(out), axis=(1, 2)) | ~(error.max(axis=(1, 2)) <= 1e-8)
+    if np.any(bad):
+        out[bad] = np.linalg.pinv(a[bad])
+    return out

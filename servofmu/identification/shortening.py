@@ -12,7 +12,7 @@ import numpy as np
 from .criterion import RecordData, RecordSeries, SineData
 
 __all__ = ["first_share", "search_share", "shortened", "reduced_rate", "reduction_factor", "input_bandwidth",
-           "fitted_total", "SEARCH_SAMPLES", "RATE_FACTOR", "INPUT_POWER", "KAISER_BETA"]
+           "fitted_total", "long_open_loop", "SEARCH_SAMPLES", "RATE_FACTOR", "INPUT_POWER", "KAISER_BETA"]
 
 
 def first_share(data, share: float):
@@ -105,6 +105,15 @@ def reduced_rate(data):
         out.append(replace(r, time=r.time[keep], u=_decimated(r.u, q)[:n], y=_decimated(r.y, q)[:n], hold="foh",
                            fitted=r.fitted[keep]))
     return replace(data, records=tuple(out))
+
+
+def long_open_loop(data) -> RecordData | None:
+    """Open-loop records of more than SEARCH_SAMPLES fitted samples at the rate their input needs (reduced_rate),
+    or None: other data, short records, or an input whose band leaves no rate to reduce."""
+    if not isinstance(data, RecordData) or fitted_total(data) <= SEARCH_SAMPLES:
+        return None
+    reduced = reduced_rate(data)
+    return None if fitted_total(reduced) == fitted_total(data) else reduced
 
 
 def _decimated(x: np.ndarray, q: int) -> np.ndarray:

@@ -39,7 +39,6 @@ import numpy as np
 from ..errors import UserError
 from ..identification.confounding import interval_quantile
 from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
-from ..identification.shortening import search_share
 from ..identification.identifier import PSOANNIdentifier, swarm_options
 from ..identification.prior import identified_names
 from ..identification.residuals import residual_test
@@ -321,15 +320,11 @@ class _CandidateIdentifier(PSOANNIdentifier):
             self.criterion_.simulator.rtol_floor = self.rtol_floor
         return self.criterion_
 
-    def _search_criterion(self, data, crit):
-        """As the identifier's (criterion.search_share), simulated within the step budget at the fit's tolerance
-        floor."""
-        share = search_share(data)
-        if share is data:
-            return crit
-        search = criterion_for(self.structure, share, self.threads)
-        search.simulator.rtol_floor = self.rtol_floor
-        return search
+    def _criterion_of(self, data):
+        """As the identifier's, simulated within the step budget at the fit's tolerance floor."""
+        crit = criterion_for(self.structure, data, self.threads)
+        crit.simulator.rtol_floor = self.rtol_floor
+        return crit
 
     def _search(self, cost, lower, upper, y0, seed):
         centre = (lower + upper) / 2  # the prior box's centre: the structure's values
