@@ -165,6 +165,7 @@ class PSOANNIdentifier:
     polish_iterations = MAX_POLISH_ITERATIONS  # Levenberg–Marquardt steps at most (a selection's screening: fewer)
     check_roughness = True  # roughness_ of a polished records fit (a selection checks only the one it chooses)
     search_deadline: float | None = None  # time.perf_counter() at which the swarm stops (a selection's budget)
+    _reduced_crit = None  # a long open-loop record's criterion at its reduced rate: the polish's first descent
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -300,7 +301,8 @@ class PSOANNIdentifier:
         self.plant_ = self.structure.with_parameters(full_vectors(self.structure, self.theta_)[0])
         self.stages_ = stages
         self.seconds_ = time.perf_counter() - start
-        self.evaluations_ = crit.evaluations + (search.evaluations if search is not crit else 0)
+        self.evaluations_ = sum(c.evaluations for c in {id(c): c for c in (crit, search, self._reduced_crit)
+                                                        if c is not None}.values())
         return self
 
     def _criterion_of(self, data):
