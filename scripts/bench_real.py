@@ -2,7 +2,8 @@
 loop; the log and its loop as documented beside it) through servofmu's commands, each timed.
 
 1. `import` the MAT log, whole and in halves (the force per volt from the log's own `gtau`);
-2. `select` on the first half with the second as validation, in the drive's loop (`--closed-loop`);
+2. `select` on the first half with the second as validation, in the drive's loop (`--closed-loop`) and in open
+   loop (the logged force driving the position);
 3. `identify --closed-loop` on the whole log: the chosen structure, and the simplest hand-written one (first order,
    Coulomb friction with an offset: the physical model's mass, viscous and Coulomb friction and offset force);
 4. each model replayed in the loop from the log's reference (`validate --closed-loop`, and the replay's errors
@@ -132,6 +133,8 @@ def main() -> None:
         times["select (first half, second validating)"], selection = run(
             ["select", "first.h5", "--validate", "second.h5", "--closed-loop", str(CONTROLLER), "-o", "select.h5"],
             folder)
+        times["select --open-loop (first half, second validating: force → position)"], open_selection = run(
+            ["select", "first.h5", "--validate", "second.h5", "-o", "open.h5"], folder)
         (folder / "simple.toml").write_text(SIMPLE)
         tables, figures, validations = {}, {}, {}
         for label, structure in (("chosen", "select.toml"), ("simple", "simple.toml")):
@@ -154,6 +157,8 @@ def main() -> None:
               "docs/control.md for the loop, `docs/examples/emps_drive.toml` its drive), on a 2-core machine.", "",
               "## The selection (first half fitted, second half validating, in the drive's loop)", "", "```",
               selection.strip(), "```", ""]
+    lines += ["## The same selection in open loop (the logged force driving the position)", "", "```",
+              open_selection.strip(), "```", ""]
     for label in ("chosen", "simple"):
         lines += [f"## identify --closed-loop on the whole log: {label} structure", "", "```", tables[label].strip(),
                   "```", "", "`validate --closed-loop` of it on the same log:", "", "```",
