@@ -133,7 +133,7 @@ def main() -> None:
         times["select (first half, second validating)"], selection = run(
             ["select", "first.h5", "--validate", "second.h5", "--closed-loop", str(CONTROLLER), "-o", "select.h5"],
             folder)
-        times["select --open-loop (first half, second validating: force → position)"], open_selection = run(
+        times["select in open loop (first half, second validating: force → position)"], open_selection = run(
             ["select", "first.h5", "--validate", "second.h5", "-o", "open.h5"], folder)
         (folder / "simple.toml").write_text(SIMPLE)
         tables, figures, validations = {}, {}, {}
