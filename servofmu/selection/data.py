@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..identification.criterion import RecordCriterion, RecordData, SineCriterion, SineData, record_data, sine_data
-from ..identification.shortening import SEARCH_SAMPLES, first_share, search_share
+from ..identification.shortening import first_share
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
 from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
@@ -18,8 +18,8 @@ from ..simulation.closed_loop import LoopSimulator
 from .estimate import Series, series_of_experiments, series_of_records
 
 __all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
-           "BoundedSimulator", "BoundedLoopSimulator", "without_quantiser", "search_share", "SEARCH_SAMPLES",
-           "STEPS_PER_SAMPLE", "steps_per_sample", "first_share", "fitted_seconds"]
+           "BoundedSimulator", "BoundedLoopSimulator", "without_quantiser", "STEPS_PER_SAMPLE", "steps_per_sample",
+           "first_share", "fitted_seconds"]
 
 # The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
 # for a failed integration), at the polish's tolerance BUDGET_RTOL: the bench's true plants need at most 28 per
