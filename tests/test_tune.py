@@ -89,7 +89,9 @@ def sprung_axis():
 
 @pytest.mark.parametrize("changes", [{}, {"velocity_filter": 1.0, "filter_window": 4.0},
                                      {"velocity_filter": 2.0, "filter_time_constant": 2e-3},
-                                     {"delay": 2.0, "kp_velocity": 9000.0}, {"kp_position": 120.0}, "spring"])
+                                     {"delay": 2.0, "kp_velocity": 9000.0}, {"kp_position": 120.0}, "spring",
+                                     # a P-only velocity loop on a two-sample difference (the EMPS axis's drive)
+                                     {"ki_velocity": 0.0, "velocity_filter": 1.0, "filter_window": 2.0}])
 def test_sensitivity_peak_matches_scipy(changes):
     plant = sf.load_plant("stribeck_axis") if changes != "spring" else sprung_axis()
     changes = {} if changes == "spring" else changes

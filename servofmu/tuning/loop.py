@@ -128,7 +128,9 @@ def discrete_loop(plant: Plant, controller: ControllerSpec) -> DiscreteLoop:
     ts = controller.sample_time
     p_num, p_den = zoh_position_plant(plant, ts)
     kp, ki = controller["kp_velocity"], controller["ki_velocity"]
-    c_num, c_den = np.array([kp + ki * ts, -kp]), np.array([1.0, -1.0])
+    # a P-only velocity loop (ki = 0) has no integrator: C(z) = kp, not kp·(z − 1)/(z − 1), whose common factor left
+    # a closed-loop pole at z = 1 and called every such drive unstable (Ms = inf; the EMPS axis's drive)
+    c_num, c_den = (np.array([kp + ki * ts, -kp]), np.array([1.0, -1.0])) if ki else (np.array([kp]), np.array([1.0]))
     f_num, f_den = _velocity_estimate(controller)
     outer = _add(controller["kp_position"] * f_den, f_num)  # kp_position + F(z)
     delay = np.r_[1.0, np.zeros(int(controller["delay"]))]
