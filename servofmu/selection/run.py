@@ -170,7 +170,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     return write_selection(selection, outputs)
 
 
-# The fitted samples (all records together) the candidates of a selection are ranked on at most (criterion.shortened:
+# The fitted samples (all records together) the candidates of a selection are ranked on at most (shortening.shortened:
 # open-loop records at a reduced rate, then a first share).  The selection's time grows with them — on a drive's
 # 1 kHz log of 12 400 samples, 400 s of CPU for the default candidates in its loop — and 4000 is the length of the
 # benchmark's records, on which the 20-seed benchmark measures the choices (docs/bench-select.md)
