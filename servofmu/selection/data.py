@@ -150,12 +150,9 @@ class BoundedSimulator(BatchSimulator):
                         progress=None) -> RecordResponse:
         """As :meth:`BatchSimulator.simulate_record`, with at most steps_per_sample(rtol) steps per sample and a
         tolerance of at least ``rtol_floor``."""
-        rtol = max(rtol, self.rtol_floor)
-        budget = min(max_steps, int(steps_per_sample(rtol) * max(np.size(time), 1)))
-        out = super().simulate_record(params, time, u, hold=hold, rtol=rtol, max_steps=budget, progress=progress)
-        valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
-        self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.v), axis=1)))
-        return out
+        return _within_budget(self, params, time, rtol, max_steps, lambda out: out.v, lambda tol, steps:
+                              BatchSimulator.simulate_record(self, params, time, u, hold=hold, rtol=tol,
+                                                             max_steps=steps, progress=progress))
 
 
 class BoundedLoopSimulator(LoopSimulator):
@@ -169,13 +166,21 @@ class BoundedLoopSimulator(LoopSimulator):
                       disturbance=None, encoder_error=None):
         """As :meth:`LoopSimulator.simulate_loop`, with at most steps_per_sample(rtol) steps per sample and a
         tolerance of at least ``rtol_floor``."""
-        rtol = max(rtol, self.rtol_floor)
-        budget = min(max_steps, int(steps_per_sample(rtol) * max(np.size(time), 1)))
-        out = super().simulate_loop(params, time, reference, controller, rtol=rtol, max_steps=budget,
-                                    disturbance=disturbance, encoder_error=encoder_error)
-        valid = valid_parameter_sets(self.plant, np.atleast_2d(np.asarray(params, dtype=float)))
-        self.stopped += int(np.sum(valid & ~np.all(np.isfinite(out.position), axis=1)))
-        return out
+        return _within_budget(self, params, time, rtol, max_steps, lambda out: out.position, lambda tol, steps:
+                              LoopSimulator.simulate_loop(self, params, time, reference, controller, rtol=tol,
+                                                          max_steps=steps, disturbance=disturbance,
+                                                          encoder_error=encoder_error))
+
+
+def _within_budget(sim, params, time, rtol, max_steps, response, run):
+    """``run(rtol, max_steps)`` at a tolerance of at least ``sim.rtol_floor`` and at most steps_per_sample(rtol)
+    steps per sample of ``time``; the valid parameter sets whose ``response`` is not finite counted in
+    ``sim.stopped``."""
+    rtol = max(rtol, sim.rtol_floor)
+    out = run(rtol, min(max_steps, int(steps_per_sample(rtol) * max(np.size(time), 1))))
+    valid = valid_parameter_sets(sim.plant, np.atleast_2d(np.asarray(params, dtype=float)))
+    sim.stopped += int(np.sum(valid & ~np.all(np.isfinite(response(out)), axis=1)))
+    return out
 
 
 def criterion_for(structure, data, threads: int | None = None):
