@@ -6,6 +6,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import datetime as _dt
+import math
 import os
 import shutil
 import signal
@@ -23,7 +24,7 @@ from .locks import is_abandoned, take
 
 __all__ = ["Progress", "available_cores", "utc_now", "find_compiler", "compile_shared", "cache_dir",
            "CompileError", "compiler_signature", "CFLAGS", "make_temporary_folder", "temporary_folder",
-           "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "TEMPORARY_PREFIX",
+           "remove_temporary_folders", "sweep_temporary_folders", "check_memory", "check_work", "check_work_limit", "WORK_LIMIT_HOURS", "TEMPORARY_PREFIX",
            "signals_deferred", "unblock_signals", "RunOptions", "EXIT_USER_ERROR", "STOP_SIGNALS", "Terminated",
            "stop_if_asked", "CommandRun", "run_command", "finish",
            "optional_import", "show_warnings"]
@@ -278,6 +279,33 @@ def check_memory(what: str, needed: float, how: str) -> None:
     if total is not None and needed > total / 2:
         raise UserError(f"{what} needs about {_bytes(needed)} of memory, more than half of this machine's "
                         f"{_bytes(total)}; {how}")
+
+
+# The hours of computing a command's searches may be estimated at before it is refused (--work-limit raises it): a
+# night's run; the defaults of every command estimate at minutes
+WORK_LIMIT_HOURS = 8.0
+
+
+def check_work(what: str, seconds: float, limit_hours: float, how: str) -> None:
+    """Refuse up front a search whose time estimate ``seconds`` (its evaluations times the measured time of one)
+    exceeds ``limit_hours``: one line with the estimate and how to make it smaller, instead of a run of days."""
+    check_work_limit(limit_hours)
+    if seconds > 3600 * limit_hours:
+        raise UserError(f"{what} would take about {_duration(seconds)} on this machine, beyond --work-limit "
+                        f"{limit_hours:g} h: {how}, or raise --work-limit")
+
+
+def check_work_limit(hours: float) -> None:
+    """Refuse a work limit that is not a positive number of hours."""
+    if not (isinstance(hours, (int, float)) and not isinstance(hours, bool) and 0 < hours < math.inf):
+        raise UserError(f"--work-limit must be a positive number of hours, not {hours!r}")
+
+
+def _duration(seconds: float) -> str:
+    for unit, size in (("years", 3.15e7), ("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
 
 
 def _bytes(n: float) -> str:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..runtime import EXIT_USER_ERROR, RunOptions, show_warnings, stop_if_asked
+from ..runtime import EXIT_USER_ERROR, WORK_LIMIT_HOURS, RunOptions, show_warnings, stop_if_asked
 
-__all__ = ["Parser", "DeprecatedAlias", "ProgressBar", "float_list", "add_progress_option", "run_options",
+__all__ = ["Parser", "DeprecatedAlias", "ProgressBar", "float_list", "add_progress_option", "add_work_limit_option", "run_options",
            "output_mode_of"]
 
 
@@ -98,6 +98,13 @@ class ProgressBar:
         if self._bar is not None:
             self._bar.leave = kind is None  # a failed run ends with its one error line, no bar
             self._bar.close()
+
+
+def add_work_limit_option(p) -> None:
+    """--work-limit: the hours a command's search may be estimated at before it is refused."""
+    p.add_argument("--work-limit", type=float, default=WORK_LIMIT_HOURS, metavar="HOURS",
+                   help="refuse a search estimated at more than HOURS of this machine's time (default "
+                        f"{WORK_LIMIT_HOURS:g})")
 
 
 def output_mode_of(args) -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import UserError
-from .common import ProgressBar, add_progress_option, run_options
+from .common import ProgressBar, add_progress_option, add_work_limit_option, run_options
 
 __all__ = ["register", "cmd_dataset", "cmd_train", "cmd_identify", "cmd_compare"]
 
@@ -41,7 +41,8 @@ def identify_options(args):
     from ..identification.run import IdentifyOptions
 
     return IdentifyOptions(method=args.method, seed=args.seed, polish=not args.no_polish,
-                           iterations=args.iterations, skip=args.skip, closed_loop=args.closed_loop)
+                           iterations=args.iterations, skip=args.skip, closed_loop=args.closed_loop,
+                           work_limit=args.work_limit)
 
 
 def cmd_identify(args) -> None:
@@ -154,6 +155,7 @@ def _register_identify(sub) -> None:
                    help="swarm iterations (default 50, the paper's; the GA comparators get as many model evaluations); "
                         "fewer are faster, 0 polishes from the network's estimate: docs/bench-swarm-budget.md")
     p.add_argument("--seed", type=int, default=0, help="seed of the swarm (default 0)")
+    add_work_limit_option(p)
     p.add_argument("--json", action="store_true", help="print the result as one JSON object (many files: an array "
                                                        "of one summary object per file)")
     add_progress_option(p)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import ProgressBar, add_progress_option, run_options
+from .common import ProgressBar, add_progress_option, add_work_limit_option, run_options
 
 __all__ = ["register", "cmd_select"]
 
@@ -26,7 +26,7 @@ def cmd_select(args) -> None:
 
     options = SelectOptions(candidates=tuple(args.candidates.split(",")) if args.candidates else None,
                             orders=args.orders, seed=args.seed, iterations=args.iterations, skip=args.skip,
-                            closed_loop=args.closed_loop,
+                            closed_loop=args.closed_loop, work_limit=args.work_limit,
                             **({} if args.budget is None else {"budget": args.budget}))
     with ProgressBar(args, "candidate") as bar:
         selection = select_with_report(args.data, args.validate, args.output, options, run_options(args, bar),
@@ -54,6 +54,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of every candidate's swarm (default 0)")
     p.add_argument("--budget", type=float, metavar="SECONDS", help="seconds a candidate's swarm may take before "
                    "its polish goes on from its best (default 60; the candidate's row says where it was cut)")
+    add_work_limit_option(p)
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: this process)")
     p.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT (default: local processes)")
     p.add_argument("--json", action="store_true", help="print the ranking as one JSON object")

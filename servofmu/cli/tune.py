@@ -16,7 +16,7 @@ def cmd_tune(args) -> None:
                             speed=args.speed, max_sensitivity=args.max_sensitivity, compensate=args.compensate,
                             method=args.method, axis=args.axis, report=args.report, engine=args.engine,
                             overwrite=args.force, progress=bar.update, seed=args.seed, particles=args.particles,
-                            iterations=args.iterations)
+                            iterations=args.iterations, keep=args.keep, work_limit=args.work_limit)
     if args.json:
         print(json.dumps(tune_json(tuning), allow_nan=True))
         return
@@ -28,7 +28,7 @@ def register(sub) -> None:
     """Add the subcommand tune to the subparsers ``sub``."""
     from ..output.tune_report import DEFAULT_SPEED, DEFAULT_STROKE
     from ..tuning.run import METHODS
-    from .common import add_progress_option
+    from .common import add_progress_option, add_work_limit_option
 
     p = sub.add_parser("tune", help="tune a drive's gains for an identified axis (particle swarm, robustness bound)")
     p.add_argument("result", metavar="RESULT.h5", role="input", help="result file of the axis (`servofmu identify`)")
@@ -51,6 +51,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the swarm and the uncertainty draws (default 0)")
     p.add_argument("--particles", type=int, default=16, help="particles of the swarm (default 16)")
     p.add_argument("--iterations", type=int, default=30, help="iterations of the swarm (default 30)")
+    p.add_argument("--keep", type=lambda text: tuple(n.strip() for n in text.split(",") if n.strip()), default=(),
+                   metavar="NAME[,NAME]", help="parameters the data left undetermined, taken at their identified "
+                                               "values (without it such a result is refused)")
+    add_work_limit_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", dest="output", metavar="TUNED.toml", required=True, help="controller file to write")
     p.add_argument("--report", metavar="TUNE.html", help="HTML page of the tuning to write")

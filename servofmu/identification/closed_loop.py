@@ -34,10 +34,12 @@ from ..model.plant import Plant, load_plant
 from ..simulation.closed_loop import LoopSimulator
 from .criterion import TimeDomainCriterion, check_structure, fitted_samples
 from .identifier import identification_provenance
+from .law_check import law_fit
 from .prior import full_vectors
 
 __all__ = ["ClosedLoopData", "ClosedLoopSeries", "ClosedLoopCriterion", "closed_loop_data",
-           "load_closed_loop_inputs", "clock_lines", "check_log", "ENCODER_REALISATIONS"]
+           "load_closed_loop_inputs", "clock_lines", "check_log", "check_law",
+           "ENCODER_REALISATIONS"]
 
 ENCODER_REALISATIONS = 4  # encoder-error sequences a candidate's loop is averaged over (docs/bench-closed-loop.md)
 
@@ -126,8 +128,10 @@ def closed_loop_data(data_file, controller: ControllerSpec, skip: float = 0.0) -
         t = s.time
         clock = fit_clock(t, ts, where=lambda i: f"{data_file.path}: record {r.name}: sample {i + 1} "
                                                  f"(t = {t[i]:.9g} s)")
-        check_log(f"{data_file.path}: record {r.name}", s.reference[fitted], s.position[fitted], s.u[fitted],
+        where = f"{data_file.path}: record {r.name}"
+        check_log(where, s.reference[fitted], s.position[fitted], s.u[fitted],
                   None if s.disturbance is None else s.disturbance[fitted], controller)
+        check_law(where, controller, s.reference, s.position, s.u, s.disturbance, fitted)
         grid = t[0] + ts * np.arange(t.size)
         out.append(ClosedLoopSeries(r.name, grid, s.reference, s.position, s.u, fitted, s.disturbance, clock))
     law = controller.with_values(encoder_resolution=0.0, force_noise=0.0)
@@ -178,6 +182,18 @@ def check_log(where: str, reference: np.ndarray, position: np.ndarray, command: 
         warnings.warn(f"{where}: the command is at the output limit ±{limit:.6g} N in {100 * held:.3g} % of the "
                       "samples: there the axis is driven by the limit, not by the loop, and only the rest of the "
                       "log shows the controller's law", ServofmuWarning, stacklevel=3)
+
+
+def check_law(where: str, controller: ControllerSpec, reference, position, command, disturbance, fitted) -> None:
+    """Refuse in one line a log whose command the controller file's law does not reproduce from the log's own
+    reference and encoder (servofmu.identification.law_check: the key the log fits instead is named); warn where
+    it reproduces it only roughly."""
+    fit = law_fit(controller, reference, position, command, disturbance, fitted)
+    verdict = fit.verdict()
+    if verdict == "refuse":
+        raise UserError(f"{where}: {fit.describe(controller.source)}: {fit.question()}")
+    if verdict == "warn":
+        warnings.warn(f"{where}: {fit.describe(controller.source)}", ServofmuWarning, stacklevel=3)
 
 
 class ClosedLoopCriterion(TimeDomainCriterion):

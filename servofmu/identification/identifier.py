@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import ServofmuWarning, UserError, check_int
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant
-from ..runtime import Progress
+from ..runtime import WORK_LIMIT_HOURS, Progress, check_work, check_work_limit
 from ..simulation.batch import BatchSimulator
 from .ann import AnnModel, FeatureLayout, load_ann
 from .criterion import (
@@ -77,6 +77,11 @@ class _Fit:
 def check_method(method: str) -> None:
     if method not in METHODS:
         raise UserError(f"unknown method {method!r} (choose {', '.join(METHODS)})")
+
+
+# A search of at most this many model evaluations is not estimated (the defaults: 10 particles × 51 × 7 searches);
+# beyond, WORK_SAMPLE evaluations are timed to estimate it
+UNCHECKED_EVALUATIONS, WORK_SAMPLE = 20_000, 2
 
 
 class PSOANNIdentifier:
@@ -165,6 +170,7 @@ class PSOANNIdentifier:
     polish_iterations = MAX_POLISH_ITERATIONS  # Levenberg–Marquardt steps at most (a selection's screening: fewer)
     check_roughness = True  # roughness_ of a polished records fit (a selection checks only the one it chooses)
     search_deadline: float | None = None  # time.perf_counter() at which the swarm stops (a selection's budget)
+    work_limit: float = WORK_LIMIT_HOURS  # hours the search may be estimated at (runtime.check_work)
     _reduced_crit = None  # a long open-loop record's criterion at its reduced rate: the polish's first descent
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
@@ -225,6 +231,7 @@ class PSOANNIdentifier:
     def _check(self, data) -> None:
         check_method(self.method)
         check_int("seed", self.seed, 0)
+        check_work_limit(self.work_limit)
         if self.method in NEEDS_ANN and self.ann is None:
             raise UserError(f"method {self.method} needs a trained network (see `servofmu train`)")
         if self.method in NEEDS_ANN and not isinstance(data, SineData):
@@ -273,6 +280,7 @@ class PSOANNIdentifier:
             return rms(search.residuals(self._to_theta(y), self.search_rtol))
 
         stages = []
+        self._check_work(cost, search)
         if self.method in NEEDS_ANN:
             t0 = time.perf_counter()
             y0, half = self._ann_estimate(data)
@@ -304,6 +312,22 @@ class PSOANNIdentifier:
         self.evaluations_ = sum(c.evaluations for c in {id(c): c for c in (crit, search, self._reduced_crit)
                                                         if c is not None}.values())
         return self
+
+    def _check_work(self, cost, search) -> None:
+        """Refuse a search whose estimate (its model evaluations times one evaluation's measured time, up to the
+        selection's time budget) passes the work limit."""
+        evaluations = self.pso.particles * (self.pso.iterations + 1) * (1 + self.restarts.restarts)
+        if evaluations <= UNCHECKED_EVALUATIONS:
+            return
+        y = np.mean(prior_box(self.structure, self.spread), axis=0)[None]
+        t0 = time.perf_counter()
+        cost(np.repeat(y, WORK_SAMPLE, axis=0))
+        seconds = (time.perf_counter() - t0) / WORK_SAMPLE * evaluations
+        if self.search_deadline is not None:
+            seconds = min(seconds, self.search_deadline - time.perf_counter())
+        check_work(f"the search ({self.pso.particles} particles × {self.pso.iterations} iterations"
+                   f"{' and its restarts' if self.restarts.restarts else ''})", seconds, self.work_limit,
+                   "give fewer --iterations")
 
     def _criterion_of(self, data):
         """A criterion on a shortened form of the fitted data (shortening: the search's, the reduced polish's): the

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..fileio import claim_output, output_mode
-from ..runtime import RunOptions, utc_now
+from ..runtime import WORK_LIMIT_HOURS, RunOptions, utc_now
 from .identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
 from .results import Result, result_from_estimator, write_result
 
@@ -27,7 +27,8 @@ class IdentifyOptions:
     ``method``: one of identification.methods.METHODS (None: :func:`default_method`); ``seed``, ``polish`` as for
     :class:`servofmu.PSOANNIdentifier`; ``iterations``: swarm iterations (None: the paper's 50); ``skip``: seconds
     left out at the start of every record; ``closed_loop``: the controller file of closed-loop records (the
-    candidates are then simulated in the loop from the recorded reference; the swarm alone searches)."""
+    candidates are then simulated in the loop from the recorded reference; the swarm alone searches);
+    ``work_limit``: the hours the search may be estimated at (servofmu.runtime.check_work)."""
 
     method: str | None = None
     seed: int = 0
@@ -35,6 +36,7 @@ class IdentifyOptions:
     iterations: int | None = None
     skip: float = 0.0
     closed_loop: str | Path | None = None
+    work_limit: float = WORK_LIMIT_HOURS
 
     def method_for(self, ann_file) -> str:
         """The method of a run with (or without) the network ``ann_file``."""
@@ -91,6 +93,7 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
                                                                       command=run.command, skip=options.skip)
     est = PSOANNIdentifier(structure, ann=ann, method=method, seed=options.seed, polish=options.polish,
                            pso=swarm_options(options.iterations), progress=run.progress, threads=threads)
+    est.work_limit = options.work_limit
     est.fit(data)
     provenance["date"] = utc_now()
     result = result_from_estimator(est, method, provenance)

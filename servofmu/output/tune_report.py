@@ -16,7 +16,7 @@ from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
 from ..identification.results import read_result
 from ..model.controller import FILTERS, controller_toml, load_controller
-from ..runtime import utc_now
+from ..runtime import WORK_LIMIT_HOURS, utc_now
 from ..tuning.run import Tuning, tune_axis
 from ..tuning.search import TuneOptions
 from ..tuning.task import Task, stroke_task, task_from_csv
@@ -239,13 +239,14 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
                stroke: float | None = None, speed: float | None = None, max_sensitivity: float = 1.7,
                compensate: bool = False, method: str = "pso", axis: str | Path | None = None,
                report: str | Path | None = None, engine: str = "libcosim", overwrite: bool = False,
-               progress=None, seed: int = 0, particles: int = 16, iterations: int = 30) -> Tuning:
+               progress=None, seed: int = 0, particles: int = 16, iterations: int = 30,
+               keep: tuple[str, ...] = (), work_limit: float = WORK_LIMIT_HOURS) -> Tuning:
     """Tune the controller file ``controller`` for the result file ``result`` and write the tuned controller file
     ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``seed``, ``particles`` and
-    ``iterations``: the swarm's (servofmu.tuning.search.TuneOptions).  Nothing is written when the tuning
-    fails."""
+    ``iterations``: the swarm's, ``keep``: the undetermined parameters taken at their identified values,
+    ``work_limit``: the hours the swarm may be estimated at (servofmu.tuning.search.TuneOptions).  Nothing is written when the tuning fails."""
     options = TuneOptions(max_sensitivity=max_sensitivity, seed=seed, particles=particles,
-                          iterations=iterations)  # a bad bound: refused before any work
+                          iterations=iterations, keep=tuple(keep), work_limit=work_limit)  # a bad bound: refused before any work
     mode = output_mode(overwrite)
     inputs = (result, controller, task, axis)
     output = claim_output(output, mode, inputs=inputs)

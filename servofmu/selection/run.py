@@ -16,7 +16,7 @@ from ..fileio import claim_output, file_sha256, holds_outputs, output_mode
 from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
-from ..runtime import RunOptions, available_cores, utc_now
+from ..runtime import RunOptions, available_cores, check_work, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
@@ -47,7 +47,10 @@ def _check_options(options: SelectOptions) -> list[Candidate]:
             and math.isfinite(options.budget)):
         raise UserError(f"--budget (seconds a candidate's swarm may take) must be a positive number, not "
                         f"{options.budget!r}")
-    return parse_candidates(options.candidates, options.orders)
+    candidates = parse_candidates(options.candidates, options.orders)
+    check_work(f"{len(candidates)} candidates' swarms of up to --budget {options.budget:g} s each",
+               len(candidates) * options.budget, options.work_limit, "give a smaller --budget or fewer --candidates")
+    return candidates
 
 
 def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]:

@@ -48,6 +48,7 @@ from ..identification.roughness import curvature, neg2loglik
 from ..identification.roughness import response_roughness as roughness_of
 from ..identification.search import OptimizeResult
 from ..model.plant import Plant
+from ..runtime import WORK_LIMIT_HOURS
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind, without_quantiser
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
@@ -121,6 +122,9 @@ class SelectOptions:
     budget : float
         Seconds a candidate's swarm may take: it stops at the iteration that passes them, the polish goes on from
         its best, and the candidate's row says so (its fit then depends on the machine's speed).
+    work_limit : float
+        Hours the selection may be estimated at: the candidates' swarms at most ``budget`` each
+        (servofmu.runtime.check_work).
     """
 
     candidates: tuple[str, ...] | None = None
@@ -132,6 +136,7 @@ class SelectOptions:
     closed_loop: str | None = None
     screen: bool = True
     budget: float = DEFAULT_BUDGET
+    work_limit: float = WORK_LIMIT_HOURS
 
 
 @dataclass(frozen=True)
@@ -358,6 +363,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     est.from_start = job.mode == "refit" or searched or job.polished
     est.seeded = job.seeded
     est.search_deadline = time.perf_counter() + job.options.budget
+    est.work_limit = job.options.work_limit
     est.fit(job.data)
     swarm = len(est.history_) - 1  # the swarm's iterations (its first particles are the history's first entry)
     budget = f"time budget: the swarm stopped after {swarm} of {est.pso.iterations} iterations " \

@@ -22,7 +22,8 @@ from ..simulation.closed_loop import LoopSimulator
 from .check import AxisRun, Figures, check_on_axis, step_drive, tracking_figures
 from .loop import LoopAnalysis, analyse_loop, axis_mass, sensitivity_peak
 from .rule import tune_rule
-from .search import TuneOptions, TuneSearch, Uncertainty, search_gains, tracking_errors, uncertainty_sets
+from .search import (TuneOptions, TuneSearch, Uncertainty, determined_intervals, search_gains, tracking_errors,
+                     uncertainty_sets)
 from .task import Task, check_task, step_task
 
 __all__ = ["METHODS", "Tuning", "ModelRun", "check_pairing", "tune_axis", "step_for"]
@@ -179,7 +180,8 @@ def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: T
     mass = check_pairing(result, controller, source)
     check_task(task, plant, controller, mass)
     base = friction_feedforward(controller, plant) if compensate else controller
-    uncertainty = uncertainty_sets(plant, result.theta, result.intervals, options.draws, options.seed)
+    intervals = determined_intervals(plant, result.intervals, options.keep, source)
+    uncertainty = uncertainty_sets(plant, result.theta, intervals, options.draws, options.seed)
     rule, rule_a = tune_rule(plant, base, options.max_sensitivity, uncertainty.linear_corners)
     controllers = {"given": base, "rule": rule}
     search = None

@@ -20,6 +20,7 @@ simulated and scores 10³ + its peak, so that the swarm is drawn back to the bou
 from __future__ import annotations
 
 import itertools
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -30,12 +31,13 @@ from ..identification.pso import PsoOptions, minimize_pso
 from ..identification.prior import full_vectors, identified_names
 from ..model.controller import ControllerSpec
 from ..model.plant import Plant
+from ..runtime import WORK_LIMIT_HOURS, check_work, check_work_limit
 from ..simulation.closed_loop import LoopSimulator
 from .loop import axis_mass, sensitivity_peak
 from .task import Task
 
 __all__ = ["Uncertainty", "uncertainty_sets", "GainSpace", "TuneOptions", "TuneSearch", "tracking_errors",
-           "search_gains", "compass_search", "to_bound", "INFEASIBLE"]
+           "search_gains", "compass_search", "to_bound", "determined_intervals", "INFEASIBLE"]
 
 INFEASIBLE = 1e3  # the score of a candidate above the sensitivity bound (plus its peak)
 MAX_RELATIVE_WIDTH = 0.5  # an interval wider than ±50 % (or unbounded) is clipped to it, with a warning
@@ -72,7 +74,10 @@ def uncertainty_sets(plant: Plant, theta: np.ndarray, intervals: np.ndarray, dra
     """The uncertainty of an identified model (``theta`` and its 95 % ``intervals``, both over
     identified_names(plant)): the nominal plant and ``draws`` corners of the box drawn with ``seed``, and all
     corners of the box of G's parameters."""
-    box = _box(plant, np.asarray(theta, float), np.asarray(intervals, float))
+    theta, intervals = np.asarray(theta, float), np.array(intervals, float)
+    kept = np.isnan(intervals)  # parameters taken at their identified value (determined_intervals)
+    intervals[kept] = np.broadcast_to(theta[:, None], intervals.shape)[kept]
+    box = _box(plant, theta, intervals)
     rng = np.random.default_rng(seed)
     picks = rng.integers(0, 2, size=(draws, box.shape[0]))
     corners = np.take_along_axis(np.broadcast_to(box, (draws, *box.shape)), picks[:, :, None], axis=2)[:, :, 0]
@@ -143,6 +148,11 @@ class TuneOptions:
         Threads of the batch simulator (None: the cores this process may use).
     polish_steps : tuple of float
         Steps of the compass search after the swarm, as shares of the box's widths.
+    work_limit : float
+        Hours the swarm may be estimated at (servofmu.runtime.check_work).
+    keep : tuple of str
+        Parameters the data left undetermined (infinite intervals) that the tuning takes at their identified
+        values; any other undetermined parameter is refused (:func:`determined_intervals`).
     """
 
     max_sensitivity: float = 1.7
@@ -153,15 +163,39 @@ class TuneOptions:
     rtol: float = 1e-6
     threads: int | None = None
     polish_steps: tuple[float, ...] = (0.02, 0.005)
+    keep: tuple[str, ...] = ()
+    work_limit: float = WORK_LIMIT_HOURS
 
     def __post_init__(self):
         check_int("--particles", self.particles, 1, 10_000)
         check_int("--iterations", self.iterations, 0, 100_000)
         check_int("the number of uncertainty draws", self.draws, 0, 10_000)
         check_int("--seed", self.seed, 0)
+        check_work_limit(self.work_limit)
         if not (is_real(self.max_sensitivity) and self.max_sensitivity > 1.0):
             raise UserError(f"the sensitivity peak bound must be above 1 (|S| ≥ 1 somewhere for every loop "
                             f"with a delay), not {self.max_sensitivity!r}")
+
+
+def determined_intervals(plant: Plant, intervals: np.ndarray, keep: tuple[str, ...], source: str) -> np.ndarray:
+    """The 95 % intervals a tuning is judged on: a parameter the data left undetermined (an infinite interval) is
+    refused in one line — the plant's value along a direction the data do not fix is arbitrary, and so would the
+    gains be — unless ``keep`` names it, in which case it is taken at its identified value (interval of width 0)."""
+    names = identified_names(plant)
+    unknown = [k for k in keep if k not in names]
+    if unknown:
+        raise UserError(f"--keep {', '.join(unknown)}: not an identified parameter of {plant.name} (those are "
+                        f"{', '.join(names)})")
+    intervals = np.array(intervals, float)
+    open_ = [n for n, row in zip(names, intervals) if not np.all(np.isfinite(row))]
+    missing = [n for n in open_ if n not in keep]
+    if missing:
+        raise UserError(f"{source}: the data did not determine {', '.join(missing)} (infinite 95 % intervals): fix "
+                        "them in the structure file (fixed = [...]) and identify again, or give --keep "
+                        f"{','.join(missing)} to tune with their identified values")
+    theta_rows = [i for i, n in enumerate(names) if n in keep]
+    intervals[theta_rows] = np.nan  # filled with the identified value by uncertainty_sets
+    return intervals
 
 
 def tracking_errors(simulator: LoopSimulator, sets: np.ndarray, task: Task, controller: ControllerSpec,
@@ -212,6 +246,11 @@ def search_gains(uncertainty: Uncertainty, controller: ControllerSpec, task: Tas
         return np.array([score(x) for x in population])
 
     x0 = np.array([space.point(c) for c in [controller, *starts]])[:options.particles]
+    t0 = time.perf_counter()
+    cost(x0[:1])
+    check_work(f"the tuning's swarm ({options.particles} particles × {options.iterations} iterations on "
+               f"{len(uncertainty.sets)} plants)", (time.perf_counter() - t0) * options.particles *
+               (options.iterations + 1), options.work_limit, "give fewer --particles or --iterations")
     found = minimize_pso(cost, space.lower, space.upper, PsoOptions(particles=options.particles,
                                                                     iterations=options.iterations),
                          x0=x0, seed=options.seed, progress=progress)
