@@ -76,6 +76,13 @@ class BLA:
         return 10 * math.log10(ratio) if ratio > 0 else -math.inf
 
     @property
+    def relative_distortion_db(self) -> float:
+        """10·log10 of one realisation's distortion variance (M·σ²_BLA,s) over |G_BLA|², averaged over the lines:
+        the stochastic distortions' power relative to the linear part's in the output (−inf when not resolved)."""
+        ratio = float(np.mean(self.realisations * self.var_distortion) / np.mean(np.abs(self.G) ** 2))
+        return 10 * math.log10(ratio) if ratio > 0 else -math.inf
+
+    @property
     def total_to_noise_db(self) -> float:
         """10·log10 of the mean total variance over the mean noise variance: ≈ 0 dB for a linear plant."""
         return 10 * math.log10(float(np.mean(self.var_total) / np.mean(self.var_noise)))
