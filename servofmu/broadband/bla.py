@@ -121,6 +121,12 @@ def estimate_bla(u: np.ndarray, y: np.ndarray, lines, rate: float, detection=())
         Sample rate (Hz): line k lies at k·rate/N Hz.
     detection : array of int
         Lines of the band left without excitation (their output levels are reported).
+
+    Returns
+    -------
+    BLA
+        G_BLA, its noise, distortion and total variances and the coherence at ``lines``; the levels at
+        ``detection``.
     """
     u, y = np.asarray(u, float), np.asarray(y, float)
     if u.ndim != 3 or u.shape != y.shape:
@@ -179,9 +185,24 @@ def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None =
                 band: tuple[float, float] | None = None) -> H1Estimate:
     """The H1 estimate of a record of any kind (chirp, PRBS, a drive's log; periodic or not).
 
-    ``segment``: samples per Welch segment (default: the record / 8, at least 256 samples); ``band`` keeps the
-    frequencies in [f_min, f_max] (Hz).  Leakage and transients bias it (not removed here); on periodic data the
-    BLA (:func:`estimate_bla`) is exact where H1 is not.
+    Leakage and transients bias it (not removed here); on periodic data the BLA (:func:`estimate_bla`) is exact
+    where H1 is not.
+
+    Parameters
+    ----------
+    u, y : ndarray
+        Input and output, one record each, of one length, sampled at ``rate``.
+    rate : float
+        Sample rate (Hz).
+    segment : int, optional
+        Samples per Welch segment (default: the record / 8, at least 256).
+    band : (float, float), optional
+        Keep the frequencies in [f_min, f_max] (Hz).
+
+    Returns
+    -------
+    H1Estimate
+        Frequencies, G, coherence and the variance of G.
     """
     from scipy.signal import csd, welch
 
