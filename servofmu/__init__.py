@@ -33,6 +33,9 @@ _API = {
     "measure": "servofmu.measurement.measure",
     "import_records": "servofmu.measurement.records",
     "read_data_file": "servofmu.measurement.datafile",
+    "BroadbandPlan": "servofmu.broadband.signals",
+    "estimate_bla": "servofmu.broadband.bla",
+    "h1_estimate": "servofmu.broadband.bla",
     "sine_data": "servofmu.identification.criterion",
     "make_training_set": "servofmu.identification.training_set",
     "train_from_file": "servofmu.identification.train",
@@ -54,6 +57,8 @@ __all__ = list(_API)
 
 if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by __getattr__
     from .baselines.casadi_nls import fit_casadi_nls  # noqa: F401
+    from .broadband.bla import estimate_bla, h1_estimate  # noqa: F401
+    from .broadband.signals import BroadbandPlan  # noqa: F401
     from .baselines.chen2002 import fit_chen2002  # noqa: F401
     from .errors import UserError  # noqa: F401
     from .fmu.build import build_fmu  # noqa: F401

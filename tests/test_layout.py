@@ -17,6 +17,7 @@ STAGES = [
     {"servofmu.fmu"},
     {"servofmu.simulation"},
     {"servofmu.measurement"},
+    {"servofmu.broadband"},
     {"servofmu.identification"},
     {"servofmu.baselines"},
     {"servofmu.selection"},

@@ -1,7 +1,7 @@
 """The `servofmu` command: a thin front end over the library.
 
 This is the only place that prints, configures logging or shows progress bars.  Each subcommand lives in the
-module of its group (model, measure, identify, select, output, control, tune, demo), its arguments beside its
+module of its group (model, measure, broadband, identify, select, output, control, tune, demo), its arguments beside its
 handler; a handler calls one library function and prints what it returned.  How a command ends — one line and exit status 2 for a
 user error, 130 for Ctrl-C, 128 + n for SIGTERM or SIGHUP, no traceback, nothing partial left — is
 servofmu.runtime's (run_command, finish).
@@ -20,12 +20,12 @@ import shlex
 import sys
 
 from ..runtime import EXIT_USER_ERROR, CommandRun, finish, run_command
-from . import control, demo, identify, measure, model, output, select, tune
+from . import broadband, control, demo, identify, measure, model, output, select, tune
 from .common import Parser, output_mode_of
 
 __all__ = ["main", "build_parser", "run"]
 
-GROUPS = (model, measure, identify, select, output, control, tune, demo)  # in the order of the help's list
+GROUPS = (model, measure, broadband, identify, select, output, control, tune, demo)  # in the order of the help's list
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,14 +4,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import UserError
+from . import broadband
 from .common import DeprecatedAlias, ProgressBar, add_progress_option, float_list, run_options
 
 __all__ = ["register", "cmd_measure", "cmd_import", "cmd_plot"]
 
 
 def cmd_measure(args) -> None:
-    """Stepped-sine measurement of an FMU into a data file."""
+    """Stepped-sine measurement of an FMU into a data file (broadband with --excitation)."""
     from ..measurement.measure import PROGRESS_SCALE, MeasureOptions, measure
+
+    if args.excitation:
+        return broadband.cmd_measure_broadband(args)
 
     given = {"input": args.input, "output": args.output_variable, "tolerance": args.tolerance,
              "max_time": args.max_time, "samples_per_period": args.samples_per_period,
@@ -93,7 +97,7 @@ def register(sub) -> None:
     _add_output_variable(p, "output variable", " (default v)")
     p.add_argument("--noise-snr", type=float, metavar="DB", help="add measurement noise to v at this SNR (stored "
                                                                  "beside the clean signal)")
-    p.add_argument("--seed", type=int, help="seed of the noise (default 0)")
+    p.add_argument("--seed", type=int, help="seed of the noise (default 0), and of a broadband plan")
     p.add_argument("--tolerance", type=float, help="relative tolerance of the FMU's solver (default 1e-12)")
     p.add_argument("--max-time", type=float, help="simulated seconds before an experiment counts as not settled "
                                                   "(default 60)")
@@ -103,6 +107,9 @@ def register(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT (default: local processes)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: this process)")
     p.add_argument("--resume", action="store_true", help="continue DATA.h5 where an interrupted run stopped")
+    p.add_argument("--excitation", choices=broadband.KINDS,
+                   help="broadband instead of stepped sine: the plan's options below (docs/broadband.md)")
+    broadband.add_plan_options(p, seed=False)
     add_progress_option(p)
     p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
     p.set_defaults(func=cmd_measure)

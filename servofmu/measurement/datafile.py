@@ -48,13 +48,16 @@ from .schema import (
 
 __all__ = ["DataFile", "Series", "ExperimentResult", "RecordAnalysis", "Record", "read_data_file",
            "create_measurement", "add_experiments", "mark_complete", "write_records", "experiment_group_name",
-           "FORMAT", "SCHEMA_VERSION"]
+           "FORMAT", "SCHEMA_VERSION", "READ_VERSION", "KINDS", "write_header"]
 
 FORMAT = "servofmu-data"
 # 2: records carry their intersample behaviour ("intersample": "zoh" or "foh"); version 1 files are read as
 # "foh", what servofmu assumed when it wrote them (a version 1 file that is appended to is upgraded).
 SCHEMA_VERSION = 2
-KINDS = ("measurement", "records")
+# 3: the kind "broadband" (servofmu.broadband.store; written as version 3). Measurements and records are still
+# written as version 2, which older servofmu reads.
+READ_VERSION = 3
+KINDS = ("measurement", "records", "broadband")
 
 SIGNAL_INFO = {
     "time": ("s", "time"),
@@ -218,9 +221,12 @@ def _write_series(group: h5py.Group, series: Series) -> None:
         store_array(group, name, np.asarray(data, dtype=float), unit=unit, description=description)
 
 
-def _write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict) -> None:
+def write_header(f: h5py.File, kind: str, provenance: dict, parameters: dict,
+                 version: int = SCHEMA_VERSION) -> None:
+    """The root attributes (format, schema ``version``, ``kind``, not yet complete) and the provenance group of a
+    new data file."""
     f.attrs["format"] = FORMAT
-    f.attrs["schema_version"] = SCHEMA_VERSION
+    f.attrs["schema_version"] = version
     f.attrs["kind"] = kind
     f.attrs["complete"] = False
     prov = f.create_group("provenance")
@@ -234,7 +240,7 @@ def create_measurement(path: str | Path, plan: Plan, provenance: dict, parameter
     path = check_output_path(path)
 
     def edit(f):
-        _write_header(f, "measurement", provenance, parameters)
+        write_header(f, "measurement", provenance, parameters)
         g = f.create_group("plan")
         specs = plan.experiments
         for name, values, unit in (("amplitude", [s.amplitude for s in specs], "N"),
@@ -304,7 +310,7 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
 
     def edit(f):
         if start_from is None:
-            _write_header(f, "records", provenance, {})
+            write_header(f, "records", provenance, {})
             f.attrs["complete"] = True
             f.create_group("records")
         else:
@@ -389,7 +395,7 @@ def read_data_file(path: str | Path) -> DataFile:
     ('measurement', 6)
     """
     path = Path(path)
-    data, sha256 = read_hdf5(path, "data file", FORMAT, SCHEMA_VERSION,
+    data, sha256 = read_hdf5(path, "data file", FORMAT, READ_VERSION,
                              lambda f, version: _read_data(path, f, version), with_sha256=True)
     return replace(data, sha256=sha256)
 

@@ -10,7 +10,7 @@ from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import DataFile
 
-__all__ = ["bode_figure", "time_series_figure", "bode_points", "pyplot", "MAX_PANELS"]
+__all__ = ["bode_figure", "time_series_figure", "bode_points", "pyplot", "finish_figure", "MAX_PANELS"]
 
 MAX_PANELS = 8
 
@@ -90,7 +90,7 @@ def bode_figure(data_file: DataFile, path: str | Path, references: dict | None =
         ax.grid(True, which="both", alpha=0.4)
     ax_mag.legend(fontsize=8)
     ax_mag.set_title(title or f"{Path(data_file.path).name}: first-harmonic response")
-    return _finish(plt, fig, path, overwrite)
+    return finish_figure(plt, fig, path, overwrite)
 
 
 def time_series_figure(data_file: DataFile, path: str | Path, title: str | None = None,
@@ -133,11 +133,11 @@ def time_series_figure(data_file: DataFile, path: str | Path, title: str | None 
         raise UserError(f"{data_file.path}: has no experiments or records to plot")
     if title:
         fig.suptitle(title)
-    return _finish(plt, fig, path, overwrite)
+    return finish_figure(plt, fig, path, overwrite)
 
 
-def _finish(plt, fig, path, overwrite: bool) -> Path:
-    """Lay out, save (atomically) and close a figure."""
+def finish_figure(plt, fig, path, overwrite: bool) -> Path:
+    """Lay out, save (atomically; an existing ``path`` only with ``overwrite``) and close a figure."""
     fig.tight_layout()
     try:
         _save(fig, Path(path), overwrite)

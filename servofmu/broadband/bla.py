@@ -1,0 +1,226 @@
+"""The best linear approximation (BLA) of periodic records, its noise and nonlinear-distortion variances (the robust
+method of Pintelon & Schoukens, System Identification, 2nd ed., ch. 3-4), and the H1 estimate of any record.
+
+Periodic data: M realisations × P periods × N samples per period of the input u and output y, in steady state.
+With U_mp(k), Y_mp(k) the DFT of period p of realisation m at line k (scaled as amplitudes, 2/N):
+
+* per realisation: Ū_m, Ȳ_m the means over the periods, G_m = Ȳ_m / Ū_m;
+* noise (period to period): σ²_Y,m = Σ_p |Y_mp − Ȳ_m|² / (P − 1), likewise σ²_U,m and the covariance σ²_YU,m;
+  the noise variance of G_m is (σ²_Y,m − 2 Re(G_m* σ²_YU,m) + |G_m|² σ²_U,m) / (P |Ū_m|²);
+* G_BLA = Σ_m G_m / M; its total variance σ²_BLA = Σ_m |G_m − G_BLA|² / (M (M − 1)) (noise and stochastic
+  nonlinear distortions, realisation to realisation); its noise variance σ²_BLA,n = Σ_m σ²_G,m,n / M²; its
+  distortion variance σ²_BLA,s = σ²_BLA − σ²_BLA,n (that of one realisation's G_m is M times larger);
+* coherence over all M·P blocks: |Σ Y U*|² / (Σ |U|² Σ |Y|²) per line;
+* at the lines of the band that are not excited (even and odd detection lines): the output's level
+  sqrt(mean_m |Ȳ_m|²) and its noise level sqrt(mean_m σ²_Y,m / P) — even and odd nonlinear distortions.
+
+P = 1 leaves the noise unknown (NaN) and M = 1 the total variance; the estimate itself is still exact.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import UserError
+
+__all__ = ["BLA", "H1Estimate", "estimate_bla", "split_periods", "h1_estimate"]
+
+
+@dataclass(frozen=True)
+class BLA:
+    """The BLA at the excited lines and the levels at the detection lines (module docstring: the formulas).
+
+    Arrays over the excited lines: ``frequencies`` (Hz), ``G`` (complex, output unit per input unit),
+    ``var_noise``, ``var_distortion``, ``var_total`` (variances of G, not of one realisation; the distortion's
+    may come out slightly negative where it is below the noise: an estimate), ``coherence``, ``U`` (the input's
+    mean amplitude, |Ū| averaged over the realisations).  Over the detection lines: ``detection_frequencies``,
+    ``detection_level`` and ``detection_noise`` (output amplitude and its noise level, output unit).
+    """
+
+    frequencies: np.ndarray
+    G: np.ndarray
+    var_noise: np.ndarray
+    var_distortion: np.ndarray
+    var_total: np.ndarray
+    coherence: np.ndarray
+    U: np.ndarray
+    detection_frequencies: np.ndarray
+    detection_level: np.ndarray
+    detection_noise: np.ndarray
+    detection_lines: np.ndarray
+    periods: int
+    realisations: int
+
+    @property
+    def std_noise(self) -> np.ndarray:
+        """Standard deviation of G_BLA from the noise."""
+        return np.sqrt(self.var_noise)
+
+    @property
+    def std_distortion(self) -> np.ndarray:
+        """Standard deviation of G_BLA from the stochastic nonlinear distortions (negative estimates as 0)."""
+        return np.sqrt(np.clip(self.var_distortion, 0.0, None))
+
+    @property
+    def std_total(self) -> np.ndarray:
+        """Standard deviation of G_BLA, noise and distortions together."""
+        return np.sqrt(self.var_total)
+
+    @property
+    def distortion_to_noise_db(self) -> float:
+        """10·log10 of the mean distortion variance over the mean noise variance (all lines): ≫ 0 dB when the
+        plant is nonlinear at this level; −inf when the distortions are below what M realisations resolve."""
+        ratio = float(np.mean(self.var_distortion) / np.mean(self.var_noise))
+        return 10 * math.log10(ratio) if ratio > 0 else -math.inf
+
+    @property
+    def relative_distortion_db(self) -> float:
+        """10·log10 of one realisation's distortion variance (M·σ²_BLA,s) over |G_BLA|², averaged over the lines:
+        the stochastic distortions' power relative to the linear part's in the output (−inf when not resolved)."""
+        ratio = float(np.mean(self.realisations * self.var_distortion) / np.mean(np.abs(self.G) ** 2))
+        return 10 * math.log10(ratio) if ratio > 0 else -math.inf
+
+    @property
+    def total_to_noise_db(self) -> float:
+        """10·log10 of the mean total variance over the mean noise variance: ≈ 0 dB for a linear plant."""
+        return 10 * math.log10(float(np.mean(self.var_total) / np.mean(self.var_noise)))
+
+    def detection_to_noise_db(self, parity: str) -> float:
+        """10·log10 of the output power at the ``even`` or ``odd`` detection lines over its noise power there
+        (NaN without such lines): ≈ 0 dB when the plant makes no distortion of that parity."""
+        pick = self.detection_lines % 2 == (0 if parity == "even" else 1)
+        if not pick.any():
+            return math.nan
+        return 10 * math.log10(float(np.mean(self.detection_level[pick] ** 2)
+                                     / np.mean(self.detection_noise[pick] ** 2)))
+
+
+def split_periods(x: np.ndarray, samples: int, periods: int, transient_periods: int, what: str = "record"):
+    """Records of shape (..., (T + P)·N) as (..., P, N), the T leading periods dropped; a record of another length
+    is a UserError naming ``what``."""
+    x = np.asarray(x, float)
+    expected = (periods + transient_periods) * samples
+    if x.shape[-1] != expected:
+        raise UserError(f"{what}: {x.shape[-1]} samples is not {transient_periods} + {periods} periods of "
+                        f"{samples} samples ({expected})")
+    return x[..., transient_periods * samples:].reshape(*x.shape[:-1], periods, samples)
+
+
+def estimate_bla(u: np.ndarray, y: np.ndarray, lines, rate: float, detection=()) -> BLA:
+    """The robust BLA of periodic data (module docstring).
+
+    Parameters
+    ----------
+    u, y : ndarray, shape (M, P, N)
+        Input and output: M realisations, P periods of N samples each, in steady state.
+    lines : array of int
+        The excited lines (DFT bins of one period).
+    rate : float
+        Sample rate (Hz): line k lies at k·rate/N Hz.
+    detection : array of int
+        Lines of the band left without excitation (their output levels are reported).
+
+    Returns
+    -------
+    BLA
+        G_BLA, its noise, distortion and total variances and the coherence at ``lines``; the levels at
+        ``detection``.
+    """
+    u, y = np.asarray(u, float), np.asarray(y, float)
+    if u.ndim != 3 or u.shape != y.shape:
+        raise UserError(f"u and y must both have the shape (realisations, periods, samples), not {u.shape} and "
+                        f"{y.shape}")
+    m, p, n = u.shape
+    lines, detection = np.asarray(lines, int), np.asarray(detection, int)
+    scale = 2.0 / n
+    U = np.fft.rfft(u, axis=-1)[..., lines] * scale
+    Yall = np.fft.rfft(y, axis=-1) * scale
+    Y = Yall[..., lines]
+    Um, Ym = U.mean(axis=1), Y.mean(axis=1)  # (M, K)
+    if np.any(np.abs(Um) == 0):
+        raise UserError("the input has no power at some excited line: not the excitation these lines belong to")
+    Gm = Ym / Um
+    G = Gm.mean(axis=0)
+    nan = np.full(G.shape, np.nan)
+    if p > 1:
+        dU, dY = U - Um[:, None], Y - Ym[:, None]
+        vU = np.sum(np.abs(dU) ** 2, axis=1) / (p - 1)
+        vY = np.sum(np.abs(dY) ** 2, axis=1) / (p - 1)
+        cYU = np.sum(dY * np.conj(dU), axis=1) / (p - 1)
+        var_gm = (vY - 2 * np.real(np.conj(Gm) * cYU) + np.abs(Gm) ** 2 * vU) / (p * np.abs(Um) ** 2)
+        var_noise = var_gm.sum(axis=0) / m ** 2
+    else:
+        var_noise = nan
+    var_total = np.sum(np.abs(Gm - G) ** 2, axis=0) / (m * (m - 1)) if m > 1 else nan
+    Suu = np.sum(np.abs(U) ** 2, axis=(0, 1))
+    Syy = np.sum(np.abs(Y) ** 2, axis=(0, 1))
+    Syu = np.sum(Y * np.conj(U), axis=(0, 1))
+    coherence = np.abs(Syu) ** 2 / (Suu * Syy)
+    D = Yall[..., detection]
+    Dm = D.mean(axis=1)
+    det_noise = np.sqrt(np.mean(np.sum(np.abs(D - Dm[:, None]) ** 2, axis=1) / (p - 1), axis=0) / p) \
+        if p > 1 else np.full(detection.shape, np.nan)
+    return BLA(frequencies=lines * rate / n, G=G, var_noise=var_noise, var_distortion=var_total - var_noise,
+               var_total=var_total, coherence=coherence, U=np.mean(np.abs(Um), axis=0),
+               detection_frequencies=detection * rate / n, detection_level=np.sqrt(np.mean(np.abs(Dm) ** 2, axis=0)),
+               detection_noise=det_noise, detection_lines=detection, periods=p, realisations=m)
+
+
+@dataclass(frozen=True)
+class H1Estimate:
+    """The H1 estimate S_yu/S_uu of a record (Welch averages, Hann window, half overlap): ``frequencies`` (Hz),
+    ``G`` (complex), ``coherence`` and ``var`` (variance of G: |G|²(1 − γ²)/(n_d γ²), Bendat & Piersol, with n_d
+    the number of segments averaged)."""
+
+    frequencies: np.ndarray
+    G: np.ndarray
+    coherence: np.ndarray
+    var: np.ndarray
+    segments: int
+
+
+def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None = None,
+                band: tuple[float, float] | None = None) -> H1Estimate:
+    """The H1 estimate of a record of any kind (chirp, PRBS, a drive's log; periodic or not).
+
+    Leakage and transients bias it (not removed here); on periodic data the BLA (:func:`estimate_bla`) is exact
+    where H1 is not.
+
+    Parameters
+    ----------
+    u, y : ndarray
+        Input and output, one record each, of one length, sampled at ``rate``.
+    rate : float
+        Sample rate (Hz).
+    segment : int, optional
+        Samples per Welch segment (default: the record / 8, at least 256).
+    band : (float, float), optional
+        Keep the frequencies in [f_min, f_max] (Hz).
+
+    Returns
+    -------
+    H1Estimate
+        Frequencies, G, coherence and the variance of G.
+    """
+    from scipy.signal import csd, welch
+
+    u, y = np.asarray(u, float).ravel(), np.asarray(y, float).ravel()
+    if u.shape != y.shape or u.size < 16:
+        raise UserError(f"u and y must be records of one length (≥ 16 samples), not {u.size} and {y.size}")
+    nperseg = int(segment or max(256, u.size // 8))
+    nperseg = min(nperseg, u.size)
+    f, Suu = welch(u, fs=rate, nperseg=nperseg)
+    _, Syy = welch(y, fs=rate, nperseg=nperseg)
+    _, Suy = csd(u, y, fs=rate, nperseg=nperseg)  # E[conj(U) Y]
+    keep = Suu > 0
+    if band is not None:
+        keep &= (f >= band[0]) & (f <= band[1])
+    f, Suu, Syy, Suy = f[keep], Suu[keep], Syy[keep], Suy[keep]
+    G = Suy / Suu
+    coherence = np.clip(np.abs(Suy) ** 2 / (Suu * Syy), 0.0, 1.0)
+    segments = max(1, 2 * u.size // nperseg - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = np.abs(G) ** 2 * (1 - coherence) / (segments * coherence)
+    return H1Estimate(frequencies=f, G=G, coherence=coherence, var=var, segments=segments)

@@ -1,0 +1,47 @@
+"""The Bode plot of a BLA with its uncertainty: per level the BLA at the excited lines (markers), its ±2σ band,
+and beneath it the standard deviations from noise and from nonlinear distortions (docs/broadband.md)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..broadband.bla import BLA
+from .plots import finish_figure, pyplot
+
+__all__ = ["bla_figure"]
+
+
+def _db(x: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return 20 * np.log10(np.abs(x))
+
+
+def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "", overwrite: bool = False,
+               unit: str = "m/(N·s)") -> Path:
+    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA."""
+    plt = pyplot()
+    fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    for k, (level, b) in enumerate(levels):
+        color, f = f"C{k}", b.frequencies
+        mag, std = np.abs(b.G), b.std_total
+        ax_mag.semilogx(f, _db(b.G), ".", color=color, ms=4, label=f"BLA at {level:g} N RMS (excited lines)")
+        if np.isfinite(std).any():
+            ax_mag.fill_between(f, _db(np.maximum(mag - 2 * std, mag * 1e-3)), _db(mag + 2 * std), color=color,
+                                alpha=0.2, lw=0)
+            ax_mag.semilogx(f, _db(b.std_noise), ":", color=color, lw=1, label=f"σ noise at {level:g} N")
+            ax_mag.semilogx(f, _db(b.std_distortion), "--", color=color, lw=1,
+                            label=f"σ distortion at {level:g} N ({b.distortion_to_noise_db:.1f} dB over noise)")
+        phase = np.degrees(np.unwrap(np.angle(b.G)))
+        ax_ph.semilogx(f, phase, ".", color=color, ms=4)
+        if np.isfinite(std).any():
+            half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
+            ax_ph.fill_between(f, phase - half, phase + half, color=color, alpha=0.2, lw=0)
+    ax_mag.set_ylabel(f"|G_BLA| [dB re 1 {unit}]")
+    ax_ph.set_ylabel("phase of G_BLA [deg]")
+    ax_ph.set_xlabel("frequency [Hz]")
+    for ax in (ax_mag, ax_ph):
+        ax.grid(True, which="both", alpha=0.4)
+    ax_mag.legend(fontsize=7)
+    ax_mag.set_title(title or "best linear approximation, ±2σ (shaded)")
+    return finish_figure(plt, fig, path, overwrite)
