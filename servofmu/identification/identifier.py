@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import ServofmuWarning, UserError, check_int
 from ..measurement.datafile import DataFile, read_data_file
+from ..measurement.duplicates import file_items, refuse_repeats
 from ..model.plant import Plant, load_plant
 from ..runtime import Progress
 from ..simulation.batch import BatchSimulator
@@ -430,6 +431,7 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
     structure = load_plant(structure_path)
     ds = read_data_file(data_path)
     check_structure(structure, ds, f"the structure {structure_path}")
+    refuse_repeats(file_items(ds), "import each record once")
     if ds.kind == "records":
         data = record_data(ds, skip)
     else:

@@ -24,6 +24,7 @@ __all__ = ["read_columns", "MIN_SAMPLES"]
 
 MIN_SAMPLES = 10
 _SNIFF = 1 << 16  # bytes looked at for NUL bytes: a binary file has them early
+_CHUNK = 1 << 22  # characters of text the scan takes at a time
 
 
 def read_columns(path: str | Path, names: list[str], options: Sequence[str | None] | None = None
@@ -131,20 +132,50 @@ def _scan(path: Path, encoding: str, label) -> _Layout:
             raise UserError(f"{path}: empty file")
         delimiter = _delimiter(line)
         header = _fields(line.rstrip("\r\n"), delimiter, strip=True)
-        width, rows = _width(header), 0
-        for n, text in lines:
-            text = text.split("#", 1)[0]
-            if not text.strip():
+        width, rows, n, tail = _width(header), 0, lineno, ""
+        while True:  # blocks of whole lines (the last may lack its newline)
+            chunk = fh.read(_CHUNK)
+            text = tail + chunk
+            cut = text.rfind("\n") + 1 if chunk else len(text)
+            block, tail = text[:cut], text[cut:]
+            if not block:
+                if chunk:
+                    continue  # a line longer than a chunk
+                break
+            if delimiter != " " and _plain(block, delimiter, width):  # the quick path: every line plain and full
+                count = block.count("\n") + (not block.endswith("\n"))
+                rows, n = rows + count, n + count
                 continue
-            rows += 1
-            count = _width(_fields(text.rstrip("\r\n"), delimiter)) if '"' in text else _count(text, delimiter)
-            if count > width:
-                raise UserError(f"{path}: line {n}: {count} values where the header (line {lineno}) names {width} "
-                                "columns: a value too many (a stray delimiter?)")
-            if count < width:
-                raise UserError(f"{path}: line {n}: has no value for column {label(header[count])} ({count} values "
-                                f"where the header (line {lineno}) names {width} columns)")
+            for text in block.removesuffix("\n").split("\n"):
+                n += 1
+                text = text.split("#", 1)[0]
+                if text.strip():
+                    rows += 1
+                    _check_width(path, n, text, delimiter, header, width, lineno, label)
     return _Layout(encoding, lineno, header, None if delimiter == " " else delimiter, rows)
+
+
+def _plain(text: str, delimiter: str, width: int) -> bool:
+    """Whether every line of ``text`` holds ``width`` values and nothing that needs a closer look (a comment, a
+    quote, a blank line, a trailing delimiter): delimiters counted per line by numpy, not by a loop."""
+    if "#" in text or '"' in text:
+        return False
+    raw = np.frombuffer((text if text.endswith("\n") else text + "\n").encode("utf-8"), dtype=np.uint8)
+    ends = np.flatnonzero(raw == 10)
+    per_line = np.diff(np.searchsorted(np.flatnonzero(raw == ord(delimiter)), np.r_[-1, ends]))
+    return bool(np.all(per_line == width - 1) and not np.any(raw[ends - 1] == ord(delimiter)))
+
+
+def _check_width(path: Path, n: int, text: str, delimiter: str, header: list[str], width: int, lineno: int,
+                 label) -> None:
+    """Refuse line ``n`` when its count of values is not the header's (line ``lineno``)."""
+    count = _width(_fields(text.rstrip("\r\n"), delimiter)) if '"' in text else _count(text, delimiter)
+    if count > width:
+        raise UserError(f"{path}: line {n}: {count} values where the header (line {lineno}) names {width} "
+                        "columns: a value too many (a stray delimiter?)")
+    if count < width:
+        raise UserError(f"{path}: line {n}: has no value for column {label(header[count])} ({count} values "
+                        f"where the header (line {lineno}) names {width} columns)")
 
 
 def _delimiter(line: str) -> str:

@@ -29,6 +29,7 @@ from ..version import __version__
 from .clock import ClockFit, fit_clock
 from .columns import read_columns
 from .datafile import DataFile, Record, RecordAnalysis, Series, read_data_file, write_records
+from .duplicates import TWICE, file_items, first_repeat, series_digest
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
 __all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
@@ -265,15 +266,20 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
     UserError
         For unreadable files, missing columns, NaN or non-increasing time, time stamps of a position record or a
         drive's log off a regular grid (servofmu.measurement.clock), a scale that is not a finite non-zero
-        number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``.
+        number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``, a
+        record whose samples are those of another record given or already in the output (one measurement twice).
     """
     run, loop = run or RunOptions(), loop or LoopChannels()
     loop.check()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")
-    offset = len(read_data_file(output).records) if append and output.exists() else 0
-    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
+    existing = file_items(read_data_file(output), f"{output} (--append)") if append and output.exists() else []
+    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=len(existing) + i,
                            intersample=intersample, loop=loop)
                for i, p in enumerate(paths)]
+    repeat = first_repeat(existing + [(f"{p}", series_digest(r.series)) for p, r in zip(paths, records)],
+                          start=len(existing))
+    if repeat is not None:
+        raise UserError(f"{repeat[0]}: holds the same samples as {repeat[1]}: {TWICE}; import each record once")
     provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
                   "created": utc_now(), "sources": [r.source for r in records]}
     write_records(output, records, provenance, append=append, overwrite=run.overwrite)
