@@ -280,3 +280,37 @@ def test_c4_a_tune_task_that_never_moves_is_refused_and_the_old_output_kept(tmp_
                               "--report", "T.html"], "still.csv", "stays at 0 m", "--task",
                    before={"axis-result.h5", "ctrl.toml", "still.csv", "T.toml"})
     assert (tmp_path / "T.toml").read_text() == "the previous output\n"
+
+
+def test_c7_validate_says_when_the_data_is_the_fitted_data_imported_again(tmp_path):
+    """`validate` on a file whose record is one the identification fitted, imported again (other bytes, other
+    name): the verdict says it shows the fit (it said so only for the very file identified from)."""
+    import json
+    import subprocess
+    import sys
+
+    from harness import command_env
+
+    from servofmu.identification.identifier import identification_provenance
+    from servofmu.identification.prior import identified_mask, identified_names
+    from servofmu.identification.results import Result, Stage, write_result
+    from servofmu.measurement.datafile import read_data_file
+    from servofmu.model.plant import load_plant
+
+    records_files(tmp_path, "a", "again")
+    rows = record()
+    rows[:, 1] *= 0.5
+    write_csv(tmp_path / "other.csv", rows=rows)
+    assert run_here(["import", "other.csv", *IMPORT[:-1], "other.h5"], tmp_path)[0] == 0
+    g1 = load_plant("g1")
+    theta = g1.parameter_vector()[identified_mask(g1)]
+    write_result(tmp_path / "r.h5", Result(
+        method="pso", structure=g1, plant=g1, names=tuple(identified_names(g1)), theta=theta,
+        intervals=np.column_stack([theta, theta]), fitness=0.0, seconds=0.0, evaluations=0,
+        stages=(Stage("pso", None, 0.0, 0.0, 0),), history=np.zeros(1),
+        provenance=identification_provenance(read_data_file(tmp_path / "a.h5"), "g1", "identify a.h5")))
+    for name, own in (("again", True), ("other", False)):
+        proc = subprocess.run([sys.executable, "-m", "servofmu", "validate", "r.h5", f"{name}.h5", "--json"],
+                              cwd=tmp_path, env=command_env(), capture_output=True, text=True)
+        assert proc.returncode in (0, 1) and "Traceback" not in proc.stderr, proc.stderr
+        assert json.loads(proc.stdout)["own_data"] is own, name
