@@ -300,8 +300,10 @@ def test_bad_drive_logs_are_one_line_errors(tmp_path, edit, options, fragment):
 
 
 @pytest.mark.parametrize("stamps, fragment", [
-    (lambda k: 4.2 + k * TS * (1 + 3e-4), "+0.0003 relative to the controller's 0.001 s (a clock may be 0.0001 off)"),
-    (lambda k: 4.2 + k * 2 * TS, "the samples are 0.002 s apart, the controller samples every 0.001 s"),
+    (lambda k: 4.2 + k * TS * (1 + 3e-4), "+0.0003 relative to the controller's sample_time 0.001 s (--closed-loop; "
+                                          "a clock may be 0.0001 off)"),
+    (lambda k: 4.2 + k * 2 * TS, "the samples are 0.002 s apart, the controller's sample_time is 0.001 s "
+                                 "(--closed-loop)"),
 ])
 def test_logs_off_the_controllers_clock_are_refused_in_one_line(tmp_path, stamps, fragment):
     """Stamps that import accepts (a regular grid) but that are not the controller's samples: a clock 3e-4 fast,
@@ -314,5 +316,5 @@ def test_logs_off_the_controllers_clock_are_refused_in_one_line(tmp_path, stamps
     assert run("import", tmp_path / "log.csv", *IMPORT, "-o", tmp_path / "log.h5").returncode == 0
     proc = run("identify", tmp_path / "log.h5", "--structure", tmp_path / "structure.toml", "--closed-loop",
                tmp_path / "drive.toml", "-o", tmp_path / "r.h5")
-    assert_one_line_error(proc, fragment)
+    assert_one_line_error(proc, fragment, "log.h5: record log: sample")  # the file and record named
     assert not (tmp_path / "r.h5").exists()

@@ -99,9 +99,10 @@ def test_several_records_and_append_make_one_data_set(machine, tmp_path):
     c1 = write_csv(tmp_path / "one.csv", {"t": machine["t"], "force": machine["u"], "speed": machine["v"]})
     c2 = write_csv(tmp_path / "two.csv", {"t": machine["t"], "force": 0.5 * machine["u"], "speed": machine["v"]})
     out = tmp_path / "r.h5"
+    c3 = write_csv(tmp_path / "three.csv", {"t": machine["t"], "force": 2 * machine["u"], "speed": machine["v"]})
     import_records([c1, c2], out, time="t", input="force", output_column="speed")
-    data = import_records([c1], out, time="t", input="force", output_column="speed", append=True)
-    assert [r.name for r in data.records] == ["one", "two", "one"] and [r.index for r in data.records] == [0, 1, 2]
+    data = import_records([c3], out, time="t", input="force", output_column="speed", append=True)
+    assert [r.name for r in data.records] == ["one", "two", "three"] and [r.index for r in data.records] == [0, 1, 2]
 
 
 def test_a_record_without_a_sinusoid_is_kept_without_analysis(machine, tmp_path):
@@ -170,3 +171,24 @@ def test_bad_files_and_outputs_are_user_errors_that_keep_existing_data(machine, 
         with pytest.raises(UserError, match=message):
             import_records(output=out, **args)
         assert out.read_bytes() == before
+
+
+@pytest.mark.parametrize("chunk", [1 << 22, 64, 7])
+def test_the_csv_scan_counts_lines_across_its_blocks(tmp_path, monkeypatch, chunk):
+    """The scan of a CSV file's text (servofmu.measurement.columns) reads it in blocks: a row with a value too many
+    is named by its line wherever the blocks end, and comments, blank lines, quotes, a trailing delimiter on every
+    line and a last line without its newline are read as numpy reads them."""
+    from servofmu.measurement import columns
+
+    monkeypatch.setattr(columns, "_CHUNK", chunk)
+    rows = good_rows(40)
+    text = "# a comment\n" + "\n".join(r + "," for r in rows[:10]) + "\n\n# another\n" + \
+        "\n".join(r + "," for r in rows[10:20]) + '\n"0.019",1,2,\n' + "\n".join(r + "," for r in rows[21:])
+    (tmp_path / "ok.csv").write_text(text)
+    cols = columns.read_columns(tmp_path / "ok.csv", ["t", "force", "speed"])
+    assert cols["t"].size == 40 and cols["t"][19] == 0.019
+    lines = text.split("\n")
+    lines[30] = lines[30] + "5"  # line 31: a fourth value after the trailing comma
+    (tmp_path / "bad.csv").write_text("\n".join(lines))
+    with pytest.raises(UserError, match="bad.csv: line 31: 4 values where the header \\(line 2\\) names 3 columns"):
+        columns.read_columns(tmp_path / "bad.csv", ["t", "force", "speed"])

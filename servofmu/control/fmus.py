@@ -146,7 +146,7 @@ def controller_fmu_from_file(controller: str | Path, output: str | Path | None =
 
 def read_reference_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A reference trajectory from a CSV with a header row: columns ``time`` (s, increasing) and ``position`` (m)."""
-    from ..measurement.records import read_columns
+    from ..measurement.columns import read_columns
 
     cols = read_columns(path, ["time", "position"])
     return cols["time"], cols["position"]
@@ -155,7 +155,7 @@ def read_reference_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 def read_disturbance_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A known disturbance from a CSV with a header row: columns ``time`` (s, increasing) and ``force`` (N, the
     force added after the controller's output limit from each time on)."""
-    from ..measurement.records import read_columns
+    from ..measurement.columns import read_columns
 
     cols = read_columns(path, ["time", "force"])
     return cols["time"], cols["force"]

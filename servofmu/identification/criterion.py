@@ -27,7 +27,7 @@ from ..errors import UserError
 from ..measurement.datafile import DataFile
 from ..model.plant import Plant
 from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
-from .prior import full_vectors
+from .prior import check_identifiable, full_vectors
 from .long_run import bartlett_lags, long_run_dof, newey_west_covariance
 from .student_t import t_quantile
 
@@ -105,7 +105,9 @@ class RecordData:
 
 def check_structure(structure: Plant, data: DataFile, what: str) -> None:
     """Refuse a structure that does not match the plant the data was measured on (a measurement of a servofmu
-    FMU records its parameters; records of a machine say nothing, and any structure may be tried on them)."""
+    FMU records its parameters; records of a machine say nothing, and any structure may be tried on them), and a
+    structure that leaves nothing to identify."""
+    check_identifiable(structure)
     measured = [n for n in data.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain",
                                                              "vs"))]
     if measured and set(measured) - set(structure.parameter_names()):

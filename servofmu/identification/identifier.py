@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import ServofmuWarning, UserError, check_int
 from ..measurement.datafile import DataFile, read_data_file
+from ..measurement.duplicates import file_items, refuse_repeats
 from ..model.plant import Plant, load_plant
 from ..runtime import WORK_LIMIT_HOURS, Progress, check_work, check_work_limit
 from ..simulation.batch import BatchSimulator
@@ -454,6 +455,7 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
     structure = load_plant(structure_path)
     ds = read_data_file(data_path)
     check_structure(structure, ds, f"the structure {structure_path}")
+    refuse_repeats(file_items(ds), "import each record once")
     if ds.kind == "records":
         data = record_data(ds, skip)
     else:
@@ -476,11 +478,12 @@ def load_identification_inputs(data_path, structure_path, ann_path, method: str,
 
 def identification_provenance(data: DataFile, structure_path, command: str, ann_path=None, skip: float = 0.0,
                               **extra) -> dict:
-    """What a result records of its inputs: the data file read (its path, and the SHA-256 of the very bytes that
-    were read and identified from), the structure, the network, the command, the skipped seconds and ``extra``
-    entries."""
+    """What a result records of its inputs: the data file read (its path, the SHA-256 of the very bytes that were
+    read and identified from, and the digest of every record's or experiment's samples: servofmu.measurement.
+    duplicates), the structure, the network, the command, the skipped seconds and ``extra`` entries."""
     provenance = {"data_file": str(data.path), "data_sha256": data.sha256, "structure_file": str(structure_path),
-                  "ann_file": str(ann_path) if ann_path else "", "command": command, **extra}
+                  "ann_file": str(ann_path) if ann_path else "", "command": command,
+                  "data_digests": [digest for _, digest in file_items(data)], **extra}
     if skip:
         provenance["skip"] = skip
     return provenance

@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import UserError
 from ..model.plant import Plant
 
-__all__ = ["identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
+__all__ = ["identified_names", "identified_mask", "check_identifiable", "full_vectors", "full_entries", "canonical_order",
            "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
            "PERIOD_SHARE", "log_width"]
 
@@ -79,6 +79,15 @@ def identified_names(structure: Plant) -> list[str]:
     a symmetric friction's levels for v < 0 (they equal those for v > 0)."""
     left_out = set(fixed_names(structure)) | set(structure.friction.mirrored())
     return [n for n in structure.parameter_names() if n not in left_out]
+
+
+def check_identifiable(structure: Plant, option: str = "--structure") -> None:
+    """Refuse a structure whose ``fixed`` list leaves no parameter to identify (the search would have no
+    dimension), naming its file, the key and ``option``."""
+    if not identified_names(structure):
+        raise UserError(f"{structure.source}: fixed: lists every parameter a fit could identify "
+                        f"({', '.join(structure.fixed)}): nothing is left to identify with this {option}; leave at "
+                        "least one out of `fixed`")
 
 
 def identified_mask(structure: Plant) -> np.ndarray:

@@ -308,16 +308,23 @@ def _read(group, path: Path) -> Result:
 
 def read_results(path: str | Path) -> dict[str, Result]:
     """RESULT.h5 (one entry, keyed by its method) or COMPARE.h5 (one per method)."""
+    return _results_and_selection(path)[0]
+
+
+def _results_and_selection(path: str | Path) -> tuple[dict[str, Result], bool]:
+    """(read_results(path), whether the file is a selection: a comparison with `servofmu select`'s ranking)."""
     path = Path(path)
 
     def read(f, version):
         if hdf5_attr(f, "format") == FORMAT:
             result = _read(f, path)
-            return {result.method: result}
-        return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}
+            return {result.method: result}, False
+        selection = "selection" in f  # (select adds its ranking to a comparison)
+        return {m: _read(f["methods"][m], path) for m in json.loads(f.attrs["methods"])}, selection
 
-    results, sha256 = read_hdf5(path, "result file", (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, read, with_sha256=True)
-    return {m: dataclasses.replace(r, sha256=sha256) for m, r in results.items()}
+    (results, selection), sha256 = read_hdf5(path, "result file", (FORMAT, COMPARE_FORMAT), SCHEMA_VERSION, read,
+                                             with_sha256=True)
+    return {m: dataclasses.replace(r, sha256=sha256) for m, r in results.items()}, selection
 
 
 def read_result(path: str | Path) -> Result:
@@ -338,9 +345,15 @@ def read_result(path: str | Path) -> Result:
     UserError
         For a missing, foreign, newer or damaged file, or a comparison file of several methods.
     """
-    results = read_results(path)
+    results, selection = _results_and_selection(path)
+    if selection:  # (even of one fitted candidate: its fit may be on a share of the records, not the chosen one)
+        chosen = Path(path).with_name(f"{Path(path).stem}-result.h5")
+        raise UserError(f"{path}: is a selection file (`servofmu select`, {len(results)} fitted candidates), not one "
+                        f"result: give the chosen structure's result, which select wrote beside it ({chosen.name} "
+                        "unless its --result named another file)")
     if len(results) != 1:
-        raise UserError(f"{path}: holds a comparison of {len(results)} methods, not one result")
+        raise UserError(f"{path}: holds a comparison of {len(results)} methods (`servofmu compare`), not one "
+                        "result: `servofmu report` reads it; for one method's result run `servofmu identify`")
     return next(iter(results.values()))
 
 

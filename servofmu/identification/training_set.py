@@ -21,7 +21,7 @@ from ..simulation.batch import BatchSimulator, SteadyStateOptions
 from ..simulation.parallel import WorkerResource, Workers
 from ..version import __version__
 from .criterion import SineData
-from .prior import full_vectors, identified_names, sample_identified
+from .prior import check_identifiable, full_vectors, identified_names, sample_identified
 
 __all__ = ["TrainingSet", "make_training_set", "load_training_set", "TRAINING_RTOL"]
 
@@ -149,6 +149,7 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
         ``run.resume`` or ``run.overwrite``), ``output`` the data file itself, or a ``resume`` of a file made with
         other arguments.
     """
+    check_identifiable(structure, "plant")
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)
     run = run or RunOptions()

@@ -74,8 +74,8 @@ def fit_clock(t: np.ndarray, sample_time: float | None = None,
         raise UserError(f"{where(i)}: the time does not increase ({t[i - 1]:.9g} s before it)")
     median = float(np.median(steps))
     if sample_time is not None and abs(median / sample_time - 1) > STEP_BOUND:
-        raise UserError(f"the samples are {median:g} s apart, the controller samples every {sample_time:g} s: "
-                        "the loop needs one record sample per controller sample")
+        raise UserError(f"{where(1)}: the samples are {median:g} s apart, the controller's sample_time is "
+                        f"{sample_time:g} s (--closed-loop): the loop needs one record sample per controller sample")
     off = np.nonzero(np.abs(steps / median - 1) > STEP_BOUND)[0]
     if off.size:
         i = int(off[0]) + 1
@@ -96,8 +96,9 @@ def fit_clock(t: np.ndarray, sample_time: float | None = None,
     if sample_time is not None:
         rate = float(step / sample_time - 1)
         if abs(rate) > RATE_BOUND:
-            raise UserError(f"the time stamps advance {step:.9g} s per sample, {rate:+.3g} relative to the "
-                            f"controller's {sample_time:g} s (a clock may be {RATE_BOUND:g} off): a different "
-                            "sample time, or a clock too far off to map the log to the controller's samples")
+            raise UserError(f"{where(t.size - 1)}: the time stamps advance {step:.9g} s per sample, {rate:+.3g} "
+                            f"relative to the controller's sample_time {sample_time:g} s (--closed-loop; a clock may "
+                            f"be {RATE_BOUND:g} off): a different sample time, or a clock too far off to map the log "
+                            "to the controller's samples")
     return ClockFit(start=float(start), step=float(step), rate_error=rate,
                     jitter_rms=float(np.sqrt(np.mean(deviation ** 2))), jitter_max=float(np.max(np.abs(deviation))))

@@ -14,7 +14,6 @@ regular grid (servofmu.measurement.clock), whose step and jitter are stored with
 """
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 from dataclasses import dataclass
@@ -23,165 +22,22 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import MAX_MAGNITUDE, UserError
-from ..fileio import claim_output, file_sha256, output_mode, read_hdf5_image, read_image
+from ..fileio import claim_output, file_sha256, output_mode
 from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
 from ..version import __version__
 from .clock import ClockFit, fit_clock
+from .columns import read_columns
 from .datafile import DataFile, Record, RecordAnalysis, Series, read_data_file, write_records
+from .duplicates import TWICE, file_items, first_repeat, series_digest
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
 __all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
            "LoopChannels", "KINDS"]
 
 KINDS = ("velocity", "position")
-MIN_SAMPLES = 10
 SINE_FRACTION = 0.8  # a record is sinusoidal when its input has at least this share of its AC power at one f
 MIN_PERIODS = 2
-
-
-# ---------------------------------------------------------------------------
-# Reading columns
-# ---------------------------------------------------------------------------
-def read_columns(path: str | Path, names: list[str]) -> dict[str, np.ndarray]:
-    """The named columns of a CSV (header row) or MAT file (variables), as float arrays of equal length."""
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: no such file")
-    suffix = path.suffix.lower()
-    if suffix == ".mat":
-        return _read_mat(path, names)
-    if suffix in (".csv", ".txt", ".tsv"):
-        return _read_csv(path, names)
-    raise UserError(f"{path}: unknown record format {path.suffix!r} (use .csv or .mat)")
-
-
-def _read_csv(path: Path, names: list[str]) -> dict[str, np.ndarray]:
-    """The columns ``names`` of a CSV file: a header row, then numbers; blank lines and lines starting with # are
-    skipped.  numpy's C reader parses it (millions of rows in seconds); where it fails, a scan of the text finds the
-    first bad value and names its line and column.  Values must be finite and within ±MAX_MAGNITUDE, as every
-    reader of servofmu's files checks, so that nothing is written that could not be read back."""
-    h, header, delimiter = _csv_header(path)
-    missing = [n for n in names if n not in header]
-    if missing:
-        raise UserError(f"{path}: no column {missing[0]!r} (the header has {', '.join(header)})")
-    cols = [header.index(n) for n in names]
-    try:
-        data = np.loadtxt(path, delimiter=delimiter, comments="#", skiprows=h + 1, usecols=cols, ndmin=2,
-                          quotechar='"', encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not a text (CSV) file") from exc
-    except (ValueError, IndexError) as exc:  # a value that is not a number, a row that is too short
-        _raise_first_bad_value(path, names, cols, delimiter)
-        raise UserError(f"{path}: not a readable CSV file ({(str(exc).splitlines() or ['damaged'])[0]})") from exc
-    finite = np.isfinite(data)
-    bad = ~finite | (np.abs(np.where(finite, data, 0.0)) > MAX_MAGNITUDE)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
-        why = "NaN or Inf" if not finite[r, c] else f"beyond ±{MAX_MAGNITUDE:g}, which servofmu does not read"
-        raise UserError(f"{path}: line {_line_of_row(path, int(r))}: column {names[c]!r} is "
-                        f"{float(data[r, c])!r} ({why})")
-    out = {n: data[:, c].copy() for c, n in enumerate(names)}
-    _check_time(path, out[names[0]], names[0], lambda i: f"line {_line_of_row(path, i)}")
-    return out
-
-
-def _data_lines(path: Path):
-    """(line number, text) of the lines that hold values or the header: not blank, not a comment."""
-    with path.open(encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            if line.strip() and not line.startswith("#"):
-                yield lineno, line.rstrip("\r\n")
-
-
-def _csv_header(path: Path) -> tuple[int, list[str], str | None]:
-    """(index of the header's line counted from 0, the column names, the delimiter: None for white space)."""
-    try:
-        with path.open(encoding="utf-8") as fh:
-            for index, line in enumerate(fh):
-                if line.strip() and not line.startswith("#"):
-                    break
-            else:
-                raise UserError(f"{path}: empty file")
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not a text (CSV) file") from exc
-    try:
-        delimiter = csv.Sniffer().sniff(line, delimiters=",;\t ").delimiter
-    except csv.Error:
-        delimiter = ","
-    header = [h.strip() for h in next(csv.reader([line.rstrip("\r\n")], delimiter=delimiter, skipinitialspace=True))]
-    return index, header, None if delimiter == " " else delimiter
-
-
-def _line_of_row(path: Path, row: int) -> int:
-    """The line number of data row ``row`` (counted from 0 after the header)."""
-    for k, (lineno, _) in enumerate(_data_lines(path)):
-        if k == row + 1:
-            return lineno
-    return -1
-
-
-def _raise_first_bad_value(path: Path, names: list[str], cols: list[int], delimiter: str | None) -> None:
-    """Find the first value numpy's reader refused, by a scan of the text, and name its line and column."""
-    lines = _data_lines(path)
-    next(lines)  # the header
-    for lineno, line in lines:
-        row = next(csv.reader([line], delimiter=delimiter or " ", skipinitialspace=True))
-        row = [v for v in row if v != ""] if delimiter is None else row
-        for name, col in zip(names, cols):
-            if col >= len(row):
-                raise UserError(f"{path}: line {lineno}: has no value for column {name!r}")
-            try:
-                float(row[col])
-            except ValueError:
-                raise UserError(f"{path}: line {lineno}: column {name!r} is not a number: {row[col]!r}") from None
-
-
-def _read_mat(path: Path, names: list[str]) -> dict[str, np.ndarray]:
-    from scipy.io import loadmat
-
-    try:
-        content = {k: v for k, v in loadmat(str(path), squeeze_me=True).items() if not k.startswith("__")}
-    except NotImplementedError:  # MATLAB v7.3 files are HDF5
-        content = _read_mat73(path)
-    except Exception as exc:  # scipy raises many types for damaged files (MatReadError, IndexError, ...)
-        raise UserError(f"{path}: not a readable MAT file ({(str(exc).splitlines() or ['damaged'])[0]})") from exc
-    out = {}
-    for n in names:
-        if n not in content:
-            raise UserError(f"{path}: no variable {n!r} (the file has {', '.join(sorted(content)) or 'none'})")
-        try:
-            values = np.asarray(content[n], dtype=float).ravel()
-        except (TypeError, ValueError) as exc:
-            raise UserError(f"{path}: variable {n!r} is not numeric") from exc
-        bad = np.nonzero(~np.isfinite(values))[0]
-        if len(bad):
-            raise UserError(f"{path}: variable {n!r}: sample {bad[0] + 1} is NaN or Inf")
-        out[n] = values
-    lengths = {n: len(v) for n, v in out.items()}
-    if len(set(lengths.values())) > 1:
-        raise UserError(f"{path}: variables have different lengths ({', '.join(f'{k}: {v}' for k, v in lengths.items())})")
-    _check_time(path, out[names[0]], names[0], lambda i: f"sample {i + 1}")
-    return out
-
-
-def _read_mat73(path: Path) -> dict:
-    """The datasets of a MATLAB 7.3 file (HDF5), read as servofmu reads its own files: once, in a first pass that
-    cannot hang on a damaged file (fileio.read_hdf5_image)."""
-    import h5py
-
-    return read_hdf5_image(read_image(path, "MAT file"), path, "MAT file",
-                           lambda f: {k: np.asarray(v[()]) for k, v in f.items() if isinstance(v, h5py.Dataset)})
-
-
-def _check_time(path: Path, t: np.ndarray, name: str, where) -> None:
-    if len(t) < MIN_SAMPLES:
-        raise UserError(f"{path}: needs at least {MIN_SAMPLES} samples, has {len(t)}")
-    steps = np.diff(t)
-    if np.any(steps <= 0):
-        i = int(np.argmax(steps <= 0)) + 1
-        raise UserError(f"{path}: {where(i)}: {name} is not strictly increasing: sample {i + 1} at "
-                        f"{float(t[i])!r} s after {float(t[i - 1])!r} s")
 
 
 # ---------------------------------------------------------------------------
@@ -305,6 +161,18 @@ def check_wrap(path: Path, t: np.ndarray, x: np.ndarray, column: str) -> None:
                         f"({jumps.size} such jumps): an encoder counter's overflow? unwrap the position first")
 
 
+def _scaled(path: Path, values: np.ndarray, column: str, scale: float, option: str) -> np.ndarray:
+    """``values * scale``, refused when a product leaves what servofmu's files hold (±MAX_MAGNITUDE)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = values * scale
+    bad = np.flatnonzero(~(np.abs(out) <= MAX_MAGNITUDE))
+    if bad.size:
+        i = int(bad[0])
+        raise UserError(f"{path}: sample {i + 1}: column {column!r} ({values[i]:g}) times {option} {scale:g} is "
+                        f"{out[i]:g}, beyond ±{MAX_MAGNITUDE:g}, which servofmu does not read")
+    return out
+
+
 def load_record(path: str | Path, time: str, input: str, output: str, kind: str = "velocity",
                 cutoff: float | None = None, frequency: float | None = None, index: int = 0,
                 intersample: str = "zoh", loop: LoopChannels | None = None) -> Record:
@@ -322,8 +190,10 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     if len(set(names)) < len(names):
         raise UserError("the time, input and output columns must be three different columns" if len(names) == 3
                         else "the time, input, output, reference and disturbance columns must be different columns")
-    cols = read_columns(path, names)
-    t, u, y = cols[time], cols[input] * loop.input_scale, cols[output]
+    options = ["--time", "--input", "--output-variable"] + [o for c, o in ((loop.reference, "--reference"), (
+        loop.disturbance, "--disturbance")) if c is not None]
+    cols = read_columns(path, names, options)
+    t, u, y = cols[time], _scaled(path, cols[input], input, loop.input_scale, "--input-scale"), cols[output]
     clock = _clock(path, t, required=kind == "position" or loop.reference is not None)
     fs = 1.0 / float(np.median(np.diff(t)))
     position = None
@@ -341,7 +211,8 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
     columns.update({role: name for role, name in (("reference", loop.reference), ("disturbance", loop.disturbance))
                     if name is not None})
-    disturbance = None if loop.disturbance is None else cols[loop.disturbance] * loop.disturbance_scale
+    disturbance = None if loop.disturbance is None else _scaled(path, cols[loop.disturbance], loop.disturbance,
+                                                                 loop.disturbance_scale, "--disturbance-scale")
     series = Series(time=t, u=u, v=v, position=position,
                     reference=None if loop.reference is None else cols[loop.reference], disturbance=disturbance)
     return Record(index=index, name=path.stem, source=path.name, source_sha256=file_sha256(path), kind=kind,
@@ -395,15 +266,20 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
     UserError
         For unreadable files, missing columns, NaN or non-increasing time, time stamps of a position record or a
         drive's log off a regular grid (servofmu.measurement.clock), a scale that is not a finite non-zero
-        number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``.
+        number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``, a
+        record whose samples are those of another record given or already in the output (one measurement twice).
     """
     run, loop = run or RunOptions(), loop or LoopChannels()
     loop.check()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")
-    offset = len(read_data_file(output).records) if append and output.exists() else 0
-    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=offset + i,
+    existing = file_items(read_data_file(output), f"{output} (--append)") if append and output.exists() else []
+    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=len(existing) + i,
                            intersample=intersample, loop=loop)
                for i, p in enumerate(paths)]
+    repeat = first_repeat(existing + [(f"{p}", series_digest(r.series)) for p, r in zip(paths, records)],
+                          start=len(existing))
+    if repeat is not None:
+        raise UserError(f"{repeat[0]}: holds the same samples as {repeat[1]}: {TWICE}; import each record once")
     provenance = {"package": "servofmu", "package_version": __version__, "command": run.command,
                   "created": utc_now(), "sources": [r.source for r in records]}
     write_records(output, records, provenance, append=append, overwrite=run.overwrite)

@@ -73,7 +73,8 @@ def export_provenance(result: Result, result_file: str | Path | None = None, com
     # the identification's own record (data file, its hash, ...); its command and date are named apart from
     # the export's
     renamed = {"command": "identify_command", "date": "identify_date"}
-    prov.update({renamed.get(str(k), str(k)): str(v) for k, v in result.provenance.items() if v not in (None, "")})
+    prov.update({renamed.get(str(k), str(k)): str(v) for k, v in result.provenance.items()
+                 if v not in (None, "") and k != "data_digests"})  # (one digest per record: for validate, not a model)
     if result_file is not None:
         prov["result_file"] = Path(result_file).name
         prov["result_sha256"] = result.sha256 or file_sha256(result_file)  # the bytes read, when read from it

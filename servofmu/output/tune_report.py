@@ -84,7 +84,7 @@ def tune_text(tuning: Tuning) -> str:
     where = "on the axis" if axis else "on the model"
     chosen = figures[tuning.chosen].rms_error
     def than(label: str, name: str) -> str:
-        ratio = figures[label].rms_error / chosen
+        ratio = figures[label].rms_error / chosen if chosen > 0 else 1.0  # (no error at all: as good)
         return f"{ratio:.2f}x lower than {name}" if ratio >= 1 else f"{1 / ratio:.2f}x higher than {name}"
 
     lines.append(f"{tuning.chosen}: RMS tracking error {where} {than('given', 'the given gains')}"

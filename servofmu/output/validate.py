@@ -40,6 +40,7 @@ from ..identification.criterion import POLISH_RTOL, check_structure, fit_percent
 from ..identification.residuals import EXACT, LAGS, LEVEL, ResidualTest, residual_test
 from ..identification.results import Result
 from ..measurement.datafile import DataFile, ExperimentResult
+from ..measurement.duplicates import file_items
 from ..measurement.frf import harmonics
 from ..simulation.batch import BatchSimulator
 
@@ -159,15 +160,19 @@ def own_data_warning(v: Validation) -> str | None:
     """The warning when ``v`` was computed on the data the model was fitted to, else None."""
     if not v.own_data:
         return None
-    return (f"{Path(v.data_file.path).name} is the data the model was identified from (the SHA-256 its "
-            "identification recorded): the validation shows the fit, not how the model predicts data it has not "
-            "seen; validate on other runs of the machine.")
+    return (f"{Path(v.data_file.path).name} is the data the model was identified from (the file, or records or "
+            "experiments of it, as its identification recorded them): the validation shows the fit, not how the "
+            "model predicts data it has not seen; validate on other runs of the machine.")
 
 
 def _is_own_data(result: Result, data_file: DataFile) -> bool:
-    """Whether the data file's SHA-256 is the one the identification recorded."""
+    """Whether the data file's SHA-256 is the one the identification recorded, or a record or experiment of it
+    holds samples the identification fitted (their digests, servofmu.measurement.duplicates: the same data
+    imported again under another name)."""
     recorded = result.provenance.get("data_sha256")
-    return bool(recorded) and data_file.sha256 == recorded
+    fitted = result.provenance.get("data_digests") or []
+    return (bool(recorded) and data_file.sha256 == recorded) or \
+        any(digest in fitted for _, digest in file_items(data_file))
 
 
 def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float,

@@ -13,6 +13,7 @@ from ..identification.criterion import RecordCriterion, RecordData, SineCriterio
 from ..identification.shortening import first_share
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
+from ..measurement.duplicates import file_items, refuse_repeats
 from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
 from ..simulation.closed_loop import LoopSimulator
 from .estimate import Series, series_of_experiments, series_of_records
@@ -98,6 +99,7 @@ def load_selection_data(paths, skip: float = 0.0, controller=None):
         raise UserError("no data files to select from")
     loaded = [_one(p, skip, controller) for p in paths]
     files = [ds for ds, _ in loaded]
+    refuse_repeats([item for ds in files for item in file_items(ds)], "give each measurement once")
     recorded = [(ds.path, _plant_values(ds)) for ds in files if _plant_values(ds)]
     for path, values in recorded[1:]:
         if values != recorded[0][1]:
@@ -121,19 +123,40 @@ def _signals(data) -> list[str]:
 
 
 def check_validation(fit, fit_files: list[DataFile], validation, validation_file: DataFile) -> None:
-    """Refuse a validation file that holds other signals than the fitted data (another kind, another output) or
-    that records another plant than the fitted files do."""
+    """Refuse a validation file that holds other signals than the fitted data (another kind, another output), a
+    record or experiment of the fitted data (by the digest of its samples), a record that never moves, or that
+    records another plant than the fitted files do."""
     path = validation_file.path
     if data_kind(fit) != data_kind(validation) or _signals(fit) != _signals(validation):
         raise UserError(f"{path}: holds {', '.join(_signals(validation))}, the fitted data "
                         f"{', '.join(_signals(fit))}: validate on data of the same signals (the same input and "
                         "output)")
+    fitted = {digest: what for f in fit_files for what, digest in file_items(f)}
+    for what, digest in file_items(validation_file, f"{path} (--validate)"):
+        if digest in fitted:
+            raise UserError(f"{what} holds the same samples as {fitted[digest]}, which is fitted: validation on "
+                            "fitted data tests no prediction; give --validate another measurement of the axis")
+    _refuse_still(validation, f"{path} (--validate)")
     mine = _plant_values(validation_file)
     theirs = next((_plant_values(f) for f in fit_files if _plant_values(f)), {})
     if mine and theirs and mine != theirs:
         differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
         raise UserError(f"{path}: was measured on another plant than the fitted data ({', '.join(differ[:4])} "
                         "differ); validate on data of the same axis")
+
+
+def _refuse_still(data, where: str) -> None:
+    """Refuse records whose measured output never changes over their fitted samples: a fit to them divides by
+    their spread (no number), so no candidate could be ranked on them."""
+    if isinstance(data, SineData):
+        return
+    for r in data.records:
+        y, signal = (r.y, r.output) if isinstance(data, RecordData) else (r.position, "position")
+        seen = np.asarray(y, dtype=float)[r.fitted]
+        if seen.size and np.ptp(seen) == 0:
+            raise UserError(f"{where}: record {r.name!r}: its {signal} is {float(seen[0]):g} throughout the fitted "
+                            "samples: the axis never moves, so no fit to it can be computed; give a record in which "
+                            "it moves")
 
 
 class BoundedSimulator(BatchSimulator):

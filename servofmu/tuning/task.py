@@ -17,7 +17,12 @@ from ..errors import UserError
 from ..model.controller import ControllerSpec
 from ..model.plant import Plant
 
-__all__ = ["Task", "stroke_task", "task_from_csv", "check_task", "reference_velocity", "step_task"]
+__all__ = ["Task", "stroke_task", "task_from_csv", "check_task", "reference_velocity", "step_task",
+           "MIN_SAMPLES_PER_PERIOD"]
+
+# A stroke's period spans at least this many controller samples: a discrete loop follows nothing faster than a few
+# samples per period, and the tuning's loop and page need a sampled motion to measure errors on
+MIN_SAMPLES_PER_PERIOD = 20
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,11 @@ def stroke_task(stroke: float, speed: float, sample_time: float) -> Task:
         raise UserError(f"--speed must be a positive speed in m/s, not {speed!r}")
     omega = 2.0 * speed / stroke
     duration = 2 * 2 * np.pi / omega
+    fastest = stroke * np.pi / (MIN_SAMPLES_PER_PERIOD * sample_time)
+    if speed > fastest:
+        raise UserError(f"--speed {speed:g} m/s: a stroke of {stroke:g} m at that speed reverses every "
+                        f"{duration / 4:.3g} s, faster than a loop sampled every {sample_time:g} s can follow (at "
+                        f"most {fastest:.4g} m/s over this --stroke, {MIN_SAMPLES_PER_PERIOD} samples a period)")
     if duration / sample_time > 2_000_000:
         raise UserError(f"a stroke of {stroke:g} m at {speed:g} m/s lasts {duration:.3g} s, more than 2e6 controller "
                         "samples; give a higher speed or a shorter stroke")
@@ -77,6 +87,9 @@ def task_from_csv(path: str | Path, sample_time: float) -> Task:
     if r[0] != 0.0:
         raise UserError(f"{path}: the reference must start at rest at position 0 (an axis starts there), not at "
                         f"{r[0]:g} m")
+    if not np.any(r):
+        raise UserError(f"{path}: column 'position' stays at 0 m throughout: a task that never moves has no tracking "
+                        "error to tune for; give --task a motion (or --stroke and --speed)")
     return Task(t, r, str(path))
 
 
