@@ -307,11 +307,12 @@ def read_image(path: str | Path, what: str) -> bytes:
         raise UserError(f"{path}: too large to read into memory") from None
 
 
-def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True):
-    """The one check of stored numbers, used by every reader: ``values`` as an array of ``shape`` (None: any;
-    an entry None: any length along that axis), finite unless ``finite`` is False, and never beyond
-    ±:data:`MAX_MAGNITUDE`.  A violation is a UserError naming ``source`` (the file) and ``name``.
-    Returns the array."""
+def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True,
+                 why: str = "a damaged or foreign file"):
+    """The one check of stored numbers, used by every reader (and by writers before the first byte): ``values`` as
+    an array of ``shape`` (None: any; an entry None: any length along that axis), finite unless ``finite`` is
+    False, and never beyond ±:data:`MAX_MAGNITUDE`.  A violation is a UserError naming ``source`` (the file) and
+    ``name``, ``why`` in parentheses.  Returns the array."""
     import numpy as np
 
     try:
@@ -319,19 +320,18 @@ def check_values(source, name: str, values, shape: tuple | None = None, finite: 
         if a.dtype.kind not in "biufc":
             raise TypeError
     except (TypeError, ValueError):
-        raise UserError(f"{source}: {name} is not numeric (a damaged or foreign file)") from None
+        raise UserError(f"{source}: {name} is not numeric ({why})") from None
     if shape is not None and (a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape))):
         expected = "×".join("n" if n is None else str(n) for n in shape) or "a scalar"
         raise UserError(f"{source}: {name} has shape {'×'.join(map(str, a.shape)) or 'scalar'}, expected "
-                        f"{expected} (a damaged or foreign file)")
+                        f"{expected} ({why})")
     parts = (a.real, a.imag) if a.dtype.kind == "c" else (a,)
     with np.errstate(invalid="ignore"):
         for part in parts:
             if finite and not np.all(np.isfinite(part)):
-                raise UserError(f"{source}: {name} holds NaN or Inf (a damaged or foreign file)")
+                raise UserError(f"{source}: {name} holds NaN or Inf ({why})")
             if np.any(np.abs(part[np.isfinite(part)]) > MAX_MAGNITUDE):
-                raise UserError(f"{source}: {name} holds a value beyond ±{MAX_MAGNITUDE:g} (a damaged or foreign "
-                                "file)")
+                raise UserError(f"{source}: {name} holds a value beyond ±{MAX_MAGNITUDE:g} ({why})")
     return a
 
 
