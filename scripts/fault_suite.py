@@ -7,10 +7,11 @@ failed.
 With ``--against REV`` it runs instead the tests of one probe's reported faults twice in one run: against the sources
 of the earlier revision REV (from git; the inputs still made by this checkout) and against this checkout, and writes
 their outcomes side by side into docs/reliability.md: each test should fail before its fix and pass after.
-``--probe first`` (default: tests/faults/test_reported_faults.py) or ``--probe second``
-(tests/faults/test_second_probe.py) chooses the probe.
+``--probe first`` (default: tests/faults/test_reported_faults.py), ``--probe second``
+(tests/faults/test_second_probe.py) or ``--probe third-outputs`` (tests/faults/test_third_probe_outputs.py) chooses
+the probe.
 
-Usage: python scripts/fault_suite.py [--print] [--against REV [--probe first|second]] [pytest options...]
+Usage: python scripts/fault_suite.py [--print] [--against REV [--probe first|second|third-outputs]] [pytest options...]
 """
 from __future__ import annotations
 
@@ -32,9 +33,12 @@ BEFORE_BEGIN = "<!-- reported groups before and after: begin -->"
 BEFORE_END = "<!-- reported groups before and after: end -->"
 SECOND_BEGIN = "<!-- second probe before and after: begin -->"
 SECOND_END = "<!-- second probe before and after: end -->"
+THIRD_OUTPUTS_BEGIN = "<!-- third probe, outputs, before and after: begin -->"
+THIRD_OUTPUTS_END = "<!-- third probe, outputs, before and after: end -->"
 # probe -> (its tests, the markers of its before-and-after table)
 PROBES = {"first": ("tests/faults/test_reported_faults.py", BEFORE_BEGIN, BEFORE_END),
-          "second": ("tests/faults/test_second_probe.py", SECOND_BEGIN, SECOND_END)}
+          "second": ("tests/faults/test_second_probe.py", SECOND_BEGIN, SECOND_END),
+          "third-outputs": ("tests/faults/test_third_probe_outputs.py", THIRD_OUTPUTS_BEGIN, THIRD_OUTPUTS_END)}
 WRITE_KINDS = {"fsize": "file-size limit", "full": "disk full"}
 
 
@@ -54,6 +58,9 @@ def classify(module: str, name: str) -> tuple[str, str]:
         reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
                                  name[name.index("[") + 1:-1]).groups()
         return reader, f"damaged input: {fault}"
+    if "test_third_probe" in module:
+        item = re.match(r"test_t(\d+)_", name)
+        return "(third probe)", f"class {item.group(1)}" if item else name
     if module.endswith("test_second_probe"):
         item = re.match(r"test_p0?(\d+b?)_", name)
         return "(second probe)", f"item {item.group(1)}" if item else name
