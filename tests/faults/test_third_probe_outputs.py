@@ -5,7 +5,6 @@ stopped between its outputs' writes leaving some new and some old.  Every test h
 the fault (scripts/fault_suite.py --against shows it)."""
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import signal
@@ -25,10 +24,6 @@ SELECT = ["select", "{data}", "--validate", "{data2}", "--candidates", "coulomb/
 
 def argv_of(template: list[str], inputs: dict) -> list[str]:
     return [a.format(**{k: str(v) for k, v in inputs.items()}) for a in template]
-
-
-def digests(folder: Path) -> dict[str, str]:
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir()) if p.is_file()}
 
 
 # ---- 2. an output destroys another output, an input, or a file servofmu ships ---------------------------------------
@@ -146,17 +141,24 @@ def size(path: Path) -> int:
 
 
 # ---- 5. all outputs of a run, or none ------------------------------------------------------------------------------
-def test_t5_a_selection_stopped_while_it_writes_leaves_every_old_output(inputs, tmp_path):
-    """`select --force --report` sent SIGTERM as soon as its first output is being written (its hidden .part, or
-    the file itself): every output is the old one, or (a signal that came after the last rename) every one new —
-    never some of each."""
+STOPPED = {"select": ([*SELECT, "-o", "S.h5", "--report", "S.html", "--force"],
+                      ["S.h5", "S.toml", "S-result.h5", "S.html"]),
+           "tune": (["tune", "{axis_result}", "{controller_toml}", "--particles", "4", "--iterations", "2", "-o",
+                     "T.toml", "--report", "T.html", "--force"], ["T.toml", "T.html"])}
+
+
+@pytest.mark.parametrize("command", STOPPED)
+def test_t5_a_run_stopped_while_it_writes_leaves_every_old_output(inputs, tmp_path, command):
+    """`select --force --report` (four outputs) and `tune --force --report` (two) sent SIGTERM as soon as their
+    first output is being written (its hidden .part, or the file itself): every output is the old one, or (a
+    signal that came after the last rename) every one new — never some of each."""
     work, temp = tmp_path / "work", tmp_path / "tmp"
     work.mkdir()
     temp.mkdir()
-    names = ["S.h5", "S.toml", "S-result.h5", "S.html"]
+    argv, names = STOPPED[command]
     for name in names:
         (work / name).write_bytes(PREVIOUS)
-    proc = run_servofmu([*argv_of(SELECT, inputs), "-o", "S.h5", "--report", "S.html", "--force"], work, temp)
+    proc = run_servofmu(argv_of(argv, inputs), work, temp)
     deadline = time.monotonic() + 600
     while proc.poll() is None and time.monotonic() < deadline:
         if any(p.name.endswith(".part") and size(p) > 0 for p in work.iterdir()) or \
