@@ -24,6 +24,7 @@ from .integrity import DIGEST_ATTRIBUTE, InspectionFailed, content_digest, inspe
 # (the output rule lives in servofmu.claims; its names are also this module's, as they always were)
 __all__ = ["file_sha256", "claim_output", "claim_outputs", "output_claims", "holds_outputs", "OutputExists",
            "output_mode", "CONTINUE_WORDS", "check_output_path", "partial_path", "atomic_write", "all_or_none",
+           "staged_folder",
            "write_hdf5", "store_array", "hdf5_attr", "read_hdf5", "read_image", "read_hdf5_image", "READ_ERRORS",
            "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM", "write_failures"]
 
@@ -133,6 +134,51 @@ def all_or_none(outputs: Iterable[str | Path | None]) -> Iterator[None]:
                 raise UserError(f"cannot write {target}: {exc.strerror or exc}") from exc
         for target in staged:
             _sync_folder(Path(target))
+
+
+@contextlib.contextmanager
+def staged_folder(folder: str | Path) -> Iterator[Path]:
+    """``with staged_folder(FOLDER) as work:`` a run that writes many files into FOLDER, and reads some of them
+    back, makes them in ``work`` (``.FOLDER.part`` beside it; one a killed run left is removed first); when the
+    block ends without an error they (but hidden ones: locks) are moved into FOLDER all together, stop signals
+    deferred until the last — on an error or a stop ``work`` is removed and FOLDER stays as it was.  (The demo's
+    folder: all or none.)"""
+    import shutil
+
+    from .locks import release, sibling, take
+    from .runtime import signals_deferred
+
+    folder = Path(folder)
+    work, lock = sibling(folder.absolute(), "part"), sibling(folder.absolute(), "lock")
+    try:
+        work.parent.mkdir(parents=True, exist_ok=True)
+        held = take(lock)  # the staging folder is this run's alone
+    except OSError as exc:
+        raise UserError(f"cannot write {work}: {exc.strerror or exc}") from exc
+    if held is None:
+        raise UserError(f"{folder}: another run is writing it now (wait until it ends, or write to another folder)")
+    try:
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir()
+    except OSError as exc:
+        release(held, lock)
+        raise UserError(f"cannot write {work}: {exc.strerror or exc}") from exc
+    try:
+        yield work
+        with signals_deferred():  # a stop now would leave some files new and others old
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                for item in sorted(work.iterdir()):
+                    if item.name.startswith("."):  # servofmu's own: the claims' locks of the run's writers
+                        continue
+                    if item.is_dir() and (folder / item.name).is_dir():
+                        shutil.rmtree(folder / item.name)
+                    os.replace(item, folder / item.name)
+            except OSError as exc:
+                raise UserError(f"cannot write {folder}: {exc.strerror or exc}") from exc
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+        release(held, lock)
 
 
 def _write_part(part: Path, data: memoryview) -> None:
