@@ -53,6 +53,16 @@ def test_t2_an_output_under_another_name_of_an_existing_output_is_refused(inputs
     assert (tmp_path / "T.toml").read_bytes() == PREVIOUS
 
 
+def test_t2_a_result_of_many_files_is_never_one_of_the_inputs(inputs, tmp_path):
+    """`identify A.h5 A-result.h5 --output-dir .`: A's result would go over the second data file."""
+    for name in ("a.h5", "a-result.h5"):
+        (tmp_path / name).write_bytes(Path(inputs["data"]).read_bytes())
+    rc, err = run_here(["identify", "a.h5", "a-result.h5", "--structure", "g1", "--method", "pso", "--iterations",
+                        "2", "--workers", "0", "--output-dir", ".", "--force"], tmp_path)
+    assert (tmp_path / "a-result.h5").read_bytes() == Path(inputs["data"]).read_bytes()
+    assert_one_line(err, rc, 2, "a-result.h5", "is also an input")
+
+
 @pytest.fixture
 def installed(tmp_path) -> Path:
     """A copy of servofmu installed in ``tmp_path/site`` with its examples inside the package, as a wheel installs
@@ -140,6 +150,13 @@ def size(path: Path) -> int:
         return 0
 
 
+def entries(folder: Path) -> list[Path]:
+    try:
+        return list(folder.iterdir())
+    except OSError:  # (gone meanwhile, or a file)
+        return []
+
+
 # ---- 5. all outputs of a run, or none ------------------------------------------------------------------------------
 STOPPED = {"select": ([*SELECT, "-o", "S.h5", "--report", "S.html", "--force"],
                       ["S.h5", "S.toml", "S-result.h5", "S.html"]),
@@ -172,3 +189,27 @@ def test_t5_a_run_stopped_while_it_writes_leaves_every_old_output(inputs, tmp_pa
     if not new:
         assert_one_line(err, proc.returncode, 143, "terminated (SIGTERM)")
     assert sorted(p.name for p in work.iterdir()) == sorted(names)
+
+
+def test_t5_a_stopped_demo_leaves_its_old_folder(tmp_path):
+    """`demo --out D --force` sent SIGTERM as soon as its first file is made (in D, or in its staging folder
+    beside it): D holds its old files, as they were, and nothing else; no staging folder is left."""
+    work, temp = tmp_path / "work", tmp_path / "tmp"
+    (work / "D").mkdir(parents=True)
+    temp.mkdir()
+    old = {"g1.fmu": PREVIOUS, "g1.h5": PREVIOUS, "notes.txt": b"mine\n"}
+    for name, data in old.items():
+        (work / "D" / name).write_bytes(data)
+    proc = run_servofmu(["demo", "--out", "D", "--force"], work, temp)
+    deadline = time.monotonic() + 600
+    while proc.poll() is None and time.monotonic() < deadline:
+        staging = [p for p in work.iterdir() if p.name.endswith(".part")]
+        if any(size(f) > 0 for p in staging for f in entries(p)) or \
+                {p.name: p.read_bytes() for p in entries(work / "D") if not p.name.startswith(".")} != old:
+            proc.send_signal(signal.SIGTERM)
+            break
+        time.sleep(0.005)
+    out, err = proc.communicate(timeout=120)
+    assert {p.name: p.read_bytes() for p in (work / "D").iterdir()} == old
+    assert_one_line(err, proc.returncode, 143, "terminated (SIGTERM)")
+    assert sorted(p.name for p in work.iterdir()) == ["D"]
