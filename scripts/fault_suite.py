@@ -8,10 +8,12 @@ With ``--against REV`` it runs instead the tests of one probe's reported faults 
 of the earlier revision REV (from git; the inputs still made by this checkout) and against this checkout, and writes
 their outcomes side by side into docs/reliability.md: each test should fail before its fix and pass after.
 ``--probe first`` (default: tests/faults/test_reported_faults.py), ``--probe second``
-(tests/faults/test_second_probe.py) or ``--probe inputs`` (tests/faults/test_third_probe_inputs.py: the third
-probe's inputs and messages) chooses the probe.
+(tests/faults/test_second_probe.py), ``--probe inputs``, ``--probe outputs`` or ``--probe controller``
+(tests/faults/test_third_probe_*.py: the third probe's inputs and messages, outputs and writes, and closed-loop
+controller checks and work limits) chooses the probe.
 
-Usage: python scripts/fault_suite.py [--print] [--against REV [--probe first|second|inputs]] [pytest options...]
+Usage: python scripts/fault_suite.py [--print] [--against REV [--probe first|second|inputs|outputs|controller]]
+       [pytest options...]
 """
 from __future__ import annotations
 
@@ -33,12 +35,12 @@ BEFORE_BEGIN = "<!-- reported groups before and after: begin -->"
 BEFORE_END = "<!-- reported groups before and after: end -->"
 SECOND_BEGIN = "<!-- second probe before and after: begin -->"
 SECOND_END = "<!-- second probe before and after: end -->"
-INPUTS_BEGIN = "<!-- third probe, inputs, before and after: begin -->"
-INPUTS_END = "<!-- third probe, inputs, before and after: end -->"
 # probe -> (its tests, the markers of its before-and-after table)
 PROBES = {"first": ("tests/faults/test_reported_faults.py", BEFORE_BEGIN, BEFORE_END),
           "second": ("tests/faults/test_second_probe.py", SECOND_BEGIN, SECOND_END),
-          "inputs": ("tests/faults/test_third_probe_inputs.py", INPUTS_BEGIN, INPUTS_END)}
+          **{name: (f"tests/faults/test_third_probe_{name}.py", f"<!-- third probe, {name}, before and after: begin -->",
+                    f"<!-- third probe, {name}, before and after: end -->")
+             for name in ("inputs", "outputs", "controller")}}
 WRITE_KINDS = {"fsize": "file-size limit", "full": "disk full"}
 
 
@@ -58,8 +60,8 @@ def classify(module: str, name: str) -> tuple[str, str]:
         reader, fault = re.match(r"(.*?)-(truncated|bit-flip|nan|inf|wrong-shape|1e308|-1e308)$",
                                  name[name.index("[") + 1:-1]).groups()
         return reader, f"damaged input: {fault}"
-    if "third_probe" in module:  # test_cN_...: the third probe's class N
-        kind = re.match(r"test_c(\d+)_", name)
+    if "third_probe" in module:  # test_cN_... or test_tN_...: the third probe's class N
+        kind = re.match(r"test_[ct](\d+)_", name)
         return "(third probe)", f"class {kind.group(1)}" if kind else name
     if module.endswith("test_second_probe"):
         item = re.match(r"test_p0?(\d+b?)_", name)

@@ -11,21 +11,22 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import functools
 import hashlib
 import os
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterable, Iterator
 
+from .claims import (CONTINUE_WORDS, OutputExists, check_output_path, claim_output, claim_outputs, holds_outputs,
+                     output_claims, output_mode, partial_path)
 from .errors import MAX_MAGNITUDE, UserError
 from .integrity import DIGEST_ATTRIBUTE, InspectionFailed, content_digest, inspect_image
-from .locks import release, sibling, take
 
-__all__ = ["file_sha256", "claim_output", "output_claims", "holds_outputs", "OutputExists", "output_mode", "CONTINUE_WORDS", "check_output_path",
-           "partial_path", "atomic_write", "write_hdf5", "store_array", "hdf5_attr", "read_hdf5",
-           "read_image", "read_hdf5_image",
-           "READ_ERRORS", "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM",
-           "write_failures"]
+# (the output rule lives in servofmu.claims; its names are also this module's, as they always were)
+__all__ = ["file_sha256", "claim_output", "claim_outputs", "output_claims", "holds_outputs", "OutputExists",
+           "output_mode", "CONTINUE_WORDS", "check_output_path", "partial_path", "atomic_write", "all_or_none",
+           "staged_folder",
+           "write_hdf5", "store_array", "hdf5_attr", "read_hdf5", "read_image", "read_hdf5_image", "READ_ERRORS",
+           "read_error_reason", "check_format", "check_values", "HDF5_LIBVER", "NO_ROOM", "write_failures"]
 
 # Lowest HDF5 file-format version written (HDF5 1.10 and later read it): its object headers carry checksums, as
 # Fletcher-32 covers the arrays (store_array).  What neither covers (text attributes live in a global heap without
@@ -59,142 +60,18 @@ def write_failures(what: str, error: type[UserError] = UserError) -> Iterator[No
         raise error(f"cannot write {what}: {exc.strerror}") from exc
 
 
-class OutputExists(UserError):
-    """An output that exists already and that the run was not told to replace (or to continue).
-
-    One rule, one set of words: ``str()`` names the library's keywords (``overwrite=True``, ``resume=True``),
-    :meth:`command_line_text` the command line's options (``--force``, ``--resume``)."""
-
-    def __init__(self, path: Path, can_continue: str | None = None):
-        self.path, self.can_continue = path, can_continue
-        super().__init__(self._text("{}=True", "overwrite"))
-
-    def _text(self, spelling: str, replace: str) -> str:
-        how = f"give {spelling.format(replace)} to replace it"
-        if self.can_continue:
-            how += f", or {spelling.format(self.can_continue)} to {CONTINUE_WORDS[self.can_continue]} it"
-        return f"{self.path}: exists already ({how})"
-
-    def command_line_text(self) -> str:
-        """The same refusal in the command line's words."""
-        return self._text("--{}", "force")
-
-
-# How an existing output is continued, by the name of the keyword (and option) that asks for it.
-CONTINUE_WORDS = {"resume": "continue", "append": "add to"}
-OUTPUT_MODES = ("new", "replace", "continue")
-
-
-def output_mode(overwrite: bool = False, resume: bool = False) -> str:
-    """The mode of :func:`claim_output` for a writer's ``overwrite`` and ``resume`` (or ``append``) arguments."""
-    return "continue" if resume else "replace" if overwrite else "new"
-
-
-def claim_output(path: str | Path, mode: str = "new", inputs=(), can_continue: str | None = None) -> Path:
-    """The one output rule (docs/reliability.md), checked before any work by the command line and by every writer
-    of the library: so that a run never computes to the end to find it cannot (or may not) save.
-
-    ``path``'s folder must exist and be writable; ``path`` must not be one of the run's ``inputs`` (the same file,
-    under any name); and an existing ``path`` is refused (:class:`OutputExists`) unless ``mode`` is "replace"
-    (``overwrite=True``, ``--force``) or "continue" (``resume``/``append``: the writer extends it).
-    ``can_continue`` names the writer's keyword for continuing ("resume" or "append"), for the error's words.
-    Returns ``path`` as a Path."""
-    if mode not in OUTPUT_MODES:
-        raise ValueError(f"mode must be one of {OUTPUT_MODES}, not {mode!r}")
-    path = Path(path)
-    for source in inputs:
-        if source is not None and _same_file(path, Path(source)):
-            raise UserError(f"{path}: is also an input of this run (write the output to another file)")
-    if not path.parent.is_dir():
-        raise UserError(f"{path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise UserError(f"{path}: is a folder, not a file")
-    if mode == "new" and path.exists():
-        raise OutputExists(path, can_continue)
-    probe = partial_path(path)  # the file every write starts with: can it be made?
-    try:
-        fd = os.open(probe, os.O_WRONLY | os.O_CREAT, 0o644)
-        os.close(fd)
-        probe.unlink()
-    except OSError as exc:
-        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
-    except BaseException:  # a stop signal between making and removing it: the probe must not stay behind
-        probe.unlink(missing_ok=True)
-        raise
-    _hold(path)
-    return path
-
-
-# The outputs claimed inside each open output_claims() block (innermost last): resolved path -> (lock, its fd).
-_claims: list[dict[str, tuple[Path, int]]] = []
-
-
-@contextlib.contextmanager
-def output_claims() -> Iterator[None]:
-    """``with output_claims():`` every output :func:`claim_output` passes inside the block is claimed for this
-    process until the block ends (a lock beside it, servofmu.locks): another run that claims the same output
-    meanwhile is refused, so two runs can never both write one file — both would pass the existence rule when
-    started together.  The command line runs every command in such a block, and so do the library's long runs."""
-    _claims.append({})
-    try:
-        yield
-    finally:
-        for lock, fd in _claims.pop().values():
-            release(fd, lock)
-
-
-def holds_outputs(function: Callable) -> Callable:
-    """Run ``function`` inside :func:`output_claims` (for the library's long runs)."""
-    @functools.wraps(function)
-    def wrapper(*args, **kwargs):
-        with output_claims():
-            return function(*args, **kwargs)
-    return wrapper
-
-
-def _hold(path: Path) -> None:
-    """Claim ``path`` for the innermost :func:`output_claims` block (nothing outside one; a path this process
-    holds already stays held)."""
-    key = str(path.resolve())
-    if not _claims or any(key in scope for scope in _claims):
-        return
-    lock = sibling(path, "lock")
-    try:
-        fd = take(lock)
-    except OSError as exc:
-        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc
-    if fd is None:
-        raise UserError(f"{path}: another run is writing it now (wait until it ends, or write to another file)")
-    _claims[-1][key] = (lock, fd)
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-def check_output_path(path: str | Path, overwrite: bool = True) -> Path:
-    """:func:`claim_output` with ``overwrite`` (True: "replace", False: "new"), for writers whose caller has
-    applied the rule already (a fleet's results, a report's figures in its own temporary folder)."""
-    return claim_output(path, "replace" if overwrite else "new")
-
-
-def partial_path(path: Path) -> Path:
-    """Where ``path`` is written before it replaces the target in one rename (``.NAME.part``; a hashed name for a
-    name too long to take the dot and suffix)."""
-    return sibling(Path(path), "part")
-
-
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` to ``path`` through ``.NAME.part`` and one rename: every file servofmu writes goes through
     here, so a full disk, a quota or a file-size limit ends as one UserError naming the file (``cannot write
-    FILE: reason``), with no partial file left and the previous ``path`` untouched."""
+    FILE: reason``), with no partial file left and the previous ``path`` untouched.  Inside :func:`all_or_none`
+    the rename waits for the block's end."""
     path = Path(path)
     part = partial_path(path)
     try:
         _write_part(part, memoryview(data.encode() if isinstance(data, str) else data))
+        if _staged and os.path.abspath(path) in _staged[0][0]:
+            _staged[0][1][os.path.abspath(path)] = part
+            return path
         os.replace(part, path)
     except OSError as exc:
         part.unlink(missing_ok=True)
@@ -202,7 +79,13 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
     except BaseException:
         part.unlink(missing_ok=True)
         raise
-    try:  # make the rename itself durable
+    _sync_folder(path)
+    return path
+
+
+def _sync_folder(path: Path) -> None:
+    """Make a rename into ``path``'s folder durable."""
+    try:
         fd = os.open(path.parent, os.O_RDONLY)
         try:
             os.fsync(fd)
@@ -210,7 +93,92 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
             os.close(fd)
     except OSError:
         pass
-    return path
+
+
+# The open all_or_none() block: its outputs (absolute paths), and those written: target -> its complete .NAME.part.
+_staged: list[tuple[set[str], dict[str, Path]]] = []
+
+
+@contextlib.contextmanager
+def all_or_none(outputs: Iterable[str | Path | None]) -> Iterator[None]:
+    """``with all_or_none(outputs):`` every one of ``outputs`` that :func:`atomic_write` writes in the block is
+    written complete as its ``.NAME.part`` and renamed over its target only when the block ends without an error —
+    all of them at once, stop signals deferred until the last rename — so that a run with several outputs (select,
+    tune with a report) that fails or is stopped before its end leaves every old output as it was, and one that
+    ends has replaced all of them.  Other files (temporary ones) are written at once; a block inside another joins
+    it.  An output written in the block is not readable under its name before the block ends."""
+    targets = {os.path.abspath(p) for p in outputs if p is not None}
+    if _staged:  # the outer block renames
+        _staged[0][0].update(targets)
+        yield
+        return
+    staged: dict[str, Path] = {}
+    _staged.append((targets, staged))
+    try:
+        yield
+    except BaseException:
+        for part in staged.values():
+            part.unlink(missing_ok=True)
+        raise
+    finally:
+        _staged.pop()
+    from .runtime import signals_deferred
+
+    with signals_deferred():  # a stop now would leave some outputs new and others old
+        for i, (target, part) in enumerate(staged.items()):
+            try:
+                os.replace(part, target)
+            except OSError as exc:  # (a folder removed meanwhile): the rest stay as they were
+                for rest in list(staged.values())[i:]:
+                    rest.unlink(missing_ok=True)
+                raise UserError(f"cannot write {target}: {exc.strerror or exc}") from exc
+        for target in staged:
+            _sync_folder(Path(target))
+
+
+@contextlib.contextmanager
+def staged_folder(folder: str | Path) -> Iterator[Path]:
+    """``with staged_folder(FOLDER) as work:`` a run that writes many files into FOLDER, and reads some of them
+    back, makes them in ``work`` (``.FOLDER.part`` beside it; one a killed run left is removed first); when the
+    block ends without an error they (but hidden ones: locks) are moved into FOLDER all together, stop signals
+    deferred until the last — on an error or a stop ``work`` is removed and FOLDER stays as it was.  (The demo's
+    folder: all or none.)"""
+    import shutil
+
+    from .locks import release, sibling, take
+    from .runtime import signals_deferred
+
+    folder = Path(folder)
+    work, lock = sibling(folder.absolute(), "part"), sibling(folder.absolute(), "lock")
+    try:
+        work.parent.mkdir(parents=True, exist_ok=True)
+        held = take(lock)  # the staging folder is this run's alone
+    except OSError as exc:
+        raise UserError(f"cannot write {work}: {exc.strerror or exc}") from exc
+    if held is None:
+        raise UserError(f"{folder}: another run is writing it now (wait until it ends, or write to another folder)")
+    try:
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir()
+    except OSError as exc:
+        release(held, lock)
+        raise UserError(f"cannot write {work}: {exc.strerror or exc}") from exc
+    try:
+        yield work
+        with signals_deferred():  # a stop now would leave some files new and others old
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                for item in sorted(work.iterdir()):
+                    if item.name.startswith("."):  # servofmu's own: the claims' locks of the run's writers
+                        continue
+                    if item.is_dir() and (folder / item.name).is_dir():
+                        shutil.rmtree(folder / item.name)
+                    os.replace(item, folder / item.name)
+            except OSError as exc:
+                raise UserError(f"cannot write {folder}: {exc.strerror or exc}") from exc
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+        release(held, lock)
 
 
 def _write_part(part: Path, data: memoryview) -> None:
@@ -384,11 +352,12 @@ def read_image(path: str | Path, what: str) -> bytes:
         raise UserError(f"{path}: too large to read into memory") from None
 
 
-def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True):
-    """The one check of stored numbers, used by every reader: ``values`` as an array of ``shape`` (None: any;
-    an entry None: any length along that axis), finite unless ``finite`` is False, and never beyond
-    ±:data:`MAX_MAGNITUDE`.  A violation is a UserError naming ``source`` (the file) and ``name``.
-    Returns the array."""
+def check_values(source, name: str, values, shape: tuple | None = None, finite: bool = True,
+                 why: str = "a damaged or foreign file"):
+    """The one check of stored numbers, used by every reader (and by writers before the first byte): ``values`` as
+    an array of ``shape`` (None: any; an entry None: any length along that axis), finite unless ``finite`` is
+    False, and never beyond ±:data:`MAX_MAGNITUDE`.  A violation is a UserError naming ``source`` (the file) and
+    ``name``, ``why`` in parentheses.  Returns the array."""
     import numpy as np
 
     try:
@@ -396,19 +365,18 @@ def check_values(source, name: str, values, shape: tuple | None = None, finite: 
         if a.dtype.kind not in "biufc":
             raise TypeError
     except (TypeError, ValueError):
-        raise UserError(f"{source}: {name} is not numeric (a damaged or foreign file)") from None
+        raise UserError(f"{source}: {name} is not numeric ({why})") from None
     if shape is not None and (a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape))):
         expected = "×".join("n" if n is None else str(n) for n in shape) or "a scalar"
         raise UserError(f"{source}: {name} has shape {'×'.join(map(str, a.shape)) or 'scalar'}, expected "
-                        f"{expected} (a damaged or foreign file)")
+                        f"{expected} ({why})")
     parts = (a.real, a.imag) if a.dtype.kind == "c" else (a,)
     with np.errstate(invalid="ignore"):
         for part in parts:
             if finite and not np.all(np.isfinite(part)):
-                raise UserError(f"{source}: {name} holds NaN or Inf (a damaged or foreign file)")
+                raise UserError(f"{source}: {name} holds NaN or Inf ({why})")
             if np.any(np.abs(part[np.isfinite(part)]) > MAX_MAGNITUDE):
-                raise UserError(f"{source}: {name} holds a value beyond ±{MAX_MAGNITUDE:g} (a damaged or foreign "
-                                "file)")
+                raise UserError(f"{source}: {name} holds a value beyond ±{MAX_MAGNITUDE:g} ({why})")
     return a
 
 

@@ -6,9 +6,11 @@ handler; a handler calls one library function and prints what it returned.  How 
 user error, 130 for Ctrl-C, 128 + n for SIGTERM or SIGHUP, no traceback, nothing partial left — is
 servofmu.runtime's (run_command, finish).
 
-One rule for every output (docs/reliability.md, servofmu.fileio.claim_output): every ``-o`` of every subcommand is
-checked before any work — its folder exists and is writable, it is none of the command's inputs, and it does not
-exist yet unless ``--force`` (replace it) or the subcommand's ``--resume`` or ``--append`` is given.
+One rule for every output (docs/reliability.md, servofmu.claims): all outputs of a subcommand (every ``-o``,
+``--report``, ``--plant``, ...) are checked together before any work — its folder exists and is writable, no two are
+one file, none is one of the command's inputs (an example's name stands for its file) nor inside servofmu's own
+package, and it does not exist yet unless ``--force`` (replace it) or the subcommand's ``--resume`` or ``--append``
+is given.
 
 ``servofmu`` alone prints the usage and the list of subcommands on stderr and exits with status 2, as a command
 line without its subcommand is an incomplete one.
@@ -42,17 +44,34 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _claim_outputs(args) -> None:
-    """The output rule, before any work (see the module's docstring)."""
-    from ..fileio import claim_output
+    """The output rule, before any work, for all of the command's outputs together (see the module's docstring):
+    also no two outputs one file, and an input given by an example's name is the example file."""
+    from ..claims import claim_outputs, refuse_package_data
 
     inputs = []
     for dest in getattr(args, "inputs", ()):
         value = getattr(args, dest)
-        inputs += value if isinstance(value, list) else [value]
+        inputs += [_input_file(v) for v in (value if isinstance(value, list) else [value]) if v is not None]
+    if hasattr(args, "default_outputs"):  # outputs a command names after another one (select's SELECT.toml)
+        args.default_outputs(args)
+    options = getattr(args, "output_options", {})
+    outputs = {options.get(dest, f"--{dest}"): getattr(args, dest) for dest in getattr(args, "outputs", ())}
     can_continue = next((name for name in ("resume", "append") if hasattr(args, name)), None)
-    for dest in getattr(args, "outputs", ()):
-        if getattr(args, dest):
-            claim_output(getattr(args, dest), output_mode_of(args), inputs, can_continue)
+    claim_outputs(outputs, output_mode_of(args), inputs, can_continue)
+    for dest in getattr(args, "output_folders", ()):  # identify --output-dir, demo --out
+        if getattr(args, dest) is not None:
+            refuse_package_data(getattr(args, dest))
+
+
+def _input_file(value: str) -> str:
+    """An input as the file it names: a path, or an example's name (``axis_controller``) as its file."""
+    from pathlib import Path
+
+    if Path(value).suffix or Path(value).exists():
+        return value
+    from ..model.plant import example_files
+
+    return str(example_files().get(value, value))
 
 
 def _command(run: CommandRun, argv: list[str]) -> None:

@@ -12,19 +12,22 @@ __all__ = ["Parser", "DeprecatedAlias", "ProgressBar", "float_list", "add_progre
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports a bad command line in one line, and that knows a subcommand's files: every ``-o`` is
-    an output (``args.outputs`` names them; a subcommand with outputs gets ``--force``), every argument added with
-    ``role="input"`` an input (``args.inputs``), so that the one output rule is applied to them before any work."""
+    """argparse that reports a bad command line in one line, and that knows a subcommand's files: every ``-o`` and
+    every argument added with ``role="output"`` is an output (``args.outputs`` names them, ``args.output_options``
+    their options; a subcommand with outputs gets ``--force``), every argument added with ``role="input"`` an input
+    (``args.inputs``), so that the one output rule is applied to them together before any work."""
 
     def error(self, message):
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}\n")
 
     def add_argument(self, *flags, role: str | None = None, **kwargs):
         action = super().add_argument(*flags, **kwargs)
-        if "-o" in flags:
+        if "-o" in flags or role == "output":
             if not self.get_default("outputs"):
                 super().add_argument("--force", action="store_true", help="replace an existing output")
-            self.set_defaults(outputs=(*(self.get_default("outputs") or ()), action.dest))
+            self.set_defaults(outputs=(*(self.get_default("outputs") or ()), action.dest),
+                              output_options={**(self.get_default("output_options") or {}),
+                                              action.dest: "-o" if "-o" in flags else flags[0]})
         if role == "input":
             self.set_defaults(inputs=(*(self.get_default("inputs") or ()), action.dest))
         return action

@@ -18,4 +18,4 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help="the whole path on the paper's plants g1 and g2")
     p.add_argument("--out", default="demo-output", help="folder for the demo's files (default demo-output)")
     p.add_argument("--force", action="store_true", help="replace the demo's files in an existing --out folder")
-    p.set_defaults(func=cmd_demo)
+    p.set_defaults(func=cmd_demo, output_folders=("out",))

@@ -168,7 +168,7 @@ def _register_identify(sub) -> None:
                                                "this process)")
     p.add_argument("--resume", action="store_true", help="many data files: keep the results already in DIR from the "
                                                          "same data and settings, identify the others")
-    p.set_defaults(func=cmd_identify, quick_exit=True)
+    p.set_defaults(func=cmd_identify, quick_exit=True, output_folders=("output_dir",))
 
 
 def _register_compare(sub) -> None:

@@ -61,9 +61,17 @@ def register(sub) -> None:
     add_progress_option(p)
     p.add_argument("-o", "--output", required=True, help="SELECT.h5 to write: every candidate's result and the "
                                                          "ranking")
-    p.add_argument("--plant", metavar="CHOSEN.toml", help="the chosen structure's plant file (default: SELECT.toml)")
-    p.add_argument("--result", metavar="CHOSEN.h5", help="the chosen structure's result (default: "
+    p.add_argument("--plant", metavar="CHOSEN.toml", role="output", help="the chosen structure's plant file (default: SELECT.toml)")
+    p.add_argument("--result", metavar="CHOSEN.h5", role="output", help="the chosen structure's result (default: "
                                                           "SELECT-result.h5)")
-    p.add_argument("--report", metavar="PAGE.html", help="also write the HTML page: the ranking and the best "
+    p.add_argument("--report", metavar="PAGE.html", role="output", help="also write the HTML page: the ranking and the best "
                                                          "candidates' fits side by side")
-    p.set_defaults(func=cmd_select, outputs=("output", "plant", "report", "result"), quick_exit=True)
+    p.set_defaults(func=cmd_select, default_outputs=_default_outputs, quick_exit=True)
+
+
+def _default_outputs(args) -> None:
+    """SELECT.toml and SELECT-result.h5 where --plant and --result are not given: claimed with the others."""
+    from ..selection.run import selection_outputs
+
+    outputs = selection_outputs(args.output, args.plant, args.result)
+    args.plant, args.result = str(outputs["plant"]), str(outputs["result"])

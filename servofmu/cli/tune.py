@@ -57,7 +57,6 @@ def register(sub) -> None:
     add_work_limit_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", dest="output", metavar="TUNED.toml", required=True, help="controller file to write")
-    p.add_argument("--report", metavar="TUNE.html", help="HTML page of the tuning to write")
-    p.set_defaults(outputs=(*p.get_default("outputs"), "report"))
+    p.add_argument("--report", metavar="TUNE.html", role="output", help="HTML page of the tuning to write")
     add_progress_option(p)
     p.set_defaults(func=cmd_tune)

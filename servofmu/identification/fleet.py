@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import OutputExists, claim_output, file_sha256, holds_outputs
+from ..fileio import OutputExists, claim_output, claim_outputs, file_sha256, holds_outputs
 from ..model.plant import load_plant
 from ..runtime import RunOptions
 from ..simulation.parallel import Workers
@@ -113,6 +113,9 @@ def identify_files(data_files, structure_file, output_dir, ann_file=None, option
         if r in seen:
             raise UserError(f"{d} and {seen[r]} would both be identified into {r}: give data files distinct names")
         seen[r] = d
+    # no result over an input (a data file named like another's result): replaced or continued later, one by one
+    claim_outputs({f"the result of {d}": r for d, r in zip(data_files, results)}, "replace",
+                  inputs=(*data_files, structure_file, ann_file))
     structure = load_plant(structure_file)  # a bad structure or network fails once, here, not in every worker
     if ann_file is not None:
         from .ann import load_ann

@@ -270,6 +270,8 @@ def add_experiments(path: str | Path, results: Iterable[ExperimentResult]) -> No
     """Store finished experiments (one atomic rewrite for all of them)."""
     path = Path(path)
     results = list(results)
+    for r in results:  # the readers' bounds, before the first byte: a file no reader opens is never written
+        check_fields(path, experiment_group_name(r.index), r, why="not written")
 
     def edit(f):
         exps = f["experiments"]
@@ -305,6 +307,10 @@ def write_records(path: str | Path, records: list[Record], provenance: dict, app
     else:
         check_output_path(path, overwrite=overwrite)
         offset = 0
+    for i, r in enumerate(records):  # the readers' bounds, before the first byte: a file no reader opens (or an
+        # appended one whose good records are lost) is never written
+        check_fields(r.source or path, f"record {record_group_name(offset + i)}", r,
+                     why=f"not written to {path}: check the column and its scale")
 
     start_from = path if (append and path.exists()) else None
 

@@ -136,9 +136,10 @@ def read_fields(cls, g: h5py.Group, version: int, read_series: Callable):
     return cls(**values)
 
 
-def check_fields(path: Path, where: str, item) -> None:
+def check_fields(path: Path, where: str, item, why: str = "a damaged or foreign file") -> None:
     """Check the numbers of the dataclass ``item`` read from the group ``where`` of the file ``path`` as its
-    fields declare (fileio.check_values: a UserError naming the file and the item)."""
+    fields declare (fileio.check_values: a UserError naming the file and the item, ``why`` in parentheses); a
+    writer checks what it is about to write the same way."""
     for f in fields(item):
         how, value = _how(f), getattr(item, f.name)
         if value is None:
@@ -146,9 +147,9 @@ def check_fields(path: Path, where: str, item) -> None:
         if how.kind == SIGNALS:
             where_signals = where if how.inline else f"{where}/{f.name}"
             for name, signal in value.signals().items():
-                check_values(path, f"{where_signals}/{name}", signal, (value.time.size,))
+                check_values(path, f"{where_signals}/{name}", signal, (value.time.size,), why=why)
         elif how.kind == NESTED:
-            check_fields(path, where, value)
+            check_fields(path, where, value, why)
         elif how.check is not None:
             check_values(path, f"{where}/{f.name}", value, () if how.kind == ATTRIBUTE else (None,),
-                         finite=how.check == FINITE)
+                         finite=how.check == FINITE, why=why)

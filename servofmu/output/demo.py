@@ -28,7 +28,8 @@ from ..measurement.records import LoopChannels, import_records
 from ..runtime import RunOptions
 from ..model.plant import load_plant
 from .compensation_report import compensate_files, compensation_text
-from ..fileio import OutputExists, file_sha256
+from ..claims import refuse_package_data
+from ..fileio import OutputExists, file_sha256, staged_folder
 from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
@@ -53,23 +54,28 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
     """The whole path for g1 and g2: build → measure → dataset → train → identify → report → export → re-measure.
 
     ``out`` is the demo's folder: a folder that exists and is not empty is refused unless ``overwrite`` (the demo's
-    files in it are then replaced).  ``report`` receives one line (or table) of progress at a time.  Returns per
+    files in it are then replaced, all together when the demo ends: a demo stopped or failing before leaves the
+    folder as it was).  ``report`` receives one line (or table) of progress at a time.  Returns per
     plant the identification result.
     """
     out = Path(out)
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise OutputExists(out)  # a folder that is not empty: the rule of every output
-    out.mkdir(parents=True, exist_ok=True)
-    command = f"servofmu demo --out {out}"
+    refuse_package_data(out)
+    with staged_folder(out) as work:  # all of the demo's files, or none: a stopped demo leaves the old ones
+        return _demo(work, lambda line: report(line.replace(str(work), str(out))), samples,
+                     f"servofmu demo --out {out}", out)
+
+
+def _demo(out: Path, report: Callable[[str], None], samples: int, command: str, final: Path) -> dict:
+    """:func:`run_demo` into the folder ``out`` (its staging folder); the results name their data in ``final``,
+    where it will be."""
     results = {}
     for name in DEMO_PLANTS:
         plant = load_plant(name)
         amplitudes, frequencies = DEMO_PLANS[name]
         fmu = build_fmu(plant, out / f"{name}.fmu", fmi_version=3, overwrite=True)
         report(f"built {fmu}")
-        # the demo's own outputs of an earlier run are replaced: the FMU is new
-        for suffix in (".h5", "-ds.h5", "-remeasured.h5"):
-            (out / f"{name}{suffix}").unlink(missing_ok=True)
         data_file = out / f"{name}.h5"
         data = measure(fmu, data_file, amplitudes=amplitudes, frequencies=frequencies,
                        run=RunOptions(command=command))
@@ -91,7 +97,7 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
         report(f"trained {out / f'{name}-ann.h5'} on {rows} simulated plants ({time.perf_counter() - t0:.1f} s)")
         ann = AnnModel(*load_network(out / f"{name}-ann.h5"), source=str(out / f"{name}-ann.h5"))
         est = PSOANNIdentifier(plant, ann=ann, seed=0).fit(sines)
-        result = result_from_estimator(est, "pso-ann", {"data_file": str(data_file),
+        result = result_from_estimator(est, "pso-ann", {"data_file": str(final / data_file.name),
                                                         "data_sha256": file_sha256(data_file), "command": command})
         write_result(out / f"{name}-result.h5", result, overwrite=True)
         results[name] = result
@@ -104,7 +110,7 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
                          command=command)
         report(f"exported {trip.fmu} and re-measured it: largest |H − H_data|/|H_data| {trip.max_H_error:.2e} "
                f"(identification residual {result.fitness:.2e})")
-    results["axis"] = run_closed_loop_demo(out, report, command)
+    results["axis"] = run_closed_loop_demo(out, report, command, final)
     return results
 
 
@@ -169,11 +175,13 @@ def write_drive_log(result, path: Path, seed: int) -> Path:
     return path
 
 
-def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str = ""):
+def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str = "",
+                         final: Path | None = None):
     """An inclined linear_axis with axis_controller: system with test pulses → co-simulation (libcosim) with a
     1 µm encoder and actuator noise → written as a drive's log (volts, its own clock) and imported → closed-loop
     identification → validation on a second log → friction compensation → the drive's gains tuned on the
-    identified model and checked on the axis.  Returns the result."""
+    identified model and checked on the axis.  Returns the result (whose provenance names its data in ``final``,
+    where the files will be, when it is given)."""
     axis_file = out / "axis.toml"
     axis_file.write_text(load_plant("linear_axis").to_toml().replace('name = "linear_axis"', 'name = "inclined_linear_axis"')
                          + DEMO_AXIS_LOAD)
@@ -201,7 +209,7 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
                f"error RMS {np.sqrt(np.mean(error ** 2)):.3g} m")
     data = closed_loop_data(runs["identify"], controller)
     est = PSOANNIdentifier(plant, method="pso", seed=0).fit(data)
-    provenance = {"data_file": str(out / "axis-identify.h5"), "data_sha256": file_sha256(out / "axis-identify.h5"),
+    provenance = {"data_file": str((final or out) / "axis-identify.h5"), "data_sha256": file_sha256(out / "axis-identify.h5"),
                   "controller_file": str(controller.source), "command": command}
     result = est.result(provenance)
     write_result(out / "axis-result.h5", result, overwrite=True)

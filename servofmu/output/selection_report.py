@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_write, claim_output, output_mode
+from ..fileio import all_or_none, atomic_write, claim_outputs, holds_outputs, output_mode
 from ..measurement.datafile import read_data_file
 from ..runtime import RunOptions, utc_now
-from ..selection.run import Selection, select_files
+from ..selection.run import Selection, select_files, selection_outputs
 from ..selection.summary import rough_warning
 from ..selection.select import STRONG_EVIDENCE, SelectOptions
 from ..selection.validation import VALIDATION_LEVEL
@@ -117,6 +117,7 @@ def selection_page(selection: Selection) -> str:
     return page(title, parts)
 
 
+@holds_outputs
 def select_with_report(data_files: Sequence[str | Path], validation_file: str | Path, output: str | Path,
                        options: SelectOptions | None = None, run: RunOptions | None = None,
                        plant_output: str | Path | None = None, result_output: str | Path | None = None,
@@ -137,10 +138,12 @@ def select_with_report(data_files: Sequence[str | Path], validation_file: str | 
         The ranked candidates and the outputs written.
     """
     run = run or RunOptions()
-    if report is not None:
-        claim_output(report, output_mode(run.overwrite), inputs=(*data_files, validation_file))
-    selection = select_files(data_files, validation_file, output, options, run, plant_output, result_output)
-    if report is not None:
-        atomic_write(report, selection_page(selection))
-        selection = replace(selection, outputs={**selection.outputs, "report": str(report)})
+    outputs = claim_outputs({**selection_outputs(output, plant_output, result_output), "report": report},
+                            output_mode(run.overwrite), inputs=(*data_files, validation_file,
+                                                                options.closed_loop if options else None))
+    with all_or_none(outputs.values()):  # the selection's files and its page, or none of them
+        selection = select_files(data_files, validation_file, output, options, run, plant_output, result_output)
+        if report is not None:
+            atomic_write(report, selection_page(selection))
+            selection = replace(selection, outputs={**selection.outputs, "report": str(report)})
     return selection

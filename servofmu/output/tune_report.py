@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..fileio import atomic_write, claim_output, output_mode
+from ..fileio import all_or_none, atomic_write, claim_outputs, output_mode
 from ..identification.results import read_result
 from ..model.controller import FILTERS, controller_toml, load_controller
 from ..runtime import WORK_LIMIT_HOURS, utc_now
@@ -244,13 +244,13 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
     """Tune the controller file ``controller`` for the result file ``result`` and write the tuned controller file
     ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``seed``, ``particles`` and
     ``iterations``: the swarm's, ``keep``: the undetermined parameters taken at their identified values,
-    ``work_limit``: the hours the swarm may be estimated at (servofmu.tuning.search.TuneOptions).  Nothing is written when the tuning fails."""
+    ``work_limit``: the hours the swarm may be estimated at (servofmu.tuning.search.TuneOptions).  Nothing is
+    written when the tuning fails."""
     options = TuneOptions(max_sensitivity=max_sensitivity, seed=seed, particles=particles,
-                          iterations=iterations, keep=tuple(keep), work_limit=work_limit)  # a bad bound: refused before any work
-    mode = output_mode(overwrite)
-    inputs = (result, controller, task, axis)
-    output = claim_output(output, mode, inputs=inputs)
-    report = claim_output(report, mode, inputs=inputs) if report is not None else None
+                          iterations=iterations, keep=tuple(keep), work_limit=work_limit)  # refused before any work
+    claimed = claim_outputs({"output": output, "report": report}, output_mode(overwrite),
+                            inputs=(result, controller, task, axis))
+    output, report = claimed["output"], claimed.get("report")
     spec = load_controller(controller)
     tuning = tune_axis(read_result(result), spec, load_task(task, stroke, speed, spec.sample_time), options,
                        method=method, compensate=compensate, axis=axis, engine=engine, progress=progress,
@@ -261,7 +261,8 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
             f"gain margin {run.loop.summary()['gain_margin_db']:.2f} dB, phase margin {run.loop.phase_margin:.1f} "
             f"deg; RMS tracking error on the model {run.figures.rms_error:.4g} m "
             f"(given gains {tuning.runs['given'].figures.rms_error:.4g} m).")
-    atomic_write(output, controller_toml(tuning.controller, note))
-    if report is not None:
-        atomic_write(report, tune_html(tuning, Path(result).name, Path(controller).name))
+    with all_or_none((output, report)):  # the controller file and its page, or neither
+        atomic_write(output, controller_toml(tuning.controller, note))
+        if report is not None:
+            atomic_write(report, tune_html(tuning, Path(result).name, Path(controller).name))
     return tuning

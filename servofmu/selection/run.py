@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, check_int
-from ..fileio import claim_output, file_sha256, holds_outputs, output_mode
+from ..fileio import all_or_none, claim_outputs, file_sha256, holds_outputs, output_mode
 from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
@@ -108,10 +108,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
     options, run = options or SelectOptions(), run or RunOptions()
     inputs = (*data_files, validation_file, options.closed_loop)
     outputs = selection_outputs(output, plant_output, result_output)
-    for path in outputs.values():
-        claim_output(path, output_mode(run.overwrite), inputs=inputs)
-    if len({p.resolve() for p in outputs.values()}) < len(outputs):
-        raise UserError(f"{output}: the selection, the plant file and the result must be three different files")
+    claim_outputs(outputs, output_mode(run.overwrite), inputs=inputs)
     candidates = _check_options(options)
     if any(Path(d).is_file() and Path(validation_file).is_file() and file_sha256(d) == file_sha256(validation_file)
            for d in data_files):
@@ -170,7 +167,8 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                           roughness=roughness, horizon=share, roughness_whole=whole,
                           horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan,
                           ranked_share=ranked_share, final=final)
-    return write_selection(selection, outputs)
+    with all_or_none(outputs.values()):  # its three files, or none
+        return write_selection(selection, outputs)
 
 
 # The fitted samples (all records together) the candidates of a selection are ranked on at most (shortening.shortened:
