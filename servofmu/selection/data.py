@@ -14,7 +14,7 @@ from ..identification.shortening import first_share
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, read_data_file
 from ..measurement.duplicates import file_items, refuse_repeats
-from ..simulation.batch import BatchSimulator, RecordResponse, valid_parameter_sets
+from ..simulation.batch import BatchSimulator, RecordResponse, SteadyStateOptions, valid_parameter_sets
 from ..simulation.closed_loop import LoopSimulator
 from .estimate import Series, series_of_experiments, series_of_records
 
@@ -159,6 +159,21 @@ def _refuse_still(data, where: str) -> None:
                             "it moves")
 
 
+class FlooredSineSimulator(BatchSimulator):
+    """The batch simulator whose stepped-sine runs keep a tolerance of at least ``rtol_floor`` (a screening fit's;
+    the periods compared to a tenth of it, as the identifier's settings do)."""
+
+    stopped = 0
+    rtol_floor = 0.0
+
+    def steady_state(self, params, amplitudes, frequencies, options: SteadyStateOptions = SteadyStateOptions(),
+                     progress=None, start=None):
+        """As :meth:`BatchSimulator.steady_state`, at a tolerance of at least ``rtol_floor``."""
+        if options.rtol < self.rtol_floor:
+            options = replace(options, rtol=self.rtol_floor, tol=min(max(self.rtol_floor / 10, 1e-10), 1e-6))
+        return BatchSimulator.steady_state(self, params, amplitudes, frequencies, options, progress, start)
+
+
 class BoundedSimulator(BatchSimulator):
     """The batch simulator with a step budget on every record: steps_per_sample(rtol) integrator steps per sample, a run
     that needs more stopped and its response NaN (a candidate far from the data: the search scores it infinite,
@@ -210,7 +225,7 @@ def criterion_for(structure, data, threads: int | None = None):
     """The identifier's criterion of ``structure`` on ``data``, records and loops simulated within the step budget
     (BoundedSimulator, BoundedLoopSimulator)."""
     if isinstance(data, SineData):
-        return SineCriterion(structure, data, BatchSimulator(structure, threads=threads))
+        return SineCriterion(structure, data, FlooredSineSimulator(structure, threads=threads))
     if isinstance(data, RecordData):
         return RecordCriterion(structure, data, BoundedSimulator(structure, threads=threads))
     return ClosedLoopCriterion(structure, data, BoundedLoopSimulator(structure, threads=threads))

@@ -126,7 +126,7 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                   "data_sha256": ", ".join(f.sha256 for f in files),  # of the bytes read and fitted
                   "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
-    screen = options.screen and data_kind(data) != "sine"
+    screen = options.screen
     whole_job = CandidateJob(candidates[0], None, data, validation, options,
                              None if run.scheduler is None and run.workers == 0 else 1, provenance,
                              mode="screen" if screen else "full")
@@ -201,6 +201,19 @@ SHORTEST_SHARE = 1 / 8
 EARLY_ROUGH_RISE = 5 * ROUGH_RISE
 
 
+def _load_starts(first: CandidateScore, data) -> dict:
+    """The second stage's starts (starts.load_starts) the data can rank: on stepped sines none that depend on the
+    position — at zero force a spring leaves the position drifting, with no periodic steady state to converge to
+    (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
+    selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
+    searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
+    (starts.spring_starts)."""
+    starts = load_starts(first)
+    if data_kind(data) == "sine":
+        starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
+    return starts
+
+
 def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files, run: RunOptions,
             stop_if_rough: bool = False) -> tuple[list[CandidateScore], float, bool]:
     """Every candidate fitted and scored on ``job``'s data and validation, in the selection's rounds: the first
@@ -224,7 +237,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     leader = rank(scores)[0]
     reduced, loads = _fit_groups(pool, [
         (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
-        (seeded, load_starts(leader) if default else {})], run, len(scores))
+        (seeded, _load_starts(leader, data) if default else {})], run, len(scores))
     scores = _keep_better(scores, reduced)
     springs = spring_starts(scores) if default else {}
     if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
@@ -233,7 +246,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     scores = _with_new(_keep_better(scores, loads), loads)
     if default and first.status == "fitted" and load_candidates(first.candidate):
         if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
-            loads = _fit_all(pool, seeded, load_starts(first), run, [])
+            loads = _fit_all(pool, seeded, _load_starts(first, data), run, [])
             scores = _with_new(_keep_better(scores, loads), loads)
         laws = nested_law_starts(load_leader(scores), scores, speeds)
         if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)

@@ -1,6 +1,9 @@
-"""A drive's log that does not match its controller file (issue class 1 of the third probe): the file's law, fed the
-log's own reference and encoder, must give the logged command — a wrong gain, delay, encoder quantum or a reference
-out of step is refused in one line naming the key the log fits instead; the right file passes silently."""
+"""The third probe's closed-loop classes: a drive's log that does not match its controller file (class 1: the file's
+law, fed the log's own reference and encoder, must give the logged command — a wrong gain, delay, encoder quantum or
+a reference out of step is refused in one line naming the key the log fits instead; the right file passes silently;
+tune refuses an undetermined parameter unless told to keep it) and absurd work refused up front (class 6: a search
+whose options multiply to days is estimated — its evaluations times the measured time of one — and refused in one
+line naming the estimate and the option that raises the bound; nothing is written)."""
 from __future__ import annotations
 
 import warnings
@@ -14,10 +17,12 @@ import servofmu as sf
 from servofmu.errors import ServofmuWarning, UserError
 from servofmu.identification.closed_loop import check_law
 from servofmu.identification.law_check import LAW_WARNED, law_command, law_fit
-from servofmu.model.controller import controller_from_dict, load_controller
+from servofmu.identification.results import write_result
+from servofmu.model.controller import controller_from_dict, controller_toml, load_controller
 from servofmu.simulation.closed_loop import LoopSimulator
 
 from test_drive_logs import CONTROLLER, FORCE_CONSTANT, IMPORT, STRUCTURE, drive_log, reference_and_pulses, write_log
+from test_tune import fake_result
 
 AXIS = {"name": "axis", "sample_time": 1e-3, "delay": 1, "position": {"kp": 40.0},
         "velocity": {"kp": 18850.0, "ki": 710000.0}, "output": {"limit": 3000.0}, "encoder": {"resolution": 1e-6}}
@@ -54,7 +59,7 @@ def _simulated_log(controller, seconds=1.5, pulses=True):
                       "fv": 20.0}},
     {"encoder": {"resolution": 0.0}, "velocity": {"kp": 9000.0, "ki": 0.0}},
 ])
-def test_the_law_in_numpy_reproduces_the_simulators_C_law(changes):
+def test_c1_the_law_in_numpy_reproduces_the_simulators_C_law(changes):
     controller = _drive(**changes)
     r, x, command, d = _simulated_log(controller)
     own, delay = command - d, int(controller["delay"])
@@ -73,7 +78,7 @@ def test_the_law_in_numpy_reproduces_the_simulators_C_law(changes):
     ({"encoder": {"resolution": 1e-3}}, "encoder.resolution", "1e-06"),
     ({"encoder": {"resolution": 1e99}}, "encoder.resolution", "1e-06"),
 ])
-def test_a_wrong_key_is_refused_naming_the_value_the_log_fits(wrong, key, logged):
+def test_c1_a_wrong_key_is_refused_naming_the_value_the_log_fits(wrong, key, logged):
     r, x, command, d = _simulated_log(_drive())
     fit = law_fit(_drive(**wrong), r, x, command, d)
     assert fit.verdict() == "refuse" and fit.key == key and fit.logged == logged, fit
@@ -82,7 +87,7 @@ def test_a_wrong_key_is_refused_naming_the_value_the_log_fits(wrong, key, logged
 
 
 @pytest.mark.parametrize("shift", [50, -50, 7])
-def test_a_reference_out_of_step_with_the_encoder_is_named(shift):
+def test_c1_a_reference_out_of_step_with_the_encoder_is_named(shift):
     r, x, command, d = _simulated_log(_drive())
     moved = np.concatenate([r[shift:], np.full(shift, r[-1])]) if shift > 0 else \
         np.concatenate([np.full(-shift, r[0]), r[:shift]])
@@ -91,7 +96,7 @@ def test_a_reference_out_of_step_with_the_encoder_is_named(shift):
     assert fit.logged == f"{abs(shift)} samples {'earlier' if shift > 0 else 'later'} than logged"
 
 
-def test_an_independent_drive_log_passes_silently_with_its_file_and_is_refused_with_a_doubled_gain(tmp_path):
+def test_c1_an_independent_drive_log_passes_silently_with_its_file_and_is_refused_with_a_doubled_gain(tmp_path):
     """The drive of test_drive_logs (its cascade in volts, written there in plain Python) through import."""
     log = drive_log(*reference_and_pulses(1.0, 5), seed=5, encoder=1e-6, noise=2.0)
     write_log(tmp_path / "log.csv", log)
@@ -113,7 +118,7 @@ def test_an_independent_drive_log_passes_silently_with_its_file_and_is_refused_w
     assert FORCE_CONSTANT * 60.0 == kv  # the volt drive's gain, in N/(m/s)
 
 
-def test_a_rough_match_is_a_warning_not_a_refusal():
+def test_c1_a_rough_match_is_a_warning_not_a_refusal():
     """A command logged through the drive's own noise (a measured current, say): a few per cent off the law."""
     r, x, command, d = _simulated_log(_drive())
     noisy = command + 0.05 * np.std(command - d) * np.random.default_rng(0).standard_normal(command.size)
@@ -123,14 +128,10 @@ def test_a_rough_match_is_a_warning_not_a_refusal():
     assert wrong.verdict() in ("warn", "refuse") and (wrong.key, wrong.logged) == ("delay", "1"), wrong
 
 
-def test_tune_refuses_an_undetermined_parameter_unless_told_to_keep_it(tmp_path):
+def test_c1_tune_refuses_an_undetermined_parameter_unless_told_to_keep_it(tmp_path):
     """A result whose fc_neg interval is infinite (the data did not separate it): refused naming it; with --keep it
     is tuned at its identified value, and the tuned controller equals the one of a result where its interval has
     width 0 (the same uncertainty set)."""
-    from test_tune import fake_result
-
-    from servofmu.identification.results import write_result
-
     plant = sf.load_plant("linear_axis")
     result = fake_result(plant)
     names = list(result.names)
@@ -150,3 +151,42 @@ def test_tune_refuses_an_undetermined_parameter_unless_told_to_keep_it(tmp_path)
     assert run("tune", tmp_path / "point.h5", *rule, "-o", tmp_path / "p.toml").returncode == 0
     kept, pointed = load_controller(tmp_path / "t.toml"), load_controller(tmp_path / "p.toml")
     assert kept.values == pointed.values
+
+
+def _closed_loop_log(folder):
+    """A short closed-loop log of linear_axis in the docs/control.md drive, as a records file."""
+    controller = _drive()
+    r, x, command, d = _simulated_log(controller, seconds=0.5)
+    t = np.arange(r.size) * controller.sample_time
+    np.savetxt(folder / "log.csv", np.column_stack([t, r, x, command, d]), delimiter=",",
+               header="t,ref,enc,out,pulse", comments="", fmt="%.17g")
+    assert run("import", folder / "log.csv", "--time", "t", "--reference", "ref", "--output-variable", "enc",
+               "--kind", "position", "--input", "out", "--disturbance", "pulse",
+               "-o", folder / "log.h5").returncode == 0
+    (folder / "drive.toml").write_text(controller_toml(controller))
+    return folder / "log.h5"
+
+
+def test_c6_searches_estimated_at_years_are_refused_and_the_limit_can_be_raised(tmp_path):
+    log = _closed_loop_log(tmp_path)
+    DRIVE = tmp_path / "drive.toml"  # noqa: N806 (the drive of the log, as a file)
+    out = tmp_path / "out.h5"
+    proc = run("identify", log, "--structure", "linear_axis", "--closed-loop", DRIVE, "--iterations",
+               "1000000000", "-o", out)
+    assert_one_line_error(proc, "the search (10 particles × 1000000000 iterations", "years on this machine",
+                          "--work-limit 8 h", "fewer --iterations")
+    proc = run("select", log, "--validate", log, "--closed-loop", DRIVE, "--budget", "1e9", "-o", out)
+    assert_one_line_error(proc, "candidates' swarms of up to --budget 1e+09 s each", "--work-limit")
+    assert_one_line_error(run("identify", log, "--structure", "linear_axis", "--closed-loop", DRIVE,
+                              "--work-limit", "0", "-o", out), "--work-limit must be a positive number of hours")
+    assert not out.exists()
+    write_result(tmp_path / "r.h5", fake_result(sf.load_plant("linear_axis")))
+    proc = run("tune", tmp_path / "r.h5", "axis_controller", "--stroke", "0.02", "--speed", "0.05", "--particles",
+               "10000", "--iterations", "100000", "-o", tmp_path / "t.toml")
+    assert_one_line_error(proc, "the tuning's swarm (10000 particles × 100000 iterations on 7 plants)",
+                          "fewer --particles or --iterations")
+    assert not (tmp_path / "t.toml").exists()
+    # the estimate is a bound the user may raise: a search just past a tiny limit runs once it is raised
+    proc = run("identify", log, "--structure", "linear_axis", "--closed-loop", DRIVE, "--iterations",
+               "3000", "--work-limit", "1e-6", "-o", out)
+    assert_one_line_error(proc, "the search (10 particles × 3000 iterations")
