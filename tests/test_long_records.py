@@ -120,3 +120,16 @@ def test_the_batched_newey_west_covariance_is_the_segment_by_segment_one(color, 
     blocks = [slice(0, n), slice(n, 2 * n)]
     expected = _newey_west_segment_by_segment(e, jac, blocks, concurrent)
     assert np.allclose(newey_west_covariance(e, jac, blocks, concurrent), expected, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("n, q", [(600_000, 57), (6000, 5), (1001, 7), (192, 3)])
+def test_the_decimator_is_scipys_resample_poly_to_rounding(n, q):
+    """The reduced rate's low-pass and decimation, computed at the kept samples only, against scipy.signal."""
+    from scipy.signal import resample_poly
+
+    from servofmu.identification.shortening import KAISER_BETA, _decimated
+
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.standard_normal(n)) + 3.0 * np.sin(np.arange(n) / 50.0) + 7.0
+    expected = resample_poly(x, 1, q, window=("kaiser", KAISER_BETA), padtype="line")
+    np.testing.assert_allclose(_decimated(x, q), expected, rtol=0, atol=1e-12 * np.max(np.abs(expected)))

@@ -15,9 +15,9 @@ import math
 
 import numpy as np
 
-from .criterion import POLISH_RTOL
+from .criterion import JACOBIAN_STEP, POLISH_RTOL
 
-__all__ = ["ROUGH_RISE", "neg2loglik", "curvature", "response_roughness", "rough_line", "finite_covariance"]
+__all__ = ["ROUGH_RISE", "neg2loglik", "curvature", "curvature_at", "response_roughness", "rough_line", "finite_covariance"]
 
 # The rise of −2·ln L at one standard error that marks a fit's response as chaotic in its parameters: a quadratic
 # cost rises by 1; the fits of bench_select's plants without a second-order ripple by a median of 1.15 (198 of 200
@@ -62,14 +62,28 @@ def curvature(jacobian: np.ndarray, blocks: list[slice], residuals: np.ndarray) 
     return info if np.all(np.isfinite(info)) else None
 
 
+def curvature_at(crit, theta: np.ndarray, rtol: float = POLISH_RTOL) -> np.ndarray | None:
+    """:func:`curvature` of ``crit`` at ``theta`` from its own forward-difference Jacobian in the parameters (one
+    batch of p + 1 simulations): the curvature of another criterion than the polish's (a long record's at its
+    reduced rate)."""
+    theta = np.asarray(theta, dtype=float)
+    h = JACOBIAN_STEP * np.where(theta != 0, np.abs(theta), 1.0)
+    with np.errstate(all="ignore"):
+        rows = crit.residuals(np.vstack([theta, theta + np.diag(h)]), rtol)
+    jacobian = ((rows[1:] - rows[0]) / h[:, None]).T
+    return curvature(jacobian, crit.blocks, rows[0]) if np.all(np.isfinite(jacobian)) else None
+
+
 def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH_RTOL,
-                       information: np.ndarray | None = None) -> float:
+                       information: np.ndarray | None = None, centred: bool = False) -> float:
     """The largest rise of −2·ln L (every signal's variance estimated) of ``crit``'s data from ``theta`` over
     steps of one standard error along each parameter's profile direction, ±C·e_k/√C_kk — about 1 for a locally
     quadratic cost, at least 1 where parameters of NaN variance are left out.  With the cost's Gauss–Newton
     ``information`` (:func:`curvature`) each step is scaled to where the quadratic rises by exactly 1: the
     Newey–West covariance of coloured residuals (a real axis's model error, correlated over hundreds of samples)
     is wider than the curvature says, and its standard error alone raised a regular fit of a drive's log by 550.
+    ``centred``: ``theta`` is not ``crit``'s own minimum (a long record's fit scored on its reduced rate), so the
+    rises at ±step differ by the gradient's term 2·gᵀs: their mean, the quadratic's part, is taken per parameter.
     NaN for stepped-sine criteria (no trajectory), a covariance that is missing or not finite, or steps that
     cannot be simulated."""
     if covariance is None or getattr(crit, "blocks", None) is None:
@@ -91,6 +105,8 @@ def response_roughness(crit, theta: np.ndarray, covariance, rtol: float = POLISH
         errors = crit.simulate_errors(rows, rtol)
     values = np.array([neg2loglik([e[i] for e in errors])[0] for i in range(rows.shape[0])])
     rises = values[1:] - values[0]
+    if centred:
+        rises = (rises[:live.size] + rises[live.size:]) / 2
     rises = rises[np.isfinite(rises)]
     return float(np.max(rises)) if rises.size and np.isfinite(values[0]) else math.nan
 

@@ -52,6 +52,7 @@ from ..runtime import WORK_LIMIT_HOURS
 from .candidates import Candidate, spring_form
 from .data import criterion_for, data_kind, without_quantiser
 from .period import SEARCHED_PERIOD, continued_start, ripple_start
+from .screening import screen_bound, screening_jacobian
 from .validation import SCREEN_RTOL, validation_allowance, validation_margin
 
 __all__ = ["SelectOptions", "CandidateJob", "CandidateScore", "fit_candidate", "start_neg2loglik", "rank",
@@ -385,7 +386,7 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
     # the reachable drop is the same in any coordinates, and the search's are finite where a Stribeck bump has
     # collapsed (fs = fc: the parameters' Jacobian is not, and a bound of −inf sent every such fit to the full
     # polish — on coulomb1_fv seed 3 seven of them, one for 9.9 s, 3500 above the first by BIC)
-    bound = screen_bound(*_weighted_jacobian(est.search_jacobian_, crit, job.data),
+    bound = screen_bound(*screening_jacobian(est.search_jacobian_, crit, job.data),
                          [e for _, e in fitted]) + penalty if job.mode == "screen" else math.nan
     undetermined = _undetermined(result)
     allowance = math.nan if undetermined or crit.blocks is None else validation_allowance(
@@ -403,35 +404,6 @@ def _fitted(job: CandidateJob, start: float) -> CandidateScore:
         information=curvature(est.jacobian_, crit.blocks, np.concatenate([e / w for (_, e), w in
                                                                           zip(fitted, crit.scales)]))
         if crit.blocks is not None and est.jacobian_ is not None else None)
-
-
-def _weighted_jacobian(jacobian, crit, data) -> tuple[np.ndarray | None, np.ndarray]:
-    """The search's Jacobian of the criterion's residuals and the weight of each of its rows, in the rows of the
-    output errors of _signal_errors: per signal its scale (records), the response phasors' rows with |H| each
-    (stepped sines; their mean velocities are not among the errors)."""
-    if jacobian is None:
-        return None, np.ones(0)
-    if isinstance(data, SineData):
-        scale = np.abs(data.H).ravel()
-        return jacobian[:2 * scale.size], np.concatenate([scale, scale])
-    return jacobian, np.concatenate([np.full(n, s) for n, s in zip(
-        [b.stop - b.start for b in crit.blocks], crit.scales)]) if crit.blocks is not None else np.ones(0)
-
-
-def screen_bound(jacobian: np.ndarray, weights: np.ndarray, errors: list[np.ndarray]) -> float:
-    """The lowest −2·ln L a polish could reach from a fit by the Gauss–Newton model: every signal's RSS after one
-    full Gauss–Newton step on its output errors (``errors`` at the fit; ``jacobian`` the polish's last, of the
-    residuals weighted by 1/``weights`` row by row, in any coordinates).  At a converged fit it is the fit's own
-    −2·ln L less a fraction of one; far from a minimum, what the linearised model promises there."""
-    r = np.concatenate(errors)
-    if jacobian is None or not (np.all(np.isfinite(r)) and np.all(np.isfinite(jacobian))) or \
-            jacobian.shape[0] != r.size or weights.size != r.size:
-        return -math.inf  # no Jacobian to bound it by: it could be anything
-    jac = jacobian * weights[:, None]
-    step = np.linalg.lstsq(jac, r, rcond=None)[0]
-    left = r - jac @ step
-    sizes = np.cumsum([x.size for x in errors])[:-1]
-    return neg2loglik(np.split(left, sizes))[0]
 
 
 def could_win(score: CandidateScore, chosen: CandidateScore) -> bool:
