@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError, name_problem
+from ..text_digest import checked_text
 from .friction import viscous_damping
 from .plant import Plant
 
@@ -220,7 +221,7 @@ def load_controller(path: str | Path) -> ControllerSpec:
         else:
             raise ControllerError(f"{path}: no such controller file")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(checked_text(path, path.read_text()))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ControllerError(f"{path}: not a valid TOML file ({exc})") from exc
     return controller_from_dict(data, source=str(path))

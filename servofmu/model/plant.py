@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
+from ..text_digest import checked_text
 
 __all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "state_scale", "bristle_nominal",
            "load_plant", "plant_from_dict",
@@ -435,7 +436,7 @@ def load_plant(plant: str | Path) -> Plant:
     """
     path = resolve_plant_path(plant)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(checked_text(path, path.read_text()))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlantError(f"{path}: not a valid TOML file ({exc})") from exc
     if "sample_time" in data and "linear" not in data:  # a mix-up worth naming: the keys would be "unknown"

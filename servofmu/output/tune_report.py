@@ -17,6 +17,7 @@ from ..fileio import all_or_none, atomic_write, claim_outputs, output_mode
 from ..identification.results import read_result
 from ..model.controller import FILTERS, controller_toml, load_controller
 from ..runtime import WORK_LIMIT_HOURS, utc_now
+from ..text_digest import with_digest
 from ..tuning.run import Tuning, tune_axis
 from ..tuning.search import TuneOptions
 from ..tuning.task import Task, stroke_task, task_from_csv
@@ -262,7 +263,7 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
             f"deg; RMS tracking error on the model {run.figures.rms_error:.4g} m "
             f"(given gains {tuning.runs['given'].figures.rms_error:.4g} m).")
     with all_or_none((output, report)):  # the controller file and its page, or neither
-        atomic_write(output, controller_toml(tuning.controller, note))
+        atomic_write(output, with_digest(controller_toml(tuning.controller, note)))
         if report is not None:
             atomic_write(report, tune_html(tuning, Path(result).name, Path(controller).name))
     return tuning

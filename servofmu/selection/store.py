@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import atomic_write, store_array, write_hdf5
+from ..text_digest import with_digest
 from ..identification.results import write_comparison, write_result
 from ..identification.roughness import ROUGH_RISE
 from ..runtime import temporary_folder
@@ -75,7 +76,7 @@ def write_selection(selection: Selection, outputs: dict[str, Path]) -> Selection
         plant = replace(chosen.result.plant, name="selected")
         header = (f"# chosen by servofmu select: {chosen.name} (rank 1 of {len(selection.scores)}; BIC "
                   f"{chosen.bic:.6g}); identified from {', '.join(selection.data_files)}\n")
-        atomic_write(outputs["plant"], header + plant.to_toml())
+        atomic_write(outputs["plant"], with_digest(header + plant.to_toml()))
         write_result(outputs["result"], chosen.result, overwrite=True)  # claimed before any work
         written.update(plant=str(outputs["plant"]), result=str(outputs["result"]))
     return replace(selection, outputs=written)

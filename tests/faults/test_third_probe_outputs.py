@@ -213,3 +213,40 @@ def test_t5_a_stopped_demo_leaves_its_old_folder(tmp_path):
     assert {p.name: p.read_bytes() for p in (work / "D").iterdir()} == old
     assert_one_line(err, proc.returncode, 143, "terminated (SIGTERM)")
     assert sorted(p.name for p in work.iterdir()) == ["D"]
+
+
+@pytest.mark.parametrize("kind", ["tuned controller", "chosen plant"])
+def test_t3_every_flipped_bit_of_a_written_toml_file_is_reported_or_harmless(tmp_path, kind):
+    """The TOML files select and tune write end with a digest line: one bit flipped anywhere in them is refused
+    in one line naming the file, or — in the digest line's own words — leaves the settings read exactly as
+    written; never another valid number read silently."""
+    from servofmu.errors import UserError
+    from servofmu.model.controller import controller_toml, load_controller
+    from servofmu.model.plant import load_plant
+    from servofmu.text_digest import with_digest
+
+    if kind == "tuned controller":
+        text, read = with_digest(controller_toml(load_controller("axis_controller"), "tuned by servofmu tune")), \
+            lambda p: load_controller(p).values
+    else:
+        text, read = with_digest("# chosen by servofmu select\n" + load_plant("g1").to_toml()), \
+            lambda p: load_plant(p).parameter_vector().tolist()
+    good = tmp_path / "good.toml"
+    good.write_text(text)
+    expected = read(good)
+    data, path = text.encode(), tmp_path / "flipped.toml"
+    outcomes = {"reported": 0, "harmless": 0}
+    for i in range(len(data)):
+        for bit in range(8):
+            flipped = bytearray(data)
+            flipped[i] ^= 1 << bit
+            path.write_bytes(bytes(flipped))
+            try:
+                got = read(path)
+            except UserError as exc:
+                assert str(path) in str(exc) and "\n" not in str(exc)
+                outcomes["reported"] += 1
+                continue
+            assert got == expected, (i, bit, bytes(flipped[max(i - 20, 0):i + 20]))
+            outcomes["harmless"] += 1
+    assert outcomes["reported"] > 0.9 * 8 * len(data), outcomes
