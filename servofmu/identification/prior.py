@@ -31,13 +31,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import UserError
+from ..model.laws.viscous import FIXED_VISCOUS
 from ..model.plant import Plant
 
 __all__ = ["identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
            "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
            "PERIOD_SHARE", "log_width"]
 
-FIXED_PARAMETERS = ("fv", "v_smooth")
+# fv (or fv_pos of a direction-dependent viscous friction: only fv_neg − fv_pos is told apart from G) and v_smooth
+FIXED_PARAMETERS = FIXED_VISCOUS + ("v_smooth",)
 # Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).
 ADDITIVE_PARAMETERS = ("offset", "x0", "ripple_phase")
 # The share of the spread the ripple's period is drawn and searched within (see the module docstring).
@@ -66,11 +68,12 @@ def additive_scale(structure: Plant, name: str) -> float:
 
 
 def fixed_names(structure: Plant) -> tuple[str, ...]:
-    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth, a spring's x0 when
+    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth (fv_pos of a
+    direction-dependent viscous friction), those its friction law fixes (FrictionLaw.fixed), a spring's x0 when
     the load also has an offset (the spring's force k·(x0 − x) holds the constant k·x0, which the offset is), and
     those the structure file's ``fixed`` list names."""
     names = structure.parameter_names()
-    implied = FIXED_PARAMETERS + (("x0",) if "offset" in names else ())
+    implied = FIXED_PARAMETERS + structure.friction.law.fixed + (("x0",) if "offset" in names else ())
     return implied + tuple(n for n in structure.fixed if n not in implied)
 
 

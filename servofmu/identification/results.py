@@ -171,9 +171,7 @@ def paper_rows(plant: Plant) -> list[tuple[str, str]]:
     rows.append(("DC gain", f"{p['dc_gain']:.6g}" if p["dc_gain"] is not None else "—"))
     fr = plant.friction
     rows += [("Fc+", f"{fr.fc_pos:.6g}"), ("Fc−", f"{fr.fc_neg:.6g}")]
-    for key, label in (("fs_pos", "Fs+"), ("fs_neg", "Fs−"), ("vs", "vs"), ("sigma0", "σ0"), ("sigma1", "σ1")):
-        if getattr(fr, key) is not None and key in fr.keys():
-            rows.append((label, f"{getattr(fr, key):.6g}"))
+    rows += fr.law.rows(fr.values())
     labels = {"offset": "offset", "stiffness": "k", "x0": "x0", "ripple_amplitude": "ripple A",
               "ripple_period": "ripple period", "ripple_phase": "ripple phase"}
     rows += [(labels[key], f"{value:.6g}") for key, value in plant.load.values().items()]
