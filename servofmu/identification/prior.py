@@ -34,7 +34,7 @@ from ..errors import UserError
 from ..model.laws.viscous import FIXED_VISCOUS
 from ..model.plant import Plant
 
-__all__ = ["identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
+__all__ = ["above_levels", "identified_names", "identified_mask", "full_vectors", "full_entries", "canonical_order",
            "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
            "PERIOD_SHARE", "log_width"]
 
@@ -84,6 +84,14 @@ def identified_names(structure: Plant) -> list[str]:
     return [n for n in structure.parameter_names() if n not in left_out]
 
 
+def above_levels(structure: Plant) -> dict[str, str]:
+    """The identified levels that are at least another identified level (FrictionLaw.at_least: a static level fs±
+    above its Coulomb level fc±), each with that level; the prior draws and the swarm searches them as the lower
+    level plus a positive gap."""
+    names = identified_names(structure)
+    return {a: b for a, b in structure.friction.law.at_least() if a in names and b in names}
+
+
 def identified_mask(structure: Plant) -> np.ndarray:
     """Boolean mask over ``structure.parameter_names()``: True for the identified parameters."""
     identified = set(identified_names(structure))
@@ -127,7 +135,7 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
     """``n`` identified-parameter vectors drawn from the prior around ``structure`` (shape n × len(identified))."""
     if not spread > 0:
         raise UserError(f"spread must be positive, not {spread}")
-    names = identified_names(structure)
+    names, above = identified_names(structure), above_levels(structure)
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     log_f = np.log1p(spread)
 
@@ -143,16 +151,14 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
             wn, zeta = np.hypot(re, im) * factor(), min(-re / np.hypot(re, im), 0.95) * factor()
             zeta = np.minimum(zeta, 0.95)
             out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
-        elif name.startswith(("fs_pos", "fs_neg")):
-            continue  # after its Coulomb level
+        elif name in above:
+            continue  # after its lower level
         elif name in ADDITIVE_PARAMETERS:
             half = spread if name != "ripple_phase" else min(spread, 1.0)
             out[:, i] = nominal[name] + additive_scale(structure, name) * rng.uniform(-half, half, size=n)
         else:
             out[:, i] = nominal[name] * factor(log_width(name, spread))
-    for side in ("pos", "neg"):
-        if f"fs_{side}" in names:
-            fc = out[:, names.index(f"fc_{side}")]
-            gap = nominal[f"fs_{side}"] - nominal[f"fc_{side}"]
-            out[:, names.index(f"fs_{side}")] = fc + gap * factor()
+    for name, lower in above.items():
+        gap = nominal[name] - nominal[lower]
+        out[:, names.index(name)] = out[:, names.index(lower)] + gap * factor()
     return canonical_order(structure, out)
