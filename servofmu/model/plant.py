@@ -116,7 +116,11 @@ class Friction:
 
     def keys(self) -> tuple[str, ...]:
         """The names of the model's parameters, in parameter-vector order."""
-        return self.law.parameter_keys(lambda k: self.get(k) is not None)
+        keys = self.__dict__.get("_keys")
+        if keys is None:  # worked out once per friction (every simulation asks for the names)
+            keys = self.law.parameter_keys(lambda k: self.get(k) is not None)
+            object.__setattr__(self, "_keys", keys)
+        return keys
 
     def values(self) -> dict[str, float]:
         """The model's parameters by name (units as in the class docstring)."""
@@ -126,7 +130,10 @@ class Friction:
         """The same law and form with the values of ``values`` (a subset of :meth:`keys`) changed."""
         fields = {k: v for k, v in values.items() if k in _FIELDS}
         extra = tuple((k, float(values.get(k, v))) for k, v in self.extra)
-        return replace(self, extra=extra, **fields)
+        out = replace(self, extra=extra, **fields)
+        if "_keys" in self.__dict__ and all(v is not None for v in values.values()):  # the same form: the same keys
+            object.__setattr__(out, "_keys", self.__dict__["_keys"])
+        return out
 
     def mirrored(self) -> dict[str, str]:
         """For a symmetric friction, each level for v < 0 with the level for v > 0 it equals; otherwise empty."""
