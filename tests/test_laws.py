@@ -180,3 +180,26 @@ def test_the_docs_name_every_key_of_every_shipped_law():
         for key in get_law(name).all_keys():
             assert f"`friction.{key.name}`" in table, key.name
             assert f"`{key.name}`" in laws, key.name
+
+
+@pytest.mark.parametrize("friction, fragment", [
+    ('model = "gms"\nfc_pos = 1.0\nfc_neg = 1.0', "friction.model: must be one of coulomb, stribeck, lugre, dahl"),
+    ('model = "coulomb"\nfc_pos = 1.0\nfc_neg = 1.0\nfv_neg = 0.2', "friction.fv_neg: direction-dependent"),
+])  # (the library refuses the other bad keys: test_bad_friction_keys_are_refused_naming_the_key)
+def test_the_cli_refuses_a_bad_friction_in_one_line_and_writes_nothing(tmp_path, friction, fragment):
+    from clitools import assert_one_line_error, run
+
+    plant = tmp_path / "axis.toml"
+    plant.write_text(f'name = "axis"\n[linear]\npoles = [[-10.0, 0.0]]\ndc_gain = 1.0\n[friction]\n{friction}\n')
+    proc = run("build", plant, "-o", tmp_path / "axis.fmu")
+    assert_one_line_error(proc, "servofmu build: error:", fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["axis.toml"]
+
+
+def test_the_select_help_lists_the_registered_laws():
+    from clitools import run
+
+    proc = run("select", "--help")
+    text = " ".join(proc.stdout.split())
+    assert proc.returncode == 0 and "coulomb, stribeck, lugre, dahl" in text
+    assert "default: the laws coulomb, stribeck, lugre at every order" in text
