@@ -182,6 +182,7 @@ def test_noise_free_stepped_sines_identify_every_parameter(name, tmp_path):
     import servofmu as sf
     from servofmu.identification.criterion import sine_data
     from servofmu.identification.prior import identified_mask
+    from servofmu.identification.results import table_text
     from servofmu.measurement.measure import MeasureOptions
     from servofmu.runtime import RunOptions
 
@@ -193,3 +194,31 @@ def test_noise_free_stepped_sines_identify_every_parameter(name, tmp_path):
     est = sf.PSOANNIdentifier(plant, method="pso", seed=1).fit(sine_data(sf.read_data_file(data)))
     truth = plant.parameter_vector()[identified_mask(plant)]
     assert np.max(np.abs(est.theta_ / truth - 1)) < 1e-6, dict(zip(est.result().names, est.theta_ / truth - 1))
+    note = table_text(est.result()).splitlines()[-1]
+    assert note.startswith("viscous friction: fv_pos 0.4 N.s/m is the structure's") == (name == "viscous_axis")
+
+
+@pytest.mark.long
+@pytest.mark.skipif(os.environ.get("SERVOFMU_FAULTS") != "all", reason="long: SERVOFMU_FAULTS=all runs it")
+def test_a_first_order_axis_identifies_the_viscous_difference_and_its_pole_holds_the_rest(tmp_path):
+    """Truth: G = 10/(s + 10) (mass 0.1 kg, damping 1 N·s/m) with fv_pos 0.3, fv_neg 0.5; structure: fv_pos = fv_neg
+    = 0.  The fit finds fv_neg − fv_pos = 0.2 within 1 % and a pole of damping 1 + 0.3 N·s/m (−13 rad/s), and its
+    table says so."""
+    import servofmu as sf
+    from servofmu.identification.criterion import sine_data
+    from servofmu.identification.results import table_text
+    from servofmu.measurement.measure import MeasureOptions
+    from servofmu.runtime import RunOptions
+
+    axis = {"name": "visc1", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
+            "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4, "fv_pos": 0.3, "fv_neg": 0.5}}
+    truth = plant_from_dict(axis)
+    data = tmp_path / "visc1.h5"
+    sf.measure(sf.build_fmu(truth, tmp_path / "visc1.fmu"), data, options=MeasureOptions(), run=RunOptions(workers=0),
+               amplitudes=[2.0, 0.6], frequencies=[0.3, 1.0, 3.0, 10.0])
+    structure = plant_from_dict({**axis, "friction": {**axis["friction"], "fv_pos": 0.0, "fv_neg": 0.0}})
+    est = sf.PSOANNIdentifier(structure, method="pso", seed=1).fit(sine_data(sf.read_data_file(data)))
+    fitted = est.result().plant
+    assert abs((fitted.friction.fv_neg - fitted.friction.fv_pos) / 0.2 - 1) < 0.01
+    assert abs(fitted.poles[0].real / -13.0 - 1) < 0.01
+    assert "G's pole holds 1.3 N.s/m of damping" in table_text(est.result())

@@ -7,7 +7,8 @@ from typing import Callable
 
 from .keys import LawKey
 
-__all__ = ["VISCOUS_KEYS", "viscous_keys", "viscous_force", "check_viscous", "viscous_levels", "FIXED_VISCOUS"]
+__all__ = ["VISCOUS_KEYS", "viscous_keys", "viscous_force", "check_viscous", "viscous_levels", "FIXED_VISCOUS",
+           "viscous_note"]
 
 VISCOUS_KEYS = (
     LawKey("fv", "N.s/m", "viscous friction coefficient", default=0.0),
@@ -49,3 +50,15 @@ def viscous_levels(values: dict[str, float]) -> tuple[float, float]:
     if "fv_pos" in values:
         return values["fv_pos"], values["fv_neg"]
     return values["fv"], values["fv"]
+
+
+def viscous_note(values: dict[str, float], damping: float) -> str:
+    """What an identified direction-dependent viscous friction means, in one line ("" for the symmetric form):
+    fv_pos is the structure's, the data decided fv_neg − fv_pos, and G holds the common part; ``damping`` is the
+    viscous damping a first-order G holds in its pole (N·s/m; 0 for other G)."""
+    if "fv_pos" not in values:
+        return ""
+    pole = f"; G's pole holds {damping:.6g} N.s/m of damping" if damping else ""
+    return (f"viscous friction: fv_pos {values['fv_pos']:.6g} N.s/m is the structure's (kept); the data decide "
+            f"fv_neg - fv_pos = {values['fv_neg'] - values['fv_pos']:.6g} N.s/m; viscous friction common to both "
+            f"directions beyond fv_pos is held by G{pole}")
