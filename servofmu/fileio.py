@@ -19,7 +19,8 @@ from typing import Callable, Iterable, Iterator
 from .claims import (CONTINUE_WORDS, OutputExists, check_output_path, claim_output, claim_outputs, holds_outputs,
                      output_claims, output_mode, partial_path)
 from .errors import MAX_MAGNITUDE, UserError
-from .integrity import DIGEST_ATTRIBUTE, InspectionFailed, content_digest, inspect_image
+from .integrity import (DIGEST_ATTRIBUTE, READ_ERRORS, InspectionFailed, content_digest, inspect_image,  # noqa: F401
+                        read_error_reason)  # the last two defined there (it needs them), named here as before
 
 # (the output rule lives in servofmu.claims; its names are also this module's, as they always were)
 __all__ = ["file_sha256", "claim_output", "claim_outputs", "output_claims", "holds_outputs", "OutputExists",
@@ -33,9 +34,6 @@ __all__ = ["file_sha256", "claim_output", "claim_outputs", "output_claims", "hol
 # one) the file's digest does (servofmu.integrity).
 HDF5_LIBVER = ("v110", "latest")
 
-# What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
-# header), and the KeyError ... of a missing or malformed item.
-READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
 
 
 # What the system says when a write cannot be done for lack of room: a full disk, a quota, a file-size limit.
@@ -284,16 +282,6 @@ def hdf5_attr(obj, key: str, default=...):
     if isinstance(value, np.generic):
         value = value.item()
     return value
-
-
-def read_error_reason(exc: BaseException) -> str:
-    """What went wrong reading an HDF5 file, in a few words: a failed checksum says so."""
-    text = (str(exc).strip("'\"").splitlines() or [type(exc).__name__])[0]
-    if "checksum" in text or "filter returned failure" in text:
-        return "checksum mismatch: the file was changed or damaged after it was written"
-    if isinstance(exc, KeyError):
-        return f"missing or bad {text}"
-    return text.split("(")[-1].rstrip(")") if "(" in text else text
 
 
 def read_hdf5(path: str | Path, what: str, formats: str | tuple[str, ...], schema_version: int, read: Callable,

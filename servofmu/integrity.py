@@ -21,7 +21,8 @@ import select
 import signal
 import time
 
-__all__ = ["DIGEST_ATTRIBUTE", "content_digest", "inspect_image", "InspectionFailed", "inspection_deadline"]
+__all__ = ["DIGEST_ATTRIBUTE", "content_digest", "inspect_image", "InspectionFailed", "inspection_deadline",
+           "READ_ERRORS", "read_error_reason"]
 
 DIGEST_ATTRIBUTE = "content_sha256"
 _LISTING_HEADER = b"servofmu-content-1\0"  # the listing's own version: a later change of it names itself
@@ -35,6 +36,21 @@ MAX_DEPTH = 16  # servofmu's files are 4 levels deep; a cycle of links (a damage
 BASE_DEADLINE = 10.0
 DEADLINE_BYTES_PER_S = 5e6
 STALL_FACTOR = 10
+
+
+# What reading a damaged HDF5 file raises: h5py's OSError and RuntimeError (a failed checksum of an object
+# header), and the KeyError ... of a missing or malformed item.
+READ_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
+
+
+def read_error_reason(exc: BaseException) -> str:
+    """What went wrong reading an HDF5 file, in a few words: a failed checksum says so."""
+    text = (str(exc).strip("'\"").splitlines() or [type(exc).__name__])[0]
+    if "checksum" in text or "filter returned failure" in text:
+        return "checksum mismatch: the file was changed or damaged after it was written"
+    if isinstance(exc, KeyError):
+        return f"missing or bad {text}"
+    return text.split("(")[-1].rstrip(")") if "(" in text else text
 
 
 class InspectionFailed(Exception):
@@ -103,8 +119,6 @@ def content_digest(f) -> str:
 def _inspect(image: bytes) -> tuple[str, str]:
     """The first pass, in this process: ("ok", "") or (kind, reason) as for InspectionFailed."""
     import h5py
-
-    from .fileio import READ_ERRORS, read_error_reason
 
     try:
         f = h5py.File.in_memory(image)

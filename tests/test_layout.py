@@ -113,3 +113,24 @@ def test_the_checks_see_a_violation(tmp_path):
     found = [(m, names) for _, m, names in imports(probe, root=tmp_path)]
     assert found == [("servofmu.output.report", ["make_report"]), ("servofmu.identification.criterion", ["_weighted"])]
     assert stage_of(found[0][0]) > stage_of("servofmu.model.probe")
+
+
+def module_imports() -> dict[str, set[str]]:
+    """module -> the servofmu modules it imports (at its top or in a function; ``from X import y`` names the
+    submodule X.y where y is one)."""
+    modules = {module_name(p) for p in package_files()}
+    out = {}
+    for path in package_files():
+        edges = out.setdefault(module_name(path), set())
+        for _, module, names in imports(path):
+            if module.startswith("servofmu"):
+                subs = {f"{module}.{n}" for n in names if f"{module}.{n}" in modules}
+                edges.update(subs if subs and len(subs) == len(names) else {module} | subs)
+    return out
+
+
+def test_no_two_modules_import_each_other():
+    """No circle of two modules, not even through an import inside a function (fileio and integrity were one)."""
+    edges = module_imports()
+    pairs = sorted({tuple(sorted((a, b))) for a in edges for b in edges[a] if a != b and a in edges.get(b, ())})
+    assert pairs == []

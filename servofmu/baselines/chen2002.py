@@ -33,8 +33,12 @@ import numpy as np
 from ..errors import UserError
 from ..identification.criterion import SineData, output_error_fitness
 from ..identification.prior import canonical_order, identified_names
+from ..model.laws.registry import base_law
 from ..model.plant import Plant
 from . import BaselineResult
+
+# The friction the method identifies: the simplest law's (Coulomb levels; fv and v_smooth are the structure's)
+_COULOMB_KEYS = set(base_law().parameter_keys(lambda key: False))
 
 __all__ = ["fit_chen2002", "describing_function"]
 
@@ -82,9 +86,10 @@ def fit_chen2002(structure: Plant, data: SineData) -> BaselineResult:
     if not isinstance(data, SineData):
         raise UserError("the Chen 2002 method works on stepped-sine data (first harmonics at two magnitudes per "
                         "frequency); time-domain records cannot be used")
-    if structure.friction.model != "coulomb":
+    if set(structure.friction.keys()) - _COULOMB_KEYS:
+        beyond = ", ".join(k for k in structure.friction.keys() if k not in _COULOMB_KEYS)
         raise UserError(f"the Chen 2002 method identifies Coulomb friction only; {structure.name} has "
-                        f"{structure.friction.model} friction")
+                        f"{structure.friction.model} friction ({beyond})")
     if structure.friction.symmetric:
         raise UserError(f"the Chen 2002 method estimates fc_pos and fc_neg apart; {structure.name}'s friction is "
                         "symmetric (friction.symmetric = true)")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 
 from ..fileio import claim_output, hdf5_attr, output_mode, write_hdf5
 from ..version import __version__

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..model.laws.registry import default_laws, law_names
 from .common import ProgressBar, add_progress_option, add_work_limit_option, run_options
 
 __all__ = ["register", "cmd_select"]
@@ -43,9 +44,10 @@ def register(sub) -> None:
                    help="data of the same axis and signals that no candidate is fitted to; the ranking uses it")
     p.add_argument("--closed-loop", metavar="CTRL.toml", role="input",
                    help="the records are closed-loop logs of this controller")
-    p.add_argument("--candidates", metavar="LIST", help="comma-separated: a law with load terms (coulomb, stribeck, "
-                   "lugre, coulomb+offset, …; tried at every order, with and without a zero) or LAW/ORDER[z] "
-                   "(stribeck/2z); default: every law at every order")
+    laws, default = law_names(), default_laws()
+    p.add_argument("--candidates", metavar="LIST", help=f"comma-separated: a law with load terms ({', '.join(laws)}, "
+                   f"{laws[0]}+offset, …; tried at every order, with and without a zero) or LAW/ORDER[z] "
+                   f"({laws[-1]}/2z); default: the laws {', '.join(default)} at every order")
     p.add_argument("--orders", type=_orders, default=(1, 2, 3), metavar="1,2,3",
                    help="orders of G(s) tried (default 1,2,3)")
     p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",

@@ -25,18 +25,25 @@ from . import description
 from .sources import C_DIR, generate_sources
 from .variables import Variable, fmu_variables
 
-__all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT", "CORE_FILES"]
+__all__ = ["BuildError", "build_fmu", "assemble_fmu", "platform_folder", "DEFAULT_EXPERIMENT", "CORE_FILES", "equations"]
 
 CORE_FILES = ("core_api.h", "core_common.c")  # what every FMU core includes (servo_core.c, sampled_core.c)
 DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "tolerance": 1e-10, "stepSize": 1e-3}
 EQUATIONS = """u_total = u + excitation_amplitude*sin(2*pi*excitation_frequency*t)
 v       = output of G(s) driven by u_total - F(v)        (all states start at 0)
-position = integral of v
-t_s = tanh(v/v_smooth),  g±(v) = fc± + (fs± - fc±)*exp(-(v/vs)^2)   (g± = fc± for coulomb)
-coulomb/stribeck: F = g+(v)*max(t_s, 0) + g-(v)*min(t_s, 0) + fv*v
-lugre: dz/dt = v - sigma0*|v|*z/g(v) (g = g+ for v >= 0, else g-);  F = sigma0*z + sigma1*dz/dt + fv*v"""
+position = integral of v"""
+VISCOUS_EQUATIONS = {"fv": "viscous = fv*v", "fv_pos": "viscous = fv_pos*max(v, 0) + fv_neg*min(v, 0)"}
 LOAD_EQUATIONS = """load (the terms of the plant's [load] section; G is driven by u_total - F(v) + L(position)):
 L = offset - stiffness*(position - x0) + ripple_amplitude*sin(2*pi*position/ripple_period + ripple_phase)"""
+
+
+def equations(plant: Plant) -> str:
+    """The plant's equations in ASCII for the FMU's documentation: G's, its friction law's (servofmu.model.laws)
+    with its viscous term, and its load's."""
+    friction = plant.friction
+    viscous = VISCOUS_EQUATIONS["fv_pos" if "fv_pos" in friction.keys() else "fv"]
+    text = f"{EQUATIONS}\n{friction.model}: {friction.law.equations}\n{viscous}"
+    return text + ("\n" + LOAD_EQUATIONS if plant.load.keys() else "")
 
 
 class BuildError(UserError):
@@ -108,7 +115,7 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
 
     return assemble_fmu(plant.name, output, fmi_version, fmu_variables(model), write_sources,
                         list(description.SOURCE_FILES), _summary(plant, provenance),
-                        EQUATIONS + ("\n" + LOAD_EQUATIONS if plant.load.keys() else ""), provenance,
+                        equations(plant), provenance,
                         title=f"{plant.name} — servo plant with friction (FMI {fmi_version}.0)", overwrite=overwrite)
 
 

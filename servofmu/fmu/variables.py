@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..model.plant import bristle_nominal
+from ..model.plant import state_nominals as law_state_nominals
 from ..model.symbolic import INPUT_INFO, OUTPUT_INFO, OUTPUT_NAMES, SymbolicModel
 
 VR_TIME, VR_U, VR_Y0, VR_P0, VR_X0, VR_DX0 = 0, 1, 2, 1000, 2000, 3000
@@ -53,8 +53,9 @@ def position_index(model: SymbolicModel) -> int:
 
 
 def state_units(model: SymbolicModel) -> list[str | None]:
-    # xi2.. are scaled derivatives of v with no physical unit of their own
-    return ["m/s" if n == "xi1" else None if n.startswith("xi") else "m" for n in model.state_names]
+    # xi2.. are scaled derivatives of v with no physical unit of their own; the friction law's states have theirs
+    law = {state.name: unit_or_none(state.unit) for state in model.plant.friction.law.states}
+    return ["m/s" if n == "xi1" else None if n.startswith("xi") else law.get(n, "m") for n in model.state_names]
 
 
 def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
@@ -77,10 +78,11 @@ def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
         out.append(Variable(name, VR_P0 + i, "parameter", "tunable", text, unit=unit_or_none(unit),
                             start=float(start[i]), initial="exact"))
     units = state_units(model)
+    law_states = {state.name: state for state in model.plant.friction.law.states}
     for i, name in enumerate(model.state_names):
         if name == "position":
             continue
-        text = "bristle deflection of the LuGre model" if name == "z" else \
+        text = law_states[name].description if name in law_states else \
             f"state {i + 1} of the scaled observable realisation of G(s) (xi1 = v)"
         out.append(Variable(name, VR_X0 + i, "local", "continuous", text, unit=units[i], start=0.0,
                             initial="exact"))
@@ -91,12 +93,8 @@ def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
 
 
 def state_nominals(model: SymbolicModel) -> list[float]:
-    """Nominal magnitudes of the states (for absolute tolerances)."""
-    fr = model.plant.friction
-    out = []
-    for name in model.state_names:
-        if name == "z":  # bristle deflection at sliding: g/sigma0 (to a power of two)
-            out.append(bristle_nominal(fr))
-        else:
-            out.append(1.0)
-    return out
+    """Nominal magnitudes of the states (for absolute tolerances): 1 for G's and the position, the friction
+    law's own for its states (LuGre's bristle deflection at sliding, g/sigma0 to a power of two)."""
+    law = dict(zip((state.name for state in model.plant.friction.law.states),
+                   law_state_nominals(model.plant.friction)))
+    return [law.get(name, 1.0) for name in model.state_names]

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..measurement.datafile import DataFile
+from ..model.laws.registry import law_key_names
 from ..model.plant import Plant
 from ..simulation.batch import BatchSimulator, SteadyStateOptions, WarmStarts
 from .prior import check_identifiable, full_vectors
@@ -108,8 +109,7 @@ def check_structure(structure: Plant, data: DataFile, what: str) -> None:
     FMU records its parameters; records of a machine say nothing, and any structure may be tried on them), and a
     structure that leaves nothing to identify."""
     check_identifiable(structure)
-    measured = [n for n in data.parameters if n.startswith(("pole", "zero", "fc_", "fs_", "sigma", "gain", "dc_gain",
-                                                             "vs"))]
+    measured = [n for n in data.parameters if n.startswith(("pole", "zero", "gain", "dc_gain")) or n in law_key_names()]
     if measured and set(measured) - set(structure.parameter_names()):
         raise UserError(f"{data.path}: {what} ({', '.join(structure.parameter_names())}) does not match the plant "
                         f"the data was measured on ({', '.join(measured)})")

@@ -2,7 +2,7 @@
 
 - features of one data set: per experiment log|H|, cos∠H, sin∠H and dc/(|H|·m) — scale-free and continuous;
 - targets: each identified parameter in a transformed scale (log of a magnitude where the structure's value is
-  not zero, log of the damping ratio and natural frequency for a complex pair, log(fs − fc) for static friction;
+  not zero, log of the damping ratio and natural frequency for a complex pair, log(fs − fc) for static friction (a level above another, FrictionLaw.at_least);
   the load's signed terms — offset, x0, ripple_phase — as they are).
   The swarm searches in these coordinates too: a box in them is relative, and positivity is kept.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.plant import Plant
-from .prior import ADDITIVE_PARAMETERS, additive_scale, identified_mask, identified_names, log_width
+from .prior import ADDITIVE_PARAMETERS, above_levels, additive_scale, identified_mask, identified_names, log_width
 
 __all__ = ["feature_names", "ann_features", "to_targets", "from_targets", "target_jacobian", "prior_box"]
 
@@ -35,6 +35,7 @@ def ann_features(H: np.ndarray, dc: np.ndarray, amplitudes: np.ndarray) -> np.nd
 def to_targets(structure: Plant, theta: np.ndarray) -> np.ndarray:
     """Identified parameters (N, p) → targets (N, p): the coordinates the ANN estimates and the swarm searches."""
     names, out = identified_names(structure), np.array(np.atleast_2d(theta), dtype=float)
+    above = above_levels(structure)
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     y = out.copy()
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -44,8 +45,8 @@ def to_targets(structure: Plant, theta: np.ndarray) -> np.ndarray:
                 y[:, i], y[:, i + 1] = np.log(-out[:, i] / wn), np.log(wn)
             elif n.endswith("_im"):
                 continue
-            elif n.startswith("fs_"):
-                y[:, i] = np.log(out[:, i] - out[:, names.index("fc_" + n[3:])])
+            elif n in above:
+                y[:, i] = np.log(out[:, i] - out[:, names.index(above[n])])
             elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
                 y[:, i] = np.log(np.abs(out[:, i]))
     return y
@@ -55,6 +56,7 @@ def from_targets(structure: Plant, y: np.ndarray) -> np.ndarray:
     """Inverse of :func:`to_targets`.  A coordinate too large for exp gives an infinite parameter (a
     Levenberg–Marquardt trial step along a flat log(fs − fc)): a candidate the simulation rejects, not an error."""
     names, y = identified_names(structure), np.atleast_2d(np.asarray(y, dtype=float))
+    above = above_levels(structure)
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     out = y.copy()
     with np.errstate(over="ignore"):
@@ -62,13 +64,13 @@ def from_targets(structure: Plant, y: np.ndarray) -> np.ndarray:
             if n.endswith("_re"):
                 zeta, wn = np.clip(np.exp(y[:, i]), 0.0, 0.999), np.exp(y[:, i + 1])
                 out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
-            elif n.endswith("_im") or n.startswith("fs_"):
+            elif n.endswith("_im") or n in above:
                 continue
             elif nominal[n] != 0 and n not in ADDITIVE_PARAMETERS:
                 out[:, i] = np.sign(nominal[n]) * np.exp(y[:, i])
         for i, n in enumerate(names):
-            if n.startswith("fs_"):
-                out[:, i] = out[:, names.index("fc_" + n[3:])] + np.exp(y[:, i])
+            if n in above:
+                out[:, i] = out[:, names.index(above[n])] + np.exp(y[:, i])
     return out
 
 
@@ -94,14 +96,15 @@ def prior_box(structure: Plant, spread: float) -> tuple[np.ndarray, np.ndarray]:
     the gap's logarithm would be −∞."""
     centre = to_targets(structure, structure.parameter_vector()[None, identified_mask(structure)])[0]
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
+    above = above_levels(structure)
     for i, n in enumerate(identified_names(structure)):
-        if n.startswith("fs_") and not np.isfinite(centre[i]):
-            centre[i] = np.log(max(1e-3 * nominal["fc_" + n[3:]], 1e-300))
+        if n in above and not np.isfinite(centre[i]):
+            centre[i] = np.log(max(1e-3 * nominal[above[n]], 1e-300))
 
     def half_width(n):
         if n in ADDITIVE_PARAMETERS:
             return additive_scale(structure, n) * (min(spread, 1.0) if n == "ripple_phase" else spread)
-        return log_width(n, spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n.startswith("fs_")) else spread
+        return log_width(n, spread) if (nominal[n] != 0 or n.endswith(("_re", "_im")) or n in above) else spread
 
     half = np.array([half_width(n) for n in identified_names(structure)])
     return centre - half, centre + half

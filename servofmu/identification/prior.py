@@ -31,13 +31,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import UserError
+from ..model.laws.viscous import FIXED_VISCOUS
 from ..model.plant import Plant
 
-__all__ = ["identified_names", "identified_mask", "check_identifiable", "full_vectors", "full_entries", "canonical_order",
-           "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
+__all__ = ["above_levels", "identified_names", "identified_mask", "check_identifiable", "full_vectors", "full_entries",
+           "canonical_order",           "sample_identified", "FIXED_PARAMETERS", "fixed_names", "ADDITIVE_PARAMETERS", "additive_scale",
            "PERIOD_SHARE", "log_width"]
 
-FIXED_PARAMETERS = ("fv", "v_smooth")
+# fv (or fv_pos of a direction-dependent viscous friction: only fv_neg − fv_pos is told apart from G) and v_smooth
+FIXED_PARAMETERS = FIXED_VISCOUS + ("v_smooth",)
 # Signed parameters, drawn and searched on a linear scale around the structure's value (a sign may change).
 ADDITIVE_PARAMETERS = ("offset", "x0", "ripple_phase")
 # The share of the spread the ripple's period is drawn and searched within (see the module docstring).
@@ -66,11 +68,12 @@ def additive_scale(structure: Plant, name: str) -> float:
 
 
 def fixed_names(structure: Plant) -> tuple[str, ...]:
-    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth, a spring's x0 when
+    """The structure's parameters a fit keeps at the structure's values: fv and v_smooth (fv_pos of a
+    direction-dependent viscous friction), those its friction law fixes (FrictionLaw.fixed), a spring's x0 when
     the load also has an offset (the spring's force k·(x0 − x) holds the constant k·x0, which the offset is), and
     those the structure file's ``fixed`` list names."""
     names = structure.parameter_names()
-    implied = FIXED_PARAMETERS + (("x0",) if "offset" in names else ())
+    implied = FIXED_PARAMETERS + structure.friction.law.fixed + (("x0",) if "offset" in names else ())
     return implied + tuple(n for n in structure.fixed if n not in implied)
 
 
@@ -88,6 +91,14 @@ def check_identifiable(structure: Plant, option: str = "--structure") -> None:
         raise UserError(f"{structure.source}: fixed: lists every parameter a fit could identify "
                         f"({', '.join(structure.fixed)}): nothing is left to identify with this {option}; leave at "
                         "least one out of `fixed`")
+
+
+def above_levels(structure: Plant) -> dict[str, str]:
+    """The identified levels that are at least another identified level (FrictionLaw.at_least: a static level fs±
+    above its Coulomb level fc±), each with that level; the prior draws and the swarm searches them as the lower
+    level plus a positive gap."""
+    names = identified_names(structure)
+    return {a: b for a, b in structure.friction.law.at_least() if a in names and b in names}
 
 
 def identified_mask(structure: Plant) -> np.ndarray:
@@ -133,7 +144,7 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
     """``n`` identified-parameter vectors drawn from the prior around ``structure`` (shape n × len(identified))."""
     if not spread > 0:
         raise UserError(f"spread must be positive, not {spread}")
-    names = identified_names(structure)
+    names, above = identified_names(structure), above_levels(structure)
     nominal = dict(zip(structure.parameter_names(), structure.parameter_vector()))
     log_f = np.log1p(spread)
 
@@ -149,16 +160,14 @@ def sample_identified(structure: Plant, n: int, spread: float, rng: np.random.Ge
             wn, zeta = np.hypot(re, im) * factor(), min(-re / np.hypot(re, im), 0.95) * factor()
             zeta = np.minimum(zeta, 0.95)
             out[:, i], out[:, i + 1] = -zeta * wn, wn * np.sqrt(1 - zeta**2)
-        elif name.startswith(("fs_pos", "fs_neg")):
-            continue  # after its Coulomb level
+        elif name in above:
+            continue  # after its lower level
         elif name in ADDITIVE_PARAMETERS:
             half = spread if name != "ripple_phase" else min(spread, 1.0)
             out[:, i] = nominal[name] + additive_scale(structure, name) * rng.uniform(-half, half, size=n)
         else:
             out[:, i] = nominal[name] * factor(log_width(name, spread))
-    for side in ("pos", "neg"):
-        if f"fs_{side}" in names:
-            fc = out[:, names.index(f"fc_{side}")]
-            gap = nominal[f"fs_{side}"] - nominal[f"fc_{side}"]
-            out[:, names.index(f"fs_{side}")] = fc + gap * factor()
+    for name, lower in above.items():
+        gap = nominal[name] - nominal[lower]
+        out[:, names.index(name)] = out[:, names.index(lower)] + gap * factor()
     return canonical_order(structure, out)

@@ -14,6 +14,8 @@ import numpy as np
 from ..errors import MAX_MAGNITUDE, UserError
 from ..fileio import check_values, claim_output, hdf5_attr, output_mode, read_hdf5, store_array, write_hdf5
 from ..measurement.datafile import DataFile, read_data_file
+from ..model.friction import viscous_damping
+from ..model.laws.viscous import viscous_note
 from ..model.plant import Plant, parameter_info, plant_from_dict
 from ..simulation.batch import valid_parameter_sets
 from ..version import __version__
@@ -171,9 +173,7 @@ def paper_rows(plant: Plant) -> list[tuple[str, str]]:
     rows.append(("DC gain", f"{p['dc_gain']:.6g}" if p["dc_gain"] is not None else "—"))
     fr = plant.friction
     rows += [("Fc+", f"{fr.fc_pos:.6g}"), ("Fc−", f"{fr.fc_neg:.6g}")]
-    for key, label in (("fs_pos", "Fs+"), ("fs_neg", "Fs−"), ("vs", "vs"), ("sigma0", "σ0"), ("sigma1", "σ1")):
-        if getattr(fr, key) is not None and key in fr.keys():
-            rows.append((label, f"{getattr(fr, key):.6g}"))
+    rows += fr.law.rows(fr.values())
     labels = {"offset": "offset", "stiffness": "k", "x0": "x0", "ripple_amplitude": "ripple A",
               "ripple_period": "ripple period", "ripple_phase": "ripple phase"}
     rows += [(labels[key], f"{value:.6g}") for key, value in plant.load.values().items()]
@@ -210,7 +210,8 @@ def table_text(result: Result, truth: Plant | None = None) -> str:
     lines.append("95 % intervals: " + ", ".join(f"{n} [{lo:.6g}, {hi:.6g}]"
                                               for n, (lo, hi) in zip(result.names, result.intervals)))
     lines += [group.line() for group in result.confounded()]
-    return "\n".join(lines)
+    note = viscous_note(result.plant.friction.values(), viscous_damping(result.plant))
+    return "\n".join(lines + ([note] if note else []))
 
 
 # ---------------------------------------------------------------------------

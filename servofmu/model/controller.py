@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import UserError, name_problem
 from ..text_digest import checked_text
 from .friction import viscous_damping
+from .laws.viscous import viscous_levels
 from .plant import Plant
 
 __all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
@@ -234,15 +235,16 @@ def friction_feedforward(controller: ControllerSpec, plant: Plant, share: float 
     plus the viscous friction in a first-order G's pole (servofmu.model.friction.viscous_damping), evaluated by the controller at
     the reference velocity — known ahead and free of the encoder's noise, where the measured velocity would feed
     quantisation noise back and chatter around the reversals.  The tanh sign is smoothed by the plant's v_smooth
-    (LuGre, which has none: the controller file's, default 1e-3 m/s)."""
-    fr = plant.friction
-    fs_pos = fr.fs_pos if fr.fs_pos is not None else fr.fc_pos
-    fs_neg = fr.fs_neg if fr.fs_neg is not None else fr.fc_neg
-    smooth = fr.v_smooth if fr.model != "lugre" else controller["ff_v_smooth"]
-    return controller.with_values(friction_feedforward=share, ff_fc_pos=fr.fc_pos, ff_fc_neg=fr.fc_neg,
-                                  ff_fs_pos=fs_pos, ff_fs_neg=fs_neg, ff_vs=fr.vs or 1.0,
-                                  ff_fv=fr.fv + viscous_damping(plant),
-                                  ff_v_smooth=smooth)
+    (a law without one, LuGre or Dahl: the controller file's, default 1e-3 m/s).  The law gives the values
+    (FrictionLaw.feedforward: the controller's curve is Stribeck's with exponent 2); a direction-dependent viscous
+    friction is fed forward as the mean of its two coefficients."""
+    values = plant.friction.values()
+    ff = plant.friction.law.feedforward(values, controller["ff_v_smooth"])
+    fv_pos, fv_neg = viscous_levels(values)
+    return controller.with_values(friction_feedforward=share, ff_fc_pos=ff["fc_pos"], ff_fc_neg=ff["fc_neg"],
+                                  ff_fs_pos=ff["fs_pos"], ff_fs_neg=ff["fs_neg"], ff_vs=ff["vs"],
+                                  ff_fv=0.5 * (fv_pos + fv_neg) + viscous_damping(plant),
+                                  ff_v_smooth=ff["v_smooth"])
 
 
 def params_header() -> str:

@@ -11,18 +11,22 @@ __all__ = ["steady_friction", "viscous_damping"]
 
 def steady_friction(plant: Plant, v: np.ndarray) -> np.ndarray:
     """Friction force F(v) (N) at constant velocities ``v`` (m/s, none zero), from the model's own friction
-    expression (servofmu.model.symbolic.friction_force); for LuGre with the bristles at rest (dz/dt = 0)."""
+    expression (servofmu.model.symbolic.friction_force); a law's states (LuGre's, Dahl's) at rest (dz/dt = 0)."""
     import casadi as ca  # only the curve needs CasADi (commands that never draw it start without it)
 
     from .symbolic import friction_force
 
     v = np.asarray(v, dtype=float).ravel()
     vel = ca.SX.sym("v")
-    z = ca.SX.sym("z") if plant.friction.model == "lugre" else None
-    force, dz = friction_force(plant, plant.parameters(), vel, z)
-    if dz is not None:
-        # dz/dt is linear in z: one Newton step from z = 0 lands on its root exactly (v ≠ 0)
-        z_rest = -ca.substitute(dz, z, 0) / ca.jacobian(dz, z)
+    z = ca.vertcat(*[ca.SX.sym(state.name) for state in plant.friction.law.states])
+    force, dz = friction_force(plant, plant.parameters(), vel, [z[i] for i in range(z.numel())])
+    if dz:
+        # the laws' state derivatives are linear in their states at a constant v: one Newton step from 0 lands on
+        # their root exactly (v ≠ 0)
+        dz = ca.vertcat(*dz)
+        zero = ca.DM.zeros(z.numel())
+        step = ca.substitute(dz, z, zero)
+        z_rest = -step / ca.jacobian(dz, z) if z.numel() == 1 else -ca.solve(ca.jacobian(dz, z), step)
         force = ca.substitute(force, z, z_rest)
     curve = ca.Function("friction", [vel], [force]).map(v.size)
     return np.asarray(curve(v[None, :])).ravel()

@@ -21,43 +21,28 @@ from numpy.typing import ArrayLike
 
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 from ..text_digest import checked_text
+from .laws.base import FrictionLaw
+from .laws.keys import power_of_two
+from .laws.registry import get_law, law_key, law_names
+from .laws.viscous import check_viscous
 
 __all__ = ["Plant", "Friction", "PlantError", "ParameterRules", "parameter_rules", "state_scale", "bristle_nominal",
            "load_plant", "plant_from_dict",
            "resolve_plant_path", "example_files", "parameter_info", "MAX_ORDER", "gain_unit", "root_names",
-           "FRICTION_MODELS", "PARAMETER_INFO", "Load", "LOAD_KEYS"]
+           "PARAMETER_INFO", "Load", "LOAD_KEYS", "state_nominals"]
 
-FRICTION_MODELS = ("coulomb", "stribeck", "lugre")
 # The highest order of G(s): a servo axis is a mass with a few resonances; beyond, a plant is a mistake.
 MAX_ORDER = 12
 
-# Friction keys per model, in parameter-vector order.
-_FRICTION_KEYS = {
-    "coulomb": ("fc_pos", "fc_neg", "fv", "v_smooth"),
-    "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "fv", "v_smooth"),
-    "lugre": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs", "sigma0", "sigma1", "fv"),  # no tanh: no v_smooth
-}
-_FRICTION_DEFAULTS = {"fv": 0.0, "v_smooth": 1e-3}
-# A symmetric friction's levels for v < 0, each equal to its level for v > 0.
-_MIRRORED = {"fc_neg": "fc_pos", "fs_neg": "fs_pos"}
 # Keys of the [load] section, in parameter-vector order: a constant force, a linear spring about x0 and a
 # sinusoidal ripple in the position (docs/plant-format.md); only the keys a file gives (or implies) are parameters.
 LOAD_KEYS = ("offset", "stiffness", "x0", "ripple_amplitude", "ripple_period", "ripple_phase")
 
-# name -> (unit, description) for every parameter a plant can have.
+# name -> (unit, description) for every parameter a plant can have but the friction law's (its LawKeys).
 PARAMETER_INFO = {
     "dc_gain": ("m/(N.s)", "DC gain of G(s), G(0) (velocity per force)"),
     "gain": ("m/(N.s^(1+r))", "numerator constant of G(s) (leading coefficient of the numerator; r = poles − "
                               "zeros)"),
-    "fc_pos": ("N", "Coulomb friction for v > 0"),
-    "fc_neg": ("N", "Coulomb friction for v < 0 (magnitude)"),
-    "fs_pos": ("N", "static (breakaway) friction for v > 0"),
-    "fs_neg": ("N", "static (breakaway) friction for v < 0 (magnitude)"),
-    "vs": ("m/s", "Stribeck velocity"),
-    "sigma0": ("N/m", "LuGre bristle stiffness"),
-    "sigma1": ("N.s/m", "LuGre bristle damping"),
-    "fv": ("N.s/m", "viscous friction coefficient"),
-    "v_smooth": ("m/s", "velocity scale of the tanh smoothing of sign(v)"),
     "offset": ("N", "constant force on the load, adding to u (e.g. gravity m.g.sin(incline))"),
     "stiffness": ("N/m", "stiffness k of the linear spring force -k.(position - x0) on the load"),
     "x0": ("m", "position at which the spring force is zero"),
@@ -75,16 +60,18 @@ class PlantError(UserError):
 
 @dataclass(frozen=True)
 class Friction:
-    """The friction of a plant: its model ("coulomb", "stribeck", "lugre") and values (docs/plant-format.md):
-    Coulomb and static levels fc±, fs± (N), Stribeck velocity vs (m/s), viscous fv (N·s/m), the tanh sign's
-    velocity scale v_smooth (m/s) and LuGre's bristle stiffness sigma0 (N/m) and damping sigma1 (N·s/m); the
-    values a model does not use are None.  ``symmetric``: the levels are the same in both directions (fc_neg =
+    """The friction of a plant: its law (``model``, a name in servofmu.model.laws.registry) and values
+    (docs/plant-format.md, docs/friction.md): Coulomb and static levels fc±, fs± (N), Stribeck velocity vs (m/s),
+    viscous fv (N·s/m), the tanh sign's velocity scale v_smooth (m/s) and LuGre's bristle stiffness sigma0 (N/m)
+    and damping sigma1 (N·s/m) as fields; any other key of a law (direction-dependent fv_pos/fv_neg — then fv is
+    None —, Stribeck's exponent delta, a registered law's own) in ``extra`` and readable as an attribute too; the
+    values a law does not use are None.  ``symmetric``: the levels are the same in both directions (fc_neg =
     fc_pos, fs_neg = fs_pos), and an identification estimates one level each (servofmu.identification.prior)."""
 
     model: str
     fc_pos: float
     fc_neg: float
-    fv: float = 0.0
+    fv: float | None = 0.0
     v_smooth: float = 1e-3
     fs_pos: float | None = None
     fs_neg: float | None = None
@@ -92,18 +79,72 @@ class Friction:
     sigma0: float | None = None
     sigma1: float | None = None
     symmetric: bool = False
+    extra: tuple[tuple[str, float], ...] = ()
+
+    def __getattr__(self, name: str):
+        # a law's key that is no field: its value in ``extra``, None where this friction does not have it
+        if name.startswith("_") or name == "extra":
+            raise AttributeError(name)
+        for key, value in self.extra:
+            if key == name:
+                return value
+        if law_key(name) is not None:
+            return None
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+
+    @classmethod
+    def of(cls, model: str, values: dict[str, float], symmetric: bool = False) -> "Friction":
+        """The friction of law ``model`` with ``values`` (key -> value; keys that are no field go to ``extra``,
+        in the order given)."""
+        fields = {k: v for k, v in values.items() if k in _FIELDS}
+        extra = tuple((k, float(v)) for k, v in values.items() if k not in _FIELDS)
+        if "fv_pos" in values:
+            fields["fv"] = None
+        return cls(model=model, symmetric=symmetric, extra=extra, **fields)
+
+    @property
+    def law(self) -> FrictionLaw:
+        """The law (servofmu.model.laws.registry); a PlantError for a law no longer registered."""
+        law = get_law(self.model)
+        if law is None:
+            raise PlantError(f"friction model {self.model!r} is not a registered friction law "
+                             f"({', '.join(law_names())})")
+        return law
+
+    def get(self, key: str) -> float | None:
+        """The value of ``key`` (a field or an ``extra`` key), None where this friction has none."""
+        return getattr(self, key, None)
 
     def keys(self) -> tuple[str, ...]:
         """The names of the model's parameters, in parameter-vector order."""
-        return _FRICTION_KEYS[self.model]
+        keys = self.__dict__.get("_keys")
+        if keys is None:  # worked out once per friction (every simulation asks for the names)
+            keys = self.law.parameter_keys(lambda k: self.get(k) is not None)
+            object.__setattr__(self, "_keys", keys)
+        return keys
 
     def values(self) -> dict[str, float]:
         """The model's parameters by name (units as in the class docstring)."""
-        return {k: float(getattr(self, k)) for k in self.keys()}
+        return {k: float(self.get(k)) for k in self.keys()}
+
+    def with_values(self, values: dict[str, float]) -> "Friction":
+        """The same law and form with the values of ``values`` (a subset of :meth:`keys`) changed."""
+        fields = {k: v for k, v in values.items() if k in _FIELDS}
+        extra = tuple((k, float(values.get(k, v))) for k, v in self.extra)
+        out = replace(self, extra=extra, **fields)
+        if "_keys" in self.__dict__ and all(v is not None for v in values.values()):  # the same form: the same keys
+            object.__setattr__(out, "_keys", self.__dict__["_keys"])
+        return out
 
     def mirrored(self) -> dict[str, str]:
         """For a symmetric friction, each level for v < 0 with the level for v > 0 it equals; otherwise empty."""
-        return {neg: pos for neg, pos in _MIRRORED.items() if self.symmetric and neg in self.keys()}
+        if not self.symmetric:
+            return {}
+        law = self.law
+        return {k: law.key(k).mirror for k in self.keys() if law.key(k).mirror}
+
+
+_FIELDS = {"fc_pos", "fc_neg", "fv", "v_smooth", "fs_pos", "fs_neg", "vs", "sigma0", "sigma1"}
 
 
 @dataclass(frozen=True)
@@ -257,8 +298,8 @@ class Plant:
 
         poles, zeros = roots(self.poles), roots(self.zeros)
         k = next(it)
-        friction = replace(self.friction, **{key: next(it) for key in self.friction.keys()})
-        friction = replace(friction, **{neg: getattr(friction, pos) for neg, pos in friction.mirrored().items()})
+        friction = self.friction.with_values({key: next(it) for key in self.friction.keys()})
+        friction = friction.with_values({neg: friction.get(pos) for neg, pos in friction.mirrored().items()})
         load = replace(self.load, **{key: next(it) for key in self.load.keys()})
         gains = {"dc_gain": k, "gain": None} if self.dc_gain is not None else {"dc_gain": None, "gain": k}
         return replace(self, poles=poles, zeros=zeros, friction=friction, load=load, **gains)
@@ -280,27 +321,26 @@ class Plant:
         return "\n".join(lines) + "\n"
 
 
-def _power_of_two(value: float) -> float:
-    """The power of two nearest ``value`` (> 0) in log: scaling by it is exact in floating point."""
-    return float(2.0 ** np.round(np.log2(value)))
-
-
 def state_scale(plant: Plant) -> float:
     """c of G's realisation (servofmu.model.symbolic: ``xi_k = x_k / c^(k-1)``): the power of two nearest the
     geometric mean of the nonzero pole magnitudes, 1 without one.  A constant of the model, not a parameter (the
     realisation is exact for any c); rounded, so that plants of one structure whose geometric means round to the
     same power of two share one compiled simulator (the compiled libraries' cache key holds c, not the values)."""
     nominal = [abs(r) for r in plant.all_poles() if abs(r) > 0]
-    return _power_of_two(float(np.exp(np.mean(np.log(nominal))))) if nominal else 1.0
+    return power_of_two(float(np.exp(np.mean(np.log(nominal))))) if nominal else 1.0
+
+
+def state_nominals(friction: Friction) -> tuple[float, ...]:
+    """The nominal magnitudes of the friction law's states (their absolute tolerances' scale), powers of two as
+    :func:`state_scale` is (FrictionLaw.state_nominals)."""
+    return tuple(friction.law.state_nominals(friction.values()))
 
 
 def bristle_nominal(friction: Friction) -> float:
-    """The LuGre bristle deflection's nominal magnitude (its absolute tolerance's scale): its deflection at
-    sliding, min(fc)/sigma0, rounded to a power of two as :func:`state_scale` is (1 where that is not positive)."""
-    if friction.model != "lugre" or not friction.sigma0:
-        return 1.0
-    value = min(friction.fc_pos, friction.fc_neg) / friction.sigma0
-    return _power_of_two(value) if np.isfinite(value) and value > 0 else 1.0
+    """The nominal magnitude of the friction law's first state (LuGre's bristle deflection at sliding,
+    min(fc)/sigma0, to a power of two); 1 for a law without states."""
+    nominals = state_nominals(friction)
+    return nominals[0] if nominals else 1.0
 
 
 @dataclass(frozen=True)
@@ -335,15 +375,15 @@ def parameter_rules(plant: Plant) -> ParameterRules:
             if plant.dc_gain is not None:
                 not_zero_root.append((re, index[f"{kind}{i}_im"] if root.imag != 0 else -1))
     nonzero[index[plant.gain_key]] = True
-    fr = plant.friction
-    for key in fr.keys():
+    law = plant.friction.law
+    for key in plant.friction.keys():
         low[index[key]] = 0.0
-        low_open[index[key]] = key in ("v_smooth", "vs", "sigma0") or (fr.model == "lugre" and key.startswith("fc_"))
+        low_open[index[key]] = law.low_open(key)
     for key in ("stiffness", "ripple_amplitude", "ripple_period"):
         if key in index:
             low[index[key]] = 0.0
             low_open[index[key]] = key == "ripple_period"
-    at_least = tuple((index[f"fs_{side}"], index[f"fc_{side}"]) for side in ("pos", "neg") if f"fs_{side}" in index)
+    at_least = tuple((index[a], index[b]) for a, b in law.at_least() if a in index and b in index)
     return ParameterRules(tuple(low), tuple(high), tuple(low_open), tuple(nonzero), at_least, tuple(not_zero_root))
 
 
@@ -369,6 +409,10 @@ def parameter_info(name: str, plant: Plant | None = None) -> tuple[str, str]:
         return gain_unit(plant), PARAMETER_INFO[name][1]
     if name in PARAMETER_INFO:
         return PARAMETER_INFO[name]
+    key = plant.friction.law.key(name) if plant is not None else None
+    key = key or law_key(name)
+    if key is not None:
+        return key.unit, key.description
     kind = "pole" if name.startswith("pole") else "zero"
     part = " (real part)" if name.endswith("_re") else " (imaginary part, > 0; the conjugate is implied)" \
         if name.endswith("_im") else ""
@@ -483,47 +527,53 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
     if has_dc and any(z == 0 for z in zeros):
         fail("linear.dc_gain", "a zero at 0 makes the DC gain 0: give `gain` instead")
 
-    fr = data["friction"]
+    model, symmetric, values = _read_friction(data["friction"], fail)
+    load = _read_load(data["load"], fail) if "load" in data else Load()
+    plant = Plant(name=name, poles=poles, zeros=zeros, friction=Friction.of(model, values, symmetric),
+                  dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source, load=load)
+    return replace(plant, fixed=_read_fixed(data.get("fixed", []), plant, fail))
+
+
+def _read_friction(fr: dict, fail) -> tuple[str, bool, dict[str, float]]:
+    """The [friction] section: (law, symmetric, values in parameter-vector order), each key checked against the
+    law's (servofmu.model.laws): known, a number, not negative (positive where the law says so), a default where
+    it has one, a symmetric friction's levels for v < 0 equal to those for v > 0, then the law's own rules."""
     model = fr.get("model")
-    if model not in FRICTION_MODELS:
-        fail("friction.model", f"must be one of {', '.join(FRICTION_MODELS)}, not {model!r}")
-    keys = _FRICTION_KEYS[model]
-    _check_keys(fr, {"model", "symmetric", *keys}, "friction.", fail)
+    law = get_law(model)
+    if law is None:
+        fail("friction.model", f"must be one of {', '.join(law_names())}, not {model!r}")
+    _check_keys(fr, {"model", "symmetric", *(k.name for k in law.all_keys())}, "friction.", fail)
+    check_viscous(fr, fail)
     symmetric = fr.get("symmetric", False)
     if not isinstance(symmetric, bool):
         fail("friction.symmetric", f"must be true or false, not {symmetric!r}")
+    keys = law.parameter_keys(lambda k: k in fr)
     values = {}
     for k_ in keys:
-        if symmetric and k_ in _MIRRORED and k_ not in fr:
+        key = law.key(k_)
+        if symmetric and key.mirror and k_ not in fr:
             continue  # the level of v > 0, set below
         if k_ not in fr:
-            if k_ in _FRICTION_DEFAULTS:
-                values[k_] = _FRICTION_DEFAULTS[k_]
+            if key.default is not None:
+                values[k_] = key.default
                 continue
             fail(f"friction.{k_}", f"missing (required by the {model} model)")
         values[k_] = _number(fr[k_], f"friction.{k_}", fail)
         if values[k_] < 0:
             fail(f"friction.{k_}", "must not be negative")
-    for neg, pos in _MIRRORED.items():
-        if symmetric and pos in values:
+    for neg in keys:
+        pos = law.key(neg).mirror
+        if symmetric and pos and pos in values:
             if neg in values and values[neg] != values[pos]:
                 fail(f"friction.{neg}", f"a symmetric friction has {neg} = {pos} ({values[pos]!r}), not "
                                         f"{values[neg]!r}: give one of them")
             values[neg] = values[pos]
     values = {k_: values[k_] for k_ in keys}  # in parameter-vector order
-    for positive in ("v_smooth", "vs", "sigma0"):
-        if positive in values and values[positive] <= 0:
-            fail(f"friction.{positive}", "must be positive")
-    for side in ("pos", "neg"):
-        if f"fs_{side}" in values and values[f"fs_{side}"] < values[f"fc_{side}"]:
-            fail(f"friction.fs_{side}", f"static friction must not be below Coulomb friction fc_{side}")
-    if model == "lugre" and (values["fc_pos"] <= 0 or values["fc_neg"] <= 0):
-        fail("friction.fc_pos", "LuGre needs positive Coulomb friction on both sides")
-
-    load = _read_load(data["load"], fail) if "load" in data else Load()
-    plant = Plant(name=name, poles=poles, zeros=zeros, friction=Friction(model=model, symmetric=symmetric, **values),
-                  dc_gain=k if has_dc else None, gain=None if has_dc else k, source=source, load=load)
-    return replace(plant, fixed=_read_fixed(data.get("fixed", []), plant, fail))
+    for k_ in keys:
+        if law.key(k_).positive and values[k_] <= 0:
+            fail(f"friction.{k_}", "must be positive")
+    law.check(values, fail)
+    return model, symmetric, values
 
 
 def _read_fixed(names, plant: Plant, fail) -> tuple[str, ...]:

@@ -4,8 +4,8 @@ This is the single source of the equations (docs/model.md): the FMU's C code,
 the batch simulator and the least-squares fits are all generated from the
 expressions built here.
 
-States, in order: the realisation of G(s) (``xi1..xin``), ``position``, and for
-LuGre the bristle deflection ``z``.  G is driven by w = u + excitation − F(v) +
+States, in order: the realisation of G(s) (``xi1..xin``), ``position``, and the
+friction law's own (servofmu.model.laws: LuGre's and Dahl's deflection ``z``).  G is driven by w = u + excitation − F(v) +
 the load's force (offset, spring and ripple, functions of the position).  G is realised in observable canonical form
 with a constant diagonal scaling: with den(s) = sⁿ + a₍ₙ₋₁₎sⁿ⁻¹ + … + a₀ and
 num(s) = b₍ₙ₋₁₎sⁿ⁻¹ + … + b₀ the unscaled form is
@@ -25,6 +25,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from .laws.viscous import viscous_force
 from .plant import Plant, parameter_info, state_scale
 
 __all__ = ["SymbolicModel", "build_model", "friction_force", "load_force", "EXCITATION_PARAMETERS", "OUTPUT_NAMES",
@@ -132,22 +133,12 @@ def _root_factors(symbols, template) -> tuple[list, list]:
     return poly, list(it)
 
 
-def friction_force(plant: Plant, par: dict, v, z=None):
-    """F(v) (and dz/dt for LuGre) as CasADi expressions; ``par`` maps friction keys to expressions."""
-    fr = plant.friction
-
-    def g(side):
-        fc = par[f"fc_{side}"]
-        if fr.model == "coulomb":
-            return fc
-        return fc + (par[f"fs_{side}"] - fc) * ca.exp(-(v / par["vs"]) ** 2)
-
-    if fr.model == "lugre":
-        g_v = ca.if_else(v >= 0, g("pos"), g("neg"))
-        dz = v - par["sigma0"] * ca.fabs(v) * z / g_v
-        return par["sigma0"] * z + par["sigma1"] * dz + par["fv"] * v, dz
-    th = ca.tanh(v / par["v_smooth"])
-    return g("pos") * ca.fmax(th, 0) + g("neg") * ca.fmin(th, 0) + par["fv"] * v, None
+def friction_force(plant: Plant, par: dict, v, states=()):
+    """F(v) and the derivatives of the friction law's states (a list, empty for a law without states) as CasADi
+    expressions: the law's force (servofmu.model.laws) plus the viscous term; ``par`` maps friction keys to
+    expressions, ``states`` holds the law's state symbols."""
+    force, dstates = plant.friction.law.force(par, v, list(states))
+    return force + viscous_force(par, v), list(dstates)
 
 
 def load_force(plant: Plant, par: dict, position):
@@ -189,15 +180,13 @@ def build_model(plant: Plant) -> SymbolicModel:
     position = ca.SX.sym("position")
     states = [xi, position]
     state_names = [f"xi{i + 1}" for i in range(n)] + ["position"]
-    z = None
-    if plant.friction.model == "lugre":
-        z = ca.SX.sym("z")
-        states.append(z)
-        state_names.append("z")
+    law_states = [ca.SX.sym(state.name) for state in plant.friction.law.states]
+    states += law_states
+    state_names += [state.name for state in plant.friction.law.states]
     x = ca.vertcat(*states)
 
     v = xi[0]
-    force, dz = friction_force(plant, par, v, z)
+    force, dstates = friction_force(plant, par, v, law_states)
     u_total = u + par["excitation_amplitude"] * ca.sin(2 * np.pi * par["excitation_frequency"] * t)
     w = u_total - force
     external = load_force(plant, par, position)
@@ -211,7 +200,7 @@ def build_model(plant: Plant) -> SymbolicModel:
         if k_ < n:
             expr = expr + c * xi[k_]
         dxi.append(expr)
-    xdot = ca.vertcat(*dxi, v, *([dz] if z is not None else []))
+    xdot = ca.vertcat(*dxi, v, *dstates)
     y = ca.vertcat(v, position, force)
     return SymbolicModel(plant=plant, t=t, x=x, u=u, p=p, xdot=xdot, y=y,
                          state_names=tuple(state_names), state_scale=c)

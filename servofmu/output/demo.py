@@ -12,7 +12,7 @@ import numpy as np
 
 from ..identification.closed_loop import closed_loop_data
 from ..model.controller import load_controller
-from ..control.cosim import cosimulate, write_cosim_records
+from ..control.cosim import cosimulate
 from ..control.fmus import build_controller_fmu
 from ..control.system import write_system
 from ..fmu import build_fmu

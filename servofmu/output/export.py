@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, claim_output, file_sha256, output_mode
 from ..identification.results import Result, read_result, to_json
+from ..model.laws.registry import base_law
 from ..model.plant import Friction, Load, Plant, plant_from_dict
 from ..runtime import RunOptions, optional_import, utc_now
 from ..version import __version__
@@ -90,7 +91,7 @@ def linear_state_space(plant: Plant) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
     from ..model.symbolic import build_model
 
-    linear = replace(plant, friction=Friction(model="coulomb", fc_pos=0.0, fc_neg=0.0, fv=0.0), load=Load())
+    linear = replace(plant, friction=Friction(model=base_law().name, fc_pos=0.0, fc_neg=0.0, fv=0.0), load=Load())
     model = build_model(linear)
     n = plant.order  # xi1..xin come first in the state vector, v is the first output
     jac = np.asarray(ca.DM(model.io_jacobian(0.0, np.zeros(model.nx), 0.0, model.parameter_start())))

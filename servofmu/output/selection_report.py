@@ -7,7 +7,6 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 
 from ..fileio import all_or_none, atomic_write, claim_outputs, holds_outputs, output_mode
 from ..measurement.datafile import read_data_file

@@ -18,7 +18,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import UserError
-from ..model.plant import FRICTION_MODELS, Plant, PlantError, plant_from_dict
+from ..model.laws.registry import base_law, default_laws, get_law, law_names
+from ..model.plant import Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
 __all__ = ["Candidate", "parse_candidates", "default_candidates", "load_candidates", "candidate_plant",
@@ -39,7 +40,7 @@ LOAD_TERMS = {
 
 @dataclass(frozen=True, order=True)
 class Candidate:
-    """One structure to try: ``law`` (coulomb, stribeck or lugre), ``load`` terms (names of LOAD_TERMS), the
+    """One structure to try: ``law`` (a registered friction law's name), ``load`` terms (names of LOAD_TERMS), the
     ``order`` of G(s) (its number of poles) and ``zeros`` (0 or 1)."""
 
     law: str
@@ -58,7 +59,7 @@ def supported_load_terms() -> tuple[str, ...]:
     out = []
     for term, keys in LOAD_TERMS.items():
         probe = {"name": "probe", "linear": {"poles": [[-1.0, 0.0]], "dc_gain": 1.0},
-                 "friction": {"model": "coulomb", "fc_pos": 0.1, "fc_neg": 0.1}, "load": dict(keys)}
+                 "friction": {"model": base_law().name, "fc_pos": 0.1, "fc_neg": 0.1}, "load": dict(keys)}
         try:
             plant_from_dict(probe)
         except PlantError:
@@ -81,10 +82,10 @@ def _orders(orders) -> tuple[int, ...]:
 def _family(text: str) -> tuple[str, tuple[str, ...]]:
     """(law, load terms) of ``LAW[+TERM…]``, checked."""
     law, *terms = text.split("+")
-    if law not in FRICTION_MODELS:
+    if get_law(law) is None:
         hint = (" (viscous friction is part of every candidate's G: docs/selection.md)" if law == "fv" or
                 "fv" in terms else "")
-        raise UserError(f"candidate {text!r}: unknown friction law {law!r} (choose {', '.join(FRICTION_MODELS)})"
+        raise UserError(f"candidate {text!r}: unknown friction law {law!r} (choose {', '.join(law_names())})"
                         + hint)
     supported = supported_load_terms()
     for term in terms:
@@ -138,10 +139,11 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
 
 
 def default_candidates(orders=(1, 2, 3)) -> list[Candidate]:
-    """Every friction law at every order of ``orders``, with and without a zero (orders ≥ 2).  Load terms are
-    tried in a second stage, on the structure this set ranks first (:func:`load_candidates`)."""
+    """Every friction law of the default set (servofmu.model.laws.registry.default_laws) at every order of
+    ``orders``, with and without a zero (orders ≥ 2).  Load terms are tried in a second stage, on the structure
+    this set ranks first (:func:`load_candidates`)."""
     orders = _orders(orders)
-    return [c for law in FRICTION_MODELS for c in _with_orders(law, (), orders)]
+    return [c for law in default_laws() for c in _with_orders(law, (), orders)]
 
 
 def load_candidates(chosen: Candidate) -> list[Candidate]:
@@ -177,8 +179,9 @@ def _distinct(roots, stable: bool) -> list[complex]:
 def candidate_plant(candidate: Candidate, estimate: LinearEstimate) -> Plant:
     """The plant a candidate's fit starts from: G from the linear estimate (poles mirrored into the left
     half-plane), its DC gain, the Coulomb levels estimated, and first guesses of the other friction values
-    scaled to the data (static friction 1.5·fc, Stribeck velocity a fifth of the RMS velocity, LuGre bristles
-    deflecting by a thousandth of the RMS velocity's second at rest, critically damped on G's high-frequency mass);
+    scaled to the data (the law's FrictionLaw.start_values: static friction 1.5·fc, Stribeck velocity a fifth of the
+    RMS velocity, LuGre bristles deflecting by a thousandth of the RMS velocity's second at rest, critically damped
+    on G's high-frequency mass);
     the load terms start at zero."""
     poles = _distinct(estimate.poles, stable=True)
     zeros = _distinct(estimate.zeros, stable=False)
@@ -193,12 +196,8 @@ def candidate_plant(candidate: Candidate, estimate: LinearEstimate) -> Plant:
     fc_pos, fc_neg = (max(x, 0.05 * level) for x in (estimate.fc_pos, estimate.fc_neg))
     friction = {"model": candidate.law, "fc_pos": fc_pos, "fc_neg": fc_neg}
     v_rms = max(estimate.v_rms, 1e-9)
-    if candidate.law in ("stribeck", "lugre"):
-        friction.update(fs_pos=1.5 * fc_pos, fs_neg=1.5 * fc_neg, vs=0.2 * v_rms)
-    if candidate.law == "lugre":
-        sigma0 = 0.5 * (fc_pos + fc_neg) / (1e-3 * v_rms)
-        mass = 1.0 / max(abs(estimate.gain), 1e-12) if candidate.order - candidate.zeros == 1 else 0.1
-        friction.update(sigma0=sigma0, sigma1=2.0 * np.sqrt(sigma0 * mass))
+    mass = 1.0 / max(abs(estimate.gain), 1e-12) if candidate.order - candidate.zeros == 1 else 0.1
+    friction.update(get_law(candidate.law).start_values(fc_pos, fc_neg, v_rms, mass))
     data = {"name": "candidate", "linear": {"poles": pairs, "zeros": zpairs, "dc_gain": float(dc)},
             "friction": friction}
     if candidate.load:

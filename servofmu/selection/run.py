@@ -16,6 +16,7 @@ from ..fileio import all_or_none, claim_outputs, file_sha256, holds_outputs, out
 from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
+from ..model.laws.registry import get_law
 from ..runtime import RunOptions, available_cores, check_work, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
@@ -422,14 +423,10 @@ def _threads_per_job(pool: Workers, jobs: int) -> int:
     return max(1, min(pool.workers, available_cores()) // jobs)
 
 
-# How much longer a law's fits take than Coulomb's (its states and parameters; LuGre's stiff bristles)
-LAW_COST = {"coulomb": 0, "stribeck": 1, "lugre": 2}
-
-
 def _expected_cost(job: CandidateJob) -> tuple:
     """A key that orders fits by their expected time: a ripple's search first, then a swarm before a polish
     alone, then by the order of G and its zeros (third-order fits with a zero take ten times a first-order one's
-    time), then the law."""
+    time), then the law's cost (FrictionLaw.cost: its states and parameters; LuGre's stiff bristles)."""
     c = job.candidate
     swarm = job.mode != "refit" and not job.polished
-    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, LAW_COST.get(c.law, 0), len(c.load)
+    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, get_law(c.law).cost, len(c.load)

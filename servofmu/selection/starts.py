@@ -11,27 +11,20 @@ from dataclasses import replace
 import numpy as np
 
 from ..model.friction import steady_friction
+from ..model.laws.registry import contained_laws, get_law
+from ..model.laws.viscous import VISCOUS_KEYS
 from ..model.plant import Friction, plant_from_dict
 from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
 from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
 
-__all__ = ["NESTED_LAW", "contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader",
+__all__ = ["contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader",
            "nested_law_starts", "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law",
            "without_cancelling", "within_first", "without_load"]
 
 
-# The friction law each law contains as a limit: Stribeck is LuGre with stiff bristles, Coulomb is Stribeck with
-# fs = fc.
-NESTED_LAW = {"lugre": "stribeck", "stribeck": "coulomb"}
+# The friction law each law contains as a limit (FrictionLaw.nested, servofmu.model.laws): Stribeck is LuGre with
+# stiff bristles, Coulomb is Stribeck with fs = fc.
 SPEED_QUANTILES = 512  # the data's velocities a Coulomb level is averaged over (with_law)
-
-
-def contained_laws(law: str) -> list[str]:
-    """``law`` and the laws it contains (NESTED_LAW, all the way down): lugre, stribeck, coulomb."""
-    laws = [law]
-    while NESTED_LAW.get(laws[-1]):
-        laws.append(NESTED_LAW[laws[-1]])
-    return laws
 
 
 def with_load(plant, candidate: Candidate, found=None):
@@ -78,7 +71,7 @@ def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], ba
             if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
                 out[target] = smaller
     best = fitted[0] if fitted else None
-    law = NESTED_LAW.get(best.candidate.law) if best else None
+    law = get_law(best.candidate.law).nested if best else None
     if law:
         c = best.candidate
         target = Candidate(law, c.order, c.zeros, c.load)
@@ -165,7 +158,7 @@ def without_load(plant, terms):
 
 
 def nested_structures(candidate: Candidate, orders=()):
-    """The candidates nested in ``candidate`` with its load terms: the laws its law contains (NESTED_LAW, all the
+    """The candidates nested in ``candidate`` with its load terms: the laws its law contains (FrictionLaw.nested, all the
     way down) at its order and zero, then, where it has a zero, its own law and those without the zero, then its
     own law one order lower where ``orders`` has it (an order chosen without the load term may hold its force in
     a pole)."""
@@ -224,18 +217,21 @@ def with_law(plant, law: str, speeds: np.ndarray):
     """``plant`` with the friction law ``law`` nested in its own: the levels they share, and Coulomb levels that
     are the mean of its steady friction curve over the data's velocities ``speeds`` on either side (a Stribeck
     fit may hold the axis's level in fs with a Stribeck velocity above the speeds, and fc far below it)."""
-    keys = {"coulomb": ("fc_pos", "fc_neg"), "stribeck": ("fc_pos", "fc_neg", "fs_pos", "fs_neg", "vs")}[law]
-    levels = {k: getattr(plant.friction, k) for k in keys}
-    fv = plant.friction.fv
-    if law == "coulomb":
-        for key, sign in (("fc_pos", 1.0), ("fc_neg", -1.0)):
-            side = speeds[np.sign(speeds) == sign]
-            if side.size:  # its quantiles stand for it; the curve less the viscous term, which the law keeps
-                side = np.quantile(side, np.linspace(0.0, 1.0, min(side.size, SPEED_QUANTILES)))
-                level = float(np.mean(sign * steady_friction(plant, side) - fv * np.abs(side)))
-                if np.isfinite(level) and level > 0:
-                    levels[key] = level
-    return replace(plant, friction=Friction(model=law, fv=fv, **levels))
+    source = plant.friction.values()
+    viscous = {k.name: source[k.name] for k in VISCOUS_KEYS if k.name in source}
+    fv_pos, fv_neg = viscous.get("fv_pos", viscous.get("fv")), viscous.get("fv_neg", viscous.get("fv"))
+
+    def mean_level(sign: float) -> float | None:
+        side = speeds[np.sign(speeds) == sign]
+        if not side.size:
+            return None
+        # its quantiles stand for it; the curve less the viscous term, which the law keeps
+        side = np.quantile(side, np.linspace(0.0, 1.0, min(side.size, SPEED_QUANTILES)))
+        level = float(np.mean(sign * steady_friction(plant, side) - (fv_pos if sign > 0 else fv_neg) * np.abs(side)))
+        return level if np.isfinite(level) and level > 0 else None
+
+    levels = get_law(law).levels_from(source, mean_level)
+    return replace(plant, friction=Friction.of(law, {**levels, **viscous}))
 
 
 def without_cancelling(poles: tuple, zeros: tuple) -> tuple[tuple, tuple]:

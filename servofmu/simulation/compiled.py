@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import UserError
-from ..model.plant import Plant, bristle_nominal, state_scale
+from ..model.plant import Plant, state_nominals, state_scale
 from ..runtime import cache_dir, compile_shared, compiler_signature, temporary_folder
 from ..version import __version__
 
@@ -175,7 +175,7 @@ def _processor() -> str:
 def library_key(plant: Plant, driver: Path, extra: dict[str, str]) -> str:
     """The cache key (SHA-256, hex) of a compiled driver: the plant's structure (its file text with every value
     1: the parameters are the library's arguments) and the two constants its code holds (plant.state_scale and
-    plant.bristle_nominal, powers of two: plants of one structure and similar values share a library; a selection
+    plant.state_nominals, powers of two: plants of one structure and similar values share a library; a selection
     fits candidates from starts of their own, which each compiled a library of their own when the key held the
     values), servofmu's version, the Python code that generates the C sources (GENERATORS), every C file of the
     driver's, the batch driver's and the FMU core's folders, the ``extra`` texts, the CasADi installation, the
@@ -183,7 +183,7 @@ def library_key(plant: Plant, driver: Path, extra: dict[str, str]) -> str:
     digest = hashlib.sha256()
     native = driver_cflags() != EXTRA_CFLAGS
     shape = plant.with_parameters(np.ones(len(plant.parameter_names()))).to_toml()
-    constants = f"{state_scale(plant)!r} {bristle_nominal(plant.friction)!r}"
+    constants = f"{state_scale(plant)!r} " + " ".join(repr(n) for n in state_nominals(plant.friction) or (1.0,))
     for text in (shape, constants, __version__, compiler_signature(driver_cflags()), _casadi_stamp(),
                  _processor() if native else ""):
         digest.update(text.encode() + b"\0")

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..model.controller import ControllerSpec
+from ..model.laws.viscous import viscous_levels
 from ..model.plant import Plant
 
 __all__ = ["DiscreteLoop", "LoopAnalysis", "discrete_loop", "analyse_loop", "sensitivity_peak", "zoh_position_plant",
@@ -56,7 +57,7 @@ def zoh_position_plant(plant: Plant, sample_time: float) -> tuple[np.ndarray, np
     friction fv closed around G, and a spring of the plant's load, −k·(x − x0), around G_v/s), from the matrix
     exponential of its controllable realisation."""
     num, den = plant.transfer_function()
-    fv = plant.friction.fv
+    fv = 0.5 * sum(viscous_levels(plant.friction.values()))  # a direction-dependent one: its mean
     den = np.polyadd(den, fv * num)  # G/(1 + fv·G)
     den = np.polymul(den, [1.0, 0.0])  # the position integrates the velocity
     den = np.polyadd(den, (plant.load.stiffness or 0.0) * num)  # a spring on the load: −k·x fed back

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..model.controller import ControllerSpec
+from ..model.laws.viscous import viscous_levels
 from ..model.plant import Plant
 
 __all__ = ["Task", "stroke_task", "task_from_csv", "check_task", "reference_velocity", "step_task",
@@ -104,7 +105,8 @@ def check_task(task: Task, plant: Plant, controller: ControllerSpec, mass: float
     fr = plant.friction
     breakaway = max(fr.fc_pos, fr.fc_neg, fr.fs_pos or 0.0, fr.fs_neg or 0.0)
     load = plant.load
-    force = mass * np.abs(a) + (viscous_damping(plant) + fr.fv) * np.abs(v) + breakaway + abs(load.offset or 0.0) \
+    fv = max(viscous_levels(fr.values()))
+    force = mass * np.abs(a) + (viscous_damping(plant) + fv) * np.abs(v) + breakaway + abs(load.offset or 0.0) \
         + abs(load.stiffness or 0.0) * np.abs(task.position - (load.x0 or 0.0)) + abs(load.ripple_amplitude or 0.0)
     k = int(np.argmax(force))
     limit = controller["force_limit"]
