@@ -382,7 +382,7 @@ def run_command(run: CommandRun, work: Callable[[CommandRun], None]) -> int:
     """``work(run)`` with the stop signals turned into exceptions, and its end turned into an exit status: 0, or
     :data:`EXIT_USER_ERROR` for a UserError, OSError or MemoryError, 130 for Ctrl-C, 128 + n for signal n; ``run.message`` then
     holds the one line to print.  ``work`` may rename ``run.who`` once it knows the command."""
-    from .fileio import OutputExists
+    from .claims import OutputExists
 
     _stop_signals.clear()  # the handlers first: Ctrl-C while the modules load is one line too
     handlers = {s: signal.signal(s, _terminate) for s in STOP_SIGNALS}
