@@ -3,6 +3,7 @@ state-space periodic steady state), intervals that cover the truth with noise, a
 (the frequency-domain G as the start of the records' fit of G and the friction), with one-line refusals."""
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -108,11 +109,25 @@ def test_identify_on_broadband_data_fits_g_and_the_friction_from_the_frequency_d
     t = truth_of(truth, result.names)
     assert np.all(np.abs(result.theta / t - 1) < 0.02), (result.names, result.theta)
     assert result.provenance["data_kind"] == "broadband"
+    proc = run("validate", out, data, "--json")  # its records, as identify fitted them
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["passed"] and report["own_data"] and len(report["records"]) == 1
 
 
-def test_identify_refuses_the_ann_and_the_closed_loop_on_broadband_data_in_one_line(tmp_path):
+def test_identify_select_and_plot_refuse_what_they_cannot_do_with_broadband_data_in_one_line(tmp_path):
     data = tmp_path / "bb.h5"
     write_simulated(data, frictionless("g1"), SMALL)
     proc = run("identify", data, "--structure", "g1", "--method", "ga-ann", "--ann", data, "-o", tmp_path / "r.h5")
     assert_one_line_error(proc, "broadband", "--method pso")
     assert not (tmp_path / "r.h5").exists()
+    other = tmp_path / "other.h5"
+    write_simulated(other, frictionless("g1"), SMALL, noise_snr_db=30.0)
+    proc = run("select", data, "--validate", other, "-o", tmp_path / "s.h5")
+    assert_one_line_error(proc, "broadband", "servofmu identify")
+    assert not (tmp_path / "s.h5").exists()
+    proc = run("plot", data, "--what", "time", "-o", tmp_path / "t.png")
+    assert_one_line_error(proc, "broadband", "--what bode")
+    proc = run("plot", data, "-o", tmp_path / "bode.png")  # the BLA with its ±2σ band
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "bode.png").read_bytes()[:4] == b"\x89PNG"

@@ -72,8 +72,24 @@ def cmd_plot(args) -> None:
 
     data = read_data_file(args.data)
     what = args.what or ("time" if data.kind == "records" else "bode")
+    if data.kind == "broadband":
+        return _plot_broadband(args, what)
     draw = bode_figure if what == "bode" else time_series_figure
     out = draw(data, args.output or Path(args.data).with_suffix(".png"), overwrite=args.force)
+    print(f"wrote {out}")
+
+
+def _plot_broadband(args, what: str) -> None:
+    """The Bode plot of a broadband data file: its BLA per level with the ±2σ band (as `servofmu frf -o FIG`)."""
+    if what != "bode":
+        raise UserError(f"{args.data}: broadband data is drawn as its BLA (--what bode; `servofmu frf` for the "
+                        "numbers), not as time series")
+    from ..broadband.frf import frf_of_file
+    from ..output.bla_plots import bla_figure
+
+    _, levels = frf_of_file(args.data)
+    out = bla_figure(levels, args.output or Path(args.data).with_suffix(".png"),
+                     f"{Path(args.data).name}: BLA, ±2σ", overwrite=args.force)
     print(f"wrote {out}")
 
 

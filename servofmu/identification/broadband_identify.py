@@ -31,7 +31,7 @@ __all__ = ["identify_broadband", "broadband_records", "broadband_start", "freque
            "BIAS_NOTE"]
 
 BIAS_NOTE = ("with friction the BLA is the best linear approximation of the whole plant at each level, not G: G "
-             "fitted to it is biased (more damping, a lower gain, most at the lowest level); the time-domain fit of G "
+             "fitted to it is biased (a lower gain, poles moved; most at the lowest level); the time-domain fit of G "
              "and the friction on the records is the result")
 
 

@@ -23,10 +23,11 @@ first (42 degrees of freedom for M = 4; the same study: 94–97 %).  Covariance 
 (J their Jacobian), times V/(2K − p) where that exceeds 1 (a model error); intervals θ ± t(0.95, 2K − p)·σ_θ.
 
 Friction is not in G_model: with friction the BLA is not G's response but the best linear approximation of the
-whole nonlinear plant at that level, and the fit's G is biased towards it (more damping, a lower gain at the
-lower level).  ``cost_ratio`` (V over its degrees of freedom, per level) says how far: about 1 to 1.5 (the weights'
-own scatter) when a linear G explains the BLA within its uncertainty, far above when friction (or a wrong
-structure) does not.
+whole nonlinear plant at that level, and the fit's G is biased towards it (a lower gain, poles moved; the more so the
+lower the level: scripts/bench_fdfit.py).  One level's cost does not show it — its BLA is a linear system
+and the variance it is weighted by holds the distortions — but the BLA's change from level to level does: fitted
+jointly, two levels of a plant with friction give ``cost_ratio`` (V over its degrees of freedom) far above 1, a
+linear plant about 1.  The distortion level (servofmu frf) is the direct measure.
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..model.plant import Plant, root_names
-from .prior import canonical_order, identified_names
+from .prior import identified_names
 from .student_t import t_quantile
 
 __all__ = ["FrequencyFit", "fit_bla", "linear_response", "g_names", "WEIGHT_FLOOR"]

@@ -48,6 +48,10 @@ def data_kind(data) -> str:
 def _one(path, skip: float, controller):
     """(DataFile, identifier data) of one file."""
     ds = read_data_file(path)
+    if ds.kind == "broadband":
+        raise UserError(f"{path}: broadband data: select does not take it yet; fit one structure with `servofmu "
+                        f"identify {path} --structure S` (the frequency-domain fit of G, then G and the friction on "
+                        "its records) and compare structures with `servofmu validate`")
     if controller is not None:
         from ..identification.closed_loop import closed_loop_data
 
