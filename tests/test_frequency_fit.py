@@ -113,6 +113,9 @@ def test_identify_on_broadband_data_fits_g_and_the_friction_from_the_frequency_d
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["passed"] and report["own_data"] and len(report["records"]) == 1
+    proc = run("report", out, "-o", tmp_path / "r.html")
+    assert proc.returncode == 0, proc.stderr
+    assert "the G fitted to the BLA" in (tmp_path / "r.html").read_text()
 
 
 def test_identify_select_and_plot_refuse_what_they_cannot_do_with_broadband_data_in_one_line(tmp_path):

@@ -18,8 +18,9 @@ def _db(x: np.ndarray) -> np.ndarray:
 
 
 def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "", overwrite: bool = False,
-               unit: str = "m/(N·s)") -> Path:
-    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA."""
+               unit: str = "m/(N·s)", models: tuple = ()) -> Path:
+    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA, and the
+    responses ``models`` ((label, frequencies in Hz, complex response), drawn as lines) over them."""
     plt = pyplot()
     fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     for k, (level, b) in enumerate(levels):
@@ -37,6 +38,10 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
         if np.isfinite(std).any():
             half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
             ax_ph.fill_between(f, phase - half, phase + half, color=color, alpha=0.2, lw=0)
+    for k, (label, f, G) in enumerate(models):
+        style = ("-", "-.", "--")[k % 3]
+        ax_mag.semilogx(f, _db(G), style, color="k", lw=1.2, label=label)
+        ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(G))), style, color="k", lw=1.2)
     ax_mag.set_ylabel(f"|G_BLA| [dB re 1 {unit}]")
     ax_ph.set_ylabel("phase of G_BLA [deg]")
     ax_ph.set_xlabel("frequency [Hz]")
