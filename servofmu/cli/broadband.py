@@ -8,7 +8,8 @@ from pathlib import Path
 from ..errors import UserError
 from .common import float_list
 
-__all__ = ["register", "add_plan_options", "cmd_excitation", "cmd_frf", "cmd_measure_broadband"]
+__all__ = ["register", "add_plan_options", "cmd_excitation", "cmd_frf", "cmd_measure_broadband",
+           "cmd_import_broadband"]
 
 KINDS = ("multisine", "chirp", "prbs")  # servofmu.broadband.signals.KINDS, here without loading numpy
 GRIDS = ("full", "odd", "odd-random")
@@ -77,6 +78,29 @@ def _frf_line(level: float, b) -> str:
             f"part, {b.distortion_to_noise_db:.1f} dB (total "
             f"{b.total_to_noise_db:.1f} dB) over the noise; odd/even detection lines "
             f"{b.detection_to_noise_db('odd'):.1f}/{b.detection_to_noise_db('even'):.1f} dB over the noise")
+
+
+def cmd_import_broadband(args) -> None:
+    """`import --excitation SIGNAL.csv`: a drive's log of that signal into a broadband data file."""
+    from ..broadband.importing import import_broadband
+    from .common import run_options
+
+    if len(args.files) != 1:
+        raise UserError(f"--excitation {args.excitation}: give the one log of that signal, not {len(args.files)} "
+                        "files")
+    for option, value in (("--append", args.append), ("--reference", args.reference),
+                          ("--disturbance", args.disturbance), ("--frequency", args.frequency)):
+        if value not in (None, False):
+            raise UserError(f"{option}: not with --excitation (a broadband log is an open-loop record of its own "
+                            "kind)")
+    if args.intersample != "zoh":
+        raise UserError("--intersample: a drive plays the excitation held for one sample (zoh)")
+    data = import_broadband(args.files[0], args.data, args.excitation, time=args.time, input=args.input,
+                            output_column=args.output_variable, kind=args.kind, cutoff=args.cutoff,
+                            input_scale=args.input_scale, run=run_options(args))
+    print(f"wrote {args.data}: {_describe(data.plan)}")
+    for lv in data.levels:
+        print(_frf_line(lv.level, lv.bla))
 
 
 def cmd_measure_broadband(args) -> None:
