@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,9 @@ from servofmu.errors import UserError
 from servofmu.identification.frequency_fit import fit_bla, g_names
 from servofmu.identification.results import read_result
 from servofmu.model.plant import load_plant
+from servofmu.selection.data import load_selection_data
+
+ROOT = Path(__file__).resolve().parent.parent
 
 RATE = 200.0
 
@@ -118,16 +122,21 @@ def test_identify_on_broadband_data_fits_g_and_the_friction_from_the_frequency_d
     assert "the G fitted to the BLA" in (tmp_path / "r.html").read_text()
 
 
-def test_identify_select_and_plot_refuse_what_they_cannot_do_with_broadband_data_in_one_line(tmp_path):
+def test_identify_and_plot_refuse_what_they_cannot_do_with_broadband_data_and_select_reads_its_records(tmp_path):
     data = tmp_path / "bb.h5"
     write_simulated(data, frictionless("g1"), SMALL)
     proc = run("identify", data, "--structure", "g1", "--method", "ga-ann", "--ann", data, "-o", tmp_path / "r.h5")
     assert_one_line_error(proc, "broadband", "--method pso")
     assert not (tmp_path / "r.h5").exists()
+    # select fits its candidates to the records as identify does (one run from rest); not in a loop
+    fit, files = load_selection_data([data])
+    (series,) = fit.records
+    assert series.u.size == 2 * 2 * 3 * SMALL.samples and files[0].kind == "broadband"
     other = tmp_path / "other.h5"
     write_simulated(other, frictionless("g1"), SMALL, noise_snr_db=30.0)
-    proc = run("select", data, "--validate", other, "-o", tmp_path / "s.h5")
-    assert_one_line_error(proc, "broadband", "servofmu identify")
+    proc = run("select", data, "--validate", other, "--closed-loop", ROOT / "fmu_models" / "axis_controller.toml",
+               "-o", tmp_path / "s.h5")
+    assert_one_line_error(proc, "broadband data is open loop", "without --closed-loop")
     assert not (tmp_path / "s.h5").exists()
     proc = run("plot", data, "--what", "time", "-o", tmp_path / "t.png")
     assert_one_line_error(proc, "broadband", "--what bode")
