@@ -25,7 +25,8 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["BLA", "H1Estimate", "estimate_bla", "split_periods", "h1_estimate"]
+__all__ = ["BLA", "H1Estimate", "estimate_bla", "split_periods", "h1_estimate", "ClosedLoopEstimate",
+           "closed_loop_estimate"]
 
 
 @dataclass(frozen=True)
@@ -224,3 +225,71 @@ def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None =
     with np.errstate(divide="ignore", invalid="ignore"):
         var = np.abs(G) ** 2 * (1 - coherence) / (segments * coherence)
     return H1Estimate(frequencies=f, G=G, coherence=coherence, var=var, segments=segments)
+
+
+@dataclass(frozen=True)
+class ClosedLoopEstimate:
+    """The plant's response from a closed-loop record with the reference r as the external signal:
+    G = S_ry/S_ur (Welch cross-spectra, Hann window, half overlap), ``frequencies`` (Hz), ``G``, ``var`` (its
+    variance S_ee/(n_d·S_uu·γ²_ru), e = y − G·u the noise left in the output, n_d the segments), ``coherence_ru``
+    and ``coherence_ry`` (of the reference with the input and the output), ``segments``."""
+
+    frequencies: np.ndarray
+    G: np.ndarray
+    var: np.ndarray
+    coherence_ru: np.ndarray
+    coherence_ry: np.ndarray
+    segments: int
+
+
+def closed_loop_estimate(r: np.ndarray, u: np.ndarray, y: np.ndarray, rate: float, segment: int | None = None,
+                         band: tuple[float, float] | None = None) -> ClosedLoopEstimate:
+    """The plant's response u → y in a loop, from the reference ``r`` (independent of the loop's noise).
+
+    In a loop the noise at the output returns through the controller into u, so u is correlated with the noise
+    and the direct estimate S_uy/S_uu (:func:`h1_estimate`) is biased towards −1/C where the noise dominates.
+    Cross-spectra with r are not (Pintelon & Schoukens, ch. 9; Ljung, the indirect and joint input–output
+    methods): S_ry = G·S_ru + S_re with S_re → 0 as segments are averaged.
+
+    Parameters
+    ----------
+    r, u, y : ndarray
+        Reference (any unit), plant input (N) and output (m/s), one record each, sampled at ``rate``.
+    rate : float
+        Sample rate (Hz).
+    segment : int, optional
+        Samples per Welch segment (default: the record / 8, at least 256).
+    band : (float, float), optional
+        Keep the frequencies in [f_min, f_max] (Hz).
+
+    Returns
+    -------
+    ClosedLoopEstimate
+        Frequencies, G, its variance and the coherences.
+    """
+    from scipy.signal import csd, welch
+
+    r, u, y = (np.asarray(x, float).ravel() for x in (r, u, y))
+    if not (r.shape == u.shape == y.shape) or u.size < 16:
+        raise UserError(f"r, u and y must be records of one length (≥ 16 samples), not {r.size}, {u.size} and "
+                        f"{y.size}")
+    nperseg = min(int(segment or max(256, u.size // 8)), u.size)
+    f, Srr = welch(r, fs=rate, nperseg=nperseg)
+    _, Suu = welch(u, fs=rate, nperseg=nperseg)
+    _, Syy = welch(y, fs=rate, nperseg=nperseg)
+    _, Sru = csd(r, u, fs=rate, nperseg=nperseg)
+    _, Sry = csd(r, y, fs=rate, nperseg=nperseg)
+    _, Suy = csd(u, y, fs=rate, nperseg=nperseg)
+    keep = (np.abs(Sru) > 0) & (Srr > 0)
+    if band is not None:
+        keep &= (f >= band[0]) & (f <= band[1])
+    f, Srr, Suu, Syy, Sru, Sry, Suy = (x[keep] for x in (f, Srr, Suu, Syy, Sru, Sry, Suy))
+    G = Sry / Sru
+    segments = max(1, 2 * u.size // nperseg - 1)
+    coh_ru = np.clip(np.abs(Sru) ** 2 / (Srr * Suu), 0.0, 1.0)
+    coh_ry = np.clip(np.abs(Sry) ** 2 / (Srr * Syy), 0.0, 1.0)
+    See = np.clip(Syy - 2 * np.real(np.conj(G) * Suy) + np.abs(G) ** 2 * Suu, 0.0, None)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = See / (segments * Suu * coh_ru)
+    return ClosedLoopEstimate(frequencies=f, G=G, var=var, coherence_ru=coh_ru, coherence_ry=coh_ry,
+                              segments=segments)

@@ -8,7 +8,8 @@ from pathlib import Path
 from ..errors import UserError
 from .common import float_list
 
-__all__ = ["register", "add_plan_options", "cmd_excitation", "cmd_frf", "cmd_measure_broadband"]
+__all__ = ["register", "add_plan_options", "cmd_excitation", "cmd_frf", "cmd_measure_broadband",
+           "cmd_import_broadband"]
 
 KINDS = ("multisine", "chirp", "prbs")  # servofmu.broadband.signals.KINDS, here without loading numpy
 GRIDS = ("full", "odd", "odd-random")
@@ -48,12 +49,25 @@ def cmd_excitation(args) -> None:
 
 
 def cmd_frf(args) -> None:
-    """The BLA per level of a broadband data file: a summary, --json, or -o FRF.h5 | FIG.png."""
-    from ..broadband.frf import frf_json, frf_of_file, write_frf
+    """The BLA per level of a broadband data file (a summary, --json, or -o FRF.h5 | FIG.png), or the frequency
+    response of the records of a records file (direct, and from the reference with --closed-loop)."""
+    from ..measurement.datafile import read_data_file
 
     suffix = Path(args.output).suffix.lower() if args.output else None
     if suffix is not None and suffix not in FIGURE_SUFFIXES + FRF_SUFFIXES:
         raise UserError(f"-o {args.output}: give an FRF file (.h5) or a figure ({', '.join(FIGURE_SUFFIXES)})")
+    if read_data_file(args.data).kind != "broadband":
+        return _frf_of_records(args, suffix)
+    _frf_of_broadband(args, suffix)
+
+
+def _frf_of_broadband(args, suffix) -> None:
+    """`frf BROADBAND.h5`: the BLA per level, printed, as JSON, an FRF file or a figure."""
+    from ..broadband.frf import frf_json, frf_of_file, write_frf
+
+    if args.closed_loop:
+        raise UserError(f"{args.data}: broadband data is open loop (the plant driven by the excitation): leave out "
+                        "--closed-loop")
     data, levels = frf_of_file(args.data)
     if suffix in FRF_SUFFIXES:
         write_frf(args.output, data, levels, args.command_line, overwrite=args.force)
@@ -69,6 +83,39 @@ def cmd_frf(args) -> None:
         print(f"wrote {args.output}")
 
 
+def _frf_of_records(args, suffix) -> None:
+    """`frf RECORDS.h5 [--closed-loop]`: per record the direct estimate and the one from the reference."""
+    import math
+
+    import numpy as np
+
+    from ..broadband.records_frf import TRUSTED_COHERENCE, records_frf, records_frf_json
+
+    if suffix in FRF_SUFFIXES:
+        raise UserError(f"-o {args.output}: records give --json or a figure ({', '.join(FIGURE_SUFFIXES)}), not an "
+                        "FRF file")
+    data, estimates = records_frf(args.data, args.closed_loop)
+    if suffix is not None:
+        from ..output.bla_plots import records_frf_figure
+        records_frf_figure(estimates, args.output, f"{Path(args.data).name}: frequency response, ±2σ",
+                           overwrite=args.force)
+    if args.json:
+        print(json.dumps(records_frf_json(data, estimates)))
+        return
+    for e in estimates:
+        line = (f"record {e.name}: {e.samples} samples at {e.rate:g} Hz; direct S_uy/S_uu at "
+                f"{e.direct.frequencies.size} frequencies, median coherence {float(np.median(e.direct.coherence)):.3g}")
+        if e.closed_loop is not None:
+            good = int((e.closed_loop.coherence_ru >= TRUSTED_COHERENCE).sum())
+            dev = e.direct_deviation()
+            line += (f"; from the reference S_ry/S_ru: {good} of {e.closed_loop.frequencies.size} frequencies with "
+                     f"γ²_ru ≥ {TRUSTED_COHERENCE}" + (f", where the direct estimate is off by "
+                                                      f"{100 * dev:.3g} % (median)" if math.isfinite(dev) else ""))
+        print(line)
+    if args.output:
+        print(f"wrote {args.output}")
+
+
 def _frf_line(level: float, b) -> str:
     import numpy as np
 
@@ -77,6 +124,29 @@ def _frf_line(level: float, b) -> str:
             f"part, {b.distortion_to_noise_db:.1f} dB (total "
             f"{b.total_to_noise_db:.1f} dB) over the noise; odd/even detection lines "
             f"{b.detection_to_noise_db('odd'):.1f}/{b.detection_to_noise_db('even'):.1f} dB over the noise")
+
+
+def cmd_import_broadband(args) -> None:
+    """`import --excitation SIGNAL.csv`: a drive's log of that signal into a broadband data file."""
+    from ..broadband.importing import import_broadband
+    from .common import run_options
+
+    if len(args.files) != 1:
+        raise UserError(f"--excitation {args.excitation}: give the one log of that signal, not {len(args.files)} "
+                        "files")
+    for option, value in (("--append", args.append), ("--reference", args.reference),
+                          ("--disturbance", args.disturbance), ("--frequency", args.frequency)):
+        if value not in (None, False):
+            raise UserError(f"{option}: not with --excitation (a broadband log is an open-loop record of its own "
+                            "kind)")
+    if args.intersample != "zoh":
+        raise UserError("--intersample: a drive plays the excitation held for one sample (zoh)")
+    data = import_broadband(args.files[0], args.data, args.excitation, time=args.time, input=args.input,
+                            output_column=args.output_variable, kind=args.kind, cutoff=args.cutoff,
+                            input_scale=args.input_scale, run=run_options(args))
+    print(f"wrote {args.data}: {_describe(data.plan)}")
+    for lv in data.levels:
+        print(_frf_line(lv.level, lv.bla))
 
 
 def cmd_measure_broadband(args) -> None:
@@ -128,7 +198,10 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_excitation)
 
     p = sub.add_parser("frf", help="best linear approximation with noise and distortion levels of broadband data")
-    p.add_argument("data", metavar="DATA.h5", role="input", help="data file of `servofmu measure --excitation`")
+    p.add_argument("data", metavar="DATA.h5", role="input", help="data file of `servofmu measure --excitation` "
+                   "(or `import --excitation`), or a records file")
+    p.add_argument("--closed-loop", action="store_true", help="records of a drive's log with its reference: the "
+                   "plant's response from the reference (S_ry/S_ru) beside the direct estimate")
     p.add_argument("--json", action="store_true", help="print the BLA per level as JSON (docs/broadband.md)")
     p.add_argument("-o", dest="output", metavar="FRF.h5|FIG.png", help="write the BLA (HDF5) or its Bode plot")
     p.set_defaults(func=cmd_frf)

@@ -58,10 +58,12 @@ def cmd_identify(args) -> None:
     with ProgressBar(args, "iteration") as bar:
         result = identify_to_file(args.data[0], args.structure, args.output, args.ann, identify_options(args),
                                   run_options(args, bar))
+    from ..identification.broadband_identify import frequency_lines
     from ..identification.closed_loop import clock_lines
 
     print(to_json_text(result) if args.json
-          else "\n".join([table_text(result), *clock_lines(result.provenance), f"wrote {args.output}"]))
+          else "\n".join([table_text(result), *clock_lines(result.provenance), *frequency_lines(result.provenance),
+                          f"wrote {args.output}"]))
 
 
 def cmd_identify_files(args) -> None:

@@ -56,6 +56,8 @@ def cmd_import(args) -> None:
 
     if args.output_variable is None:
         raise UserError("give --output-variable COLUMN: the velocity or position column")
+    if args.excitation is not None:
+        return broadband.cmd_import_broadband(args)
     loop = LoopChannels(args.reference, args.disturbance, args.input_scale, args.disturbance_scale)
     data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output_variable,
                           kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
@@ -72,8 +74,24 @@ def cmd_plot(args) -> None:
 
     data = read_data_file(args.data)
     what = args.what or ("time" if data.kind == "records" else "bode")
+    if data.kind == "broadband":
+        return _plot_broadband(args, what)
     draw = bode_figure if what == "bode" else time_series_figure
     out = draw(data, args.output or Path(args.data).with_suffix(".png"), overwrite=args.force)
+    print(f"wrote {out}")
+
+
+def _plot_broadband(args, what: str) -> None:
+    """The Bode plot of a broadband data file: its BLA per level with the ±2σ band (as `servofmu frf -o FIG`)."""
+    if what != "bode":
+        raise UserError(f"{args.data}: broadband data is drawn as its BLA (--what bode; `servofmu frf` for the "
+                        "numbers), not as time series")
+    from ..broadband.frf import frf_of_file
+    from ..output.bla_plots import bla_figure
+
+    _, levels = frf_of_file(args.data)
+    out = bla_figure(levels, args.output or Path(args.data).with_suffix(".png"),
+                     f"{Path(args.data).name}: BLA, ±2σ", overwrite=args.force)
     print(f"wrote {out}")
 
 
@@ -138,6 +156,9 @@ def register(sub) -> None:
                    help="the input between samples: zoh, held for one sample as a digital drive's command (default), "
                         "or foh, linear; identify and validate replay the record so")
     p.add_argument("--append", action="store_true", help="add the records to an existing records file")
+    p.add_argument("--excitation", metavar="SIGNAL.csv", role="input",
+                   help="the log is of this signal file (`servofmu excitation`): a broadband data file of its "
+                        "periods, lines and levels, with the BLA (docs/broadband.md)")
     p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
     p.set_defaults(func=cmd_import)
 

@@ -173,6 +173,7 @@ class PSOANNIdentifier:
     search_deadline: float | None = None  # time.perf_counter() at which the swarm stops (a selection's budget)
     work_limit: float = WORK_LIMIT_HOURS  # hours the search may be estimated at (runtime.check_work)
     _reduced_crit = None  # a long open-loop record's criterion at its reduced rate: the polish's first descent
+    start: tuple | None = None  # (lower, upper, y0) in target coordinates: a box and first particle from elsewhere
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -291,6 +292,8 @@ class PSOANNIdentifier:
         else:
             lower, upper = prior_box(self.structure, self.spread)
             y0 = None
+        if self.start is not None:  # broadband data: the box around the frequency-domain fit of G
+            lower, upper, y0 = self.start
 
         fits = [self._search_and_polish(crit, cost, lower, upper, y0, self.seed, stages)]
         chosen = self._restart_while_above_floor(crit, cost, data, fits, (lower, upper), y0, stages)

@@ -43,6 +43,17 @@ class IdentifyOptions:
         return self.method or default_method(ann_file)
 
 
+def _is_broadband(path) -> bool:
+    """Whether ``path`` is a data file of kind broadband (other files, and unreadable ones, are left to the
+    readers that name what is wrong with them)."""
+    from ..measurement.datafile import read_data_file
+
+    try:
+        return read_data_file(path).kind == "broadband"
+    except UserError:
+        return False
+
+
 def identify_to_file(data_file, structure_file, output, ann_file=None, options: IdentifyOptions | None = None,
                      run: RunOptions | None = None, threads: int | None = None) -> Result:
     """Identify the plant of one data file and write its result file.
@@ -50,7 +61,8 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
     Parameters
     ----------
     data_file : str or Path
-        Stepped-sine data (`servofmu measure`) or records (`servofmu import`, `servofmu cosim`).
+        Stepped-sine data (`servofmu measure`), records (`servofmu import`, `servofmu cosim`) or broadband data
+        (`servofmu measure --excitation`: identification.broadband_identify).
     structure_file : str or Path
         The structure: a plant file or the name of an example plant.
     output : str or Path
@@ -80,6 +92,10 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
     method = options.method_for(ann_file)
     claim_output(output, output_mode(run.overwrite), inputs=(data_file, structure_file, ann_file,
                                                             options.closed_loop))
+    if _is_broadband(data_file):
+        from .broadband_identify import identify_broadband
+
+        return identify_broadband(data_file, structure_file, output, options, run, method, threads)
     if options.closed_loop is not None:
         from .closed_loop import load_closed_loop_inputs
 

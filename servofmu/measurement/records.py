@@ -33,11 +33,14 @@ from .duplicates import TWICE, file_items, first_repeat, series_digest
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
 __all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
-           "LoopChannels", "KINDS"]
+           "LoopChannels", "KINDS", "other_tone", "periodic_note"]
 
 KINDS = ("velocity", "position")
 SINE_FRACTION = 0.8  # a record is sinusoidal when its input has at least this share of its AC power at one f
 MIN_PERIODS = 2
+# ...and no other tone (not a harmonic of f) holds this share: two tones are not one sine with a little noise
+OTHER_TONE = 0.01
+PERIODIC = 0.98  # the input repeats after N samples when its normalised autocorrelation at lag N is at least this
 
 
 # ---------------------------------------------------------------------------
@@ -64,12 +67,17 @@ def velocity_from_position(t: np.ndarray, x: np.ndarray, cutoff: float) -> np.nd
 # ---------------------------------------------------------------------------
 def analyse_record(t: np.ndarray, u: np.ndarray, v: np.ndarray, frequency: float | None = None
                    ) -> tuple[RecordAnalysis | None, str]:
-    """The first-harmonic analysis when u is a sinusoid (or ``frequency`` is given), with a note why not."""
+    """The first-harmonic analysis when u is a sinusoid (or ``frequency`` is given), with a note why not: an input
+    of several tones is never taken for one sine (:func:`other_tone`), a periodic multisine is named as such."""
     f_est, fraction = estimate_frequency(t, u)
     if frequency is None:
         if fraction < SINE_FRACTION:
-            return None, (f"input is not a sinusoid ({fraction:.0%} of its AC power at {f_est:.4g} Hz); "
-                          "no first-harmonic analysis")
+            return None, (f"input is not a sinusoid ({fraction:.0%} of its AC power at {f_est:.4g} Hz"
+                          f"{periodic_note(t, u)}); no first-harmonic analysis")
+        tone = other_tone(t, u, f_est, fraction)
+        if tone is not None:
+            return None, (f"input is not one sinusoid: {fraction:.0%} of its AC power at {f_est:.4g} Hz and "
+                          f"{tone[1]:.1%} at {tone[0]:.4g} Hz (not a harmonic); no first-harmonic analysis")
         frequency = f_est
     else:
         fraction = _fraction_at(t, u, frequency)
@@ -90,6 +98,52 @@ def analyse_record(t: np.ndarray, u: np.ndarray, v: np.ndarray, frequency: float
                               window_periods=n)
     note = "" if settle.converged else "the response did not settle over the first half of the record"
     return analysis, note
+
+
+def other_tone(t: np.ndarray, u: np.ndarray, frequency: float, fraction: float) -> tuple[float, float] | None:
+    """(frequency, share of u's AC power) of the strongest tone of u besides the sine at ``frequency`` (which holds
+    ``fraction``), when that share is at least OTHER_TONE and it is not a harmonic of ``frequency``; else None."""
+    duration = float(t[-1] - t[0])
+    basis = np.column_stack([np.sin(2 * np.pi * frequency * (t - t[0])), np.cos(2 * np.pi * frequency * (t - t[0])),
+                             np.ones_like(t)])
+    rest = u - basis @ np.linalg.lstsq(basis, u, rcond=None)[0]
+    if not np.any(rest):
+        return None
+    f2, share = estimate_frequency(t, rest)
+    share *= 1.0 - fraction
+    k = max(1, round(f2 / frequency))
+    if share < OTHER_TONE or abs(f2 - k * frequency) * duration < 2:
+        return None
+    return f2, share
+
+
+def periodic_note(t: np.ndarray, u: np.ndarray) -> str:
+    """", a periodic multisine of K lines, period P s (servofmu import --excitation)" when u repeats after some
+    N samples (its last two periods correlated ≥ PERIODIC; uniform samples) with its power on K ≥ 2 lines of
+    that period; "" else."""
+    n = u.size
+    if n < 64 or np.ptp(np.diff(t)) > 1e-6 * float(np.median(np.diff(t))):
+        return ""
+    x = u - np.mean(u)
+    spectrum = np.fft.rfft(x, 2 * n)
+    r = np.fft.irfft(np.abs(spectrum) ** 2)[:n // 2]
+    if r[0] <= 0:
+        return ""
+    r = r / (r[0] * (n - np.arange(n // 2)) / n)  # unbiased, normalised
+    # candidates: the autocorrelation's peaks (realisations of other phases lower them), checked on the last two
+    # periods, which must repeat
+    peaks = np.flatnonzero((r[9:-1] >= 0.3) & (r[9:-1] >= r[8:-2]) & (r[9:-1] >= r[10:])) + 9
+    period = next((int(k) for k in peaks[:20]
+                   if np.corrcoef(x[-k:], x[-2 * k:-k])[0, 1] >= PERIODIC), None)
+    if period is None:
+        return ""
+    one = np.abs(np.fft.rfft(x[-period:])) ** 2
+    lines = int(np.sum(one > 1e-3 * one.max()))
+    if lines < 2:
+        return ""
+    dt = float(np.median(np.diff(t)))
+    return (f"; a periodic multisine of {lines} lines, period {period * dt:.6g} s: import it with --excitation "
+            "SIGNAL.csv for its BLA")
 
 
 def _fraction_at(t, u, frequency) -> float:

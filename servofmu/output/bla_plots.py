@@ -9,7 +9,7 @@ import numpy as np
 from ..broadband.bla import BLA
 from .plots import finish_figure, pyplot
 
-__all__ = ["bla_figure"]
+__all__ = ["bla_figure", "records_frf_figure"]
 
 
 def _db(x: np.ndarray) -> np.ndarray:
@@ -18,8 +18,9 @@ def _db(x: np.ndarray) -> np.ndarray:
 
 
 def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "", overwrite: bool = False,
-               unit: str = "m/(N·s)") -> Path:
-    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA."""
+               unit: str = "m/(N·s)", models: tuple = ()) -> Path:
+    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA, and the
+    responses ``models`` ((label, frequencies in Hz, complex response), drawn as lines) over them."""
     plt = pyplot()
     fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     for k, (level, b) in enumerate(levels):
@@ -37,6 +38,10 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
         if np.isfinite(std).any():
             half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
             ax_ph.fill_between(f, phase - half, phase + half, color=color, alpha=0.2, lw=0)
+    for k, (label, f, G) in enumerate(models):
+        style = ("-", "-.", "--")[k % 3]
+        ax_mag.semilogx(f, _db(G), style, color="k", lw=1.2, label=label)
+        ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(G))), style, color="k", lw=1.2)
     ax_mag.set_ylabel(f"|G_BLA| [dB re 1 {unit}]")
     ax_ph.set_ylabel("phase of G_BLA [deg]")
     ax_ph.set_xlabel("frequency [Hz]")
@@ -44,4 +49,45 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
         ax.grid(True, which="both", alpha=0.4)
     ax_mag.legend(fontsize=7)
     ax_mag.set_title(title or "best linear approximation, ±2σ (shaded)")
+    return finish_figure(plt, fig, path, overwrite)
+
+
+def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker):
+    mag = np.abs(G)
+    ax_mag.semilogx(f, _db(G), marker, color=color, ms=3, lw=1, label=label)
+    ok = np.isfinite(std)
+    if ok.any():
+        ax_mag.fill_between(f[ok], _db(np.maximum(mag - 2 * std, mag * 1e-3)[ok]), _db((mag + 2 * std)[ok]),
+                            color=color, alpha=0.2, lw=0)
+    phase = np.degrees(np.angle(G))  # wrapped: noisy lines would carry an unwrapped phase off by turns
+    ax_ph.semilogx(f, phase, marker, color=color, ms=3, lw=1)
+    if ok.any():
+        half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
+        ax_ph.fill_between(f[ok], (phase - half)[ok], (phase + half)[ok], color=color, alpha=0.2, lw=0)
+
+
+def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: bool = False,
+                       unit: str = "m/(N·s)") -> Path:
+    """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the reference
+    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band."""
+    plt = pyplot()
+    fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    for k, e in enumerate(estimates):
+        d = e.direct
+        _with_band(ax_mag, ax_ph, d.frequencies, d.G, np.sqrt(d.var), f"C{2 * k}", f"{e.name}: direct S_uy/S_uu",
+                   "-")
+        if e.closed_loop is not None:
+            c = e.closed_loop
+            _with_band(ax_mag, ax_ph, c.frequencies, c.G, np.sqrt(c.var), f"C{2 * k + 1}",
+                       f"{e.name}: from the reference S_ry/S_ru", "-")
+            good = c.coherence_ru >= 0.9
+            ax_mag.semilogx(c.frequencies[good], _db(c.G[good]), ".", color=f"C{2 * k + 1}", ms=4,
+                            label=f"{e.name}: γ²_ru ≥ 0.9")
+    ax_mag.set_ylabel(f"|G| [dB re 1 {unit}]")
+    ax_ph.set_ylabel("phase of G [deg]")
+    ax_ph.set_xlabel("frequency [Hz]")
+    for ax in (ax_mag, ax_ph):
+        ax.grid(True, which="both", alpha=0.4)
+    ax_mag.legend(fontsize=7)
+    ax_mag.set_title(title or "frequency response of records, ±2σ (shaded)")
     return finish_figure(plt, fig, path, overwrite)

@@ -34,7 +34,7 @@ from .paper import TABLES as PAPER_TABLES
 from .validate import Validation
 from .validate import validate as validate_model
 from .report_entries import Entry, compute_entries, loop_controller, read_entries, used_sine_data, velocity_range
-from .report_figures import bode_figures, convergence_figure, friction_figure, records_figure
+from .report_figures import bla_report_figure, bode_figures, convergence_figure, friction_figure, records_figure
 from .validation_report import validation_html
 
 __all__ = ["make_report", "report_html", "transfer_function_html", "unit_text"]
@@ -330,6 +330,8 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
     parts.append("<h2>Figures</h2>")
     for e in entries:
         figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e)]
+        if data_file.kind == "broadband":
+            figures.append(bla_report_figure(e, data_file))
         parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
     caption, png = friction_figure(entries, truth, velocity_range(data_file))
     parts.append(figure(caption, png, "friction against velocity"))

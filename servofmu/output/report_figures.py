@@ -18,7 +18,7 @@ from .plots import MAX_PANELS, bode_figure, pyplot
 from .report_entries import CURVE_POINTS, FRICTION_POINTS, Entry, model_sine
 from .validation_report import validation_figure
 
-__all__ = ["bode_figures", "records_figure", "friction_figure", "convergence_figure"]
+__all__ = ["bode_figures", "records_figure", "friction_figure", "convergence_figure", "bla_report_figure"]
 
 
 # ---------------------------------------------------------------------------
@@ -82,6 +82,33 @@ def records_figure(entry: Entry) -> tuple[str, bytes]:
     more = f" (the first {MAX_PANELS} of {n} records)" if n > MAX_PANELS else ""
     return (f"{entry.label}: measured output and the identified model driven by the measured input{more}, with the "
             "residuals' correlations and their joint 99 % bounds.", validation_figure(entry.records, "records"))
+
+
+def bla_report_figure(entry: Entry, data_file: DataFile) -> tuple[str, bytes]:
+    """Broadband data: the BLA of every level with its ±2σ band, the identified plant's linear part (friction left
+    out) and the frequency-domain fit's G over it."""
+    from ..broadband.frf import frf_of_file
+    from ..identification.frequency_fit import linear_response
+    from .bla_plots import bla_figure
+
+    data, levels = frf_of_file(data_file.path)
+    f = np.unique(np.concatenate([b.frequencies for _, b in levels]))
+    result = entry.result
+    models = [("identified plant without friction", f, linear_response(result.structure,
+                                                                         result.plant.parameter_vector(), f,
+                                                                         data.plan.rate))]
+    fd = result.provenance.get("frequency_fit")
+    if fd:
+        vector, names = result.structure.parameter_vector(), result.structure.parameter_names()
+        for n, v in zip(fd["names"], fd["theta"]):
+            vector[names.index(n)] = v
+        models.append(("G fitted to the BLA (frequency domain)", f,
+                       linear_response(result.structure, vector, f, data.plan.rate)))
+    with temporary_folder("figure") as tmp:
+        png = bla_figure(levels, Path(tmp) / "bla.png", f"{entry.label}: BLA, ±2σ", models=tuple(models)).read_bytes()
+    return (f"{entry.label}: the best linear approximation at each level (excited lines, ±2σ shaded; σ of the noise "
+            "dotted, of the nonlinear distortions dashed), the identified plant's linear part and the G fitted to "
+            "the BLA; with friction the BLA lies off G, more so at the lower level.", png)
 
 
 def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float) -> tuple[str, bytes]:

@@ -175,11 +175,21 @@ def _is_own_data(result: Result, data_file: DataFile) -> bool:
         any(digest in fitted for _, digest in file_items(data_file))
 
 
+def _records_of(data_file: DataFile, skip: float):
+    """The records as identify fits them: a broadband file's as one run, in the order they were played."""
+    if data_file.kind == "broadband":
+        from ..broadband.store import read_broadband
+        from ..identification.broadband_identify import broadband_records
+
+        return broadband_records(read_broadband(data_file.path), skip)
+    return record_data(data_file, skip)
+
+
 def _validate_records(sim: BatchSimulator, params: np.ndarray, data_file: DataFile, skip: float,
                       min_fit: float) -> list[RecordValidation]:
     """The model driven by every record's input; residuals tested later (:func:`_with_tests`)."""
     out = []
-    for rec in record_data(data_file, skip).records:
+    for rec in _records_of(data_file, skip).records:
         response = sim.simulate_record(params[None], rec.time, rec.u, hold=rec.hold, rtol=POLISH_RTOL)
         e = record_errors(rec, response)[0]
         if not np.all(np.isfinite(e)):
@@ -251,7 +261,8 @@ def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=
     result : Result
         An identification (:func:`servofmu.read_result`).
     data_file : DataFile
-        Data the model was (preferably) not fitted to: records, a measurement, or both.
+        Data the model was (preferably) not fitted to: records, a measurement, or both; or broadband data (its
+        records as one run from rest, as identify fits them).
     skip : float
         Seconds left out at the start of every record (as ``identify --skip``).
     controller : ControllerSpec, optional
@@ -276,14 +287,18 @@ def validate(result: Result, data_file: DataFile, skip: float = 0.0, controller=
     if not (isinstance(min_fit, (int, float)) and math.isfinite(min_fit) and min_fit <= 100):
         raise UserError(f"minimum fit {min_fit!r}: give a number of percent ≤ 100")
     check_structure(result.structure, data_file, "the result's structure")
-    if not data_file.records and not data_file.experiments:
+    broadband = data_file.kind == "broadband"
+    if not data_file.records and not data_file.experiments and not broadband:
         raise UserError(f"{data_file.path}: holds no records and no experiments to validate on")
+    if broadband and controller is not None:
+        raise UserError(f"{data_file.path}: broadband data is open loop (the plant driven by the excitation): "
+                        "validate it without --closed-loop")
     sim = BatchSimulator(result.structure)
     params = result.plant.parameter_vector()
     if controller is not None:
         records = _validate_closed_loop(result.structure, params, data_file, controller, skip, min_fit)
     else:
-        records = _validate_records(sim, params, data_file, skip, min_fit) if data_file.records else []
+        records = _validate_records(sim, params, data_file, skip, min_fit) if data_file.records or broadband else []
     experiments = [_validate_experiment(sim, params, e, min_fit) for e in data_file.experiments]
     records, experiments = _with_tests(records, experiments)
     return Validation(result=result, data_file=data_file, records=tuple(records), experiments=tuple(experiments),

@@ -49,6 +49,14 @@ def data_kind(data) -> str:
 def _one(path, skip: float, controller):
     """(DataFile, identifier data) of one file."""
     ds = read_data_file(path)
+    if ds.kind == "broadband":  # its records, as one run from rest (identification.broadband_identify)
+        from ..broadband.store import read_broadband
+        from ..identification.broadband_identify import broadband_records
+
+        if controller is not None:
+            raise UserError(f"{path}: broadband data is open loop (the plant driven by the excitation): select "
+                            "without --closed-loop")
+        return ds, broadband_records(read_broadband(path), skip)
     if controller is not None:
         from ..identification.closed_loop import closed_loop_data
 

@@ -1,0 +1,93 @@
+"""The frequency response of records that are not a broadband measurement (`servofmu frf RECORDS.h5`): per record
+the direct estimate S_uy/S_uu (H1, Welch) and, for a drive's log with its reference (``--closed-loop``), the
+estimate from the reference S_ry/S_ru (servofmu.broadband.bla.closed_loop_estimate), which the loop's noise does
+not bias (docs/broadband.md, "Closed loop")."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..measurement.datafile import DataFile, read_data_file
+from .bla import ClosedLoopEstimate, H1Estimate, closed_loop_estimate, h1_estimate
+
+__all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", "SEGMENTS"]
+
+TRUSTED_COHERENCE = 0.9  # γ²_ru at or above which the estimate from the reference is reported as usable
+# a record is cut into this many Welch segments (at least 256 samples each): 63 averages with half overlap, a
+# standard deviation of G about a tenth of its size where the coherence is 0.5
+SEGMENTS = 32
+
+
+@dataclass(frozen=True)
+class RecordFrf:
+    """One record's estimates: ``direct`` (H1 of u → v) and ``closed_loop`` (from the reference; None without)."""
+
+    name: str
+    samples: int
+    rate: float
+    direct: H1Estimate
+    closed_loop: ClosedLoopEstimate | None
+
+    def direct_deviation(self) -> float:
+        """Median |G_direct/G_reference − 1| over the lines where γ²_ru ≥ TRUSTED_COHERENCE (NaN without)."""
+        if self.closed_loop is None:
+            return math.nan
+        cl = self.closed_loop
+        good = cl.coherence_ru >= TRUSTED_COHERENCE
+        if not good.any():
+            return math.nan
+        direct = np.interp(cl.frequencies, self.direct.frequencies, self.direct.G.real) + 1j * np.interp(
+            cl.frequencies, self.direct.frequencies, self.direct.G.imag)
+        return float(np.median(np.abs(direct[good] / cl.G[good] - 1)))
+
+
+def records_frf(path: str | Path, closed_loop: bool = False, segment: int | None = None) -> tuple[DataFile,
+                                                                                                  list[RecordFrf]]:
+    """The estimates of every record of a records file; with ``closed_loop`` every record must have a reference
+    (a UserError names the first without)."""
+    data = read_data_file(path)
+    if data.kind != "records" or not data.records:
+        raise UserError(f"{path}: is a {data.kind} file without records; frf takes broadband data or records")
+    out = []
+    for rec in data.records:
+        s = rec.series
+        if closed_loop and s.reference is None:
+            raise UserError(f"{path}: record {rec.name} has no reference: --closed-loop needs a drive's log imported "
+                            "with --reference (or co-simulated in its loop)")
+        rate = float(rec.sample_rate)
+        n = s.u.size
+        seg = min(n, int(segment or max(256, n // SEGMENTS)))
+        band = (rate / seg, rate / 2)
+        direct = h1_estimate(s.u, s.v, rate, seg, band)
+        cl = closed_loop_estimate(s.reference, s.u, s.v, rate, seg, band) if closed_loop else None
+        out.append(RecordFrf(rec.name, n, rate, direct, cl))
+    return data, out
+
+
+def _std(var) -> list:
+    return [float(x) if math.isfinite(x) else None for x in np.sqrt(np.clip(var, 0, None))]
+
+
+def records_frf_json(data: DataFile, estimates: list[RecordFrf]) -> dict:
+    """The ``--json`` document of records (schema in docs/broadband.md)."""
+    doc = {"format": "servofmu-frf", "schema_version": 1, "data": str(data.path), "records": []}
+    for e in estimates:
+        d = e.direct
+        entry = {"name": e.name, "samples": e.samples, "rate": e.rate,
+                 "direct": {"frequency": d.frequencies.tolist(), "re": d.G.real.tolist(), "im": d.G.imag.tolist(),
+                            "std": _std(d.var), "coherence": d.coherence.tolist(), "segments": d.segments},
+                 "closed_loop": None}
+        if e.closed_loop is not None:
+            c = e.closed_loop
+            dev = e.direct_deviation()
+            entry["closed_loop"] = {"frequency": c.frequencies.tolist(), "re": c.G.real.tolist(),
+                                    "im": c.G.imag.tolist(), "std": _std(c.var),
+                                    "coherence_ru": c.coherence_ru.tolist(), "coherence_ry": c.coherence_ry.tolist(),
+                                    "segments": c.segments,
+                                    "direct_deviation": dev if math.isfinite(dev) else None}
+        doc["records"].append(entry)
+    return doc

@@ -1,0 +1,123 @@
+"""`servofmu identify` on broadband data (docs/broadband.md, "Fitting G(s)"): the frequency-domain fit of G to the
+BLA of every level (servofmu.identification.frequency_fit), then the time-domain output-error fit of the whole
+plant — G and the friction — on the file's records, the swarm's box the prior's widened to hold the frequency-domain
+G's neighbourhood, and that G, with the structure's friction, its first particle.
+
+The records are fitted as they were played: one run from rest, level after level, realisation after realisation
+(servofmu.broadband.store), so the model starts at rest at the first sample, as it does for any record.  The
+frequency-domain fit's G and intervals are stored in the result's provenance (``frequency_fit``); the result's
+parameters and intervals are the time-domain fit's, as for records of any kind.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..broadband.frf import frf_of_file
+from ..errors import UserError
+from ..measurement.datafile import read_data_file
+from ..model.plant import Plant, load_plant
+from ..runtime import RunOptions, utc_now
+from .criterion import RecordData, RecordSeries, check_structure
+from .features import prior_box, to_targets
+from .frequency_fit import FrequencyFit, fit_bla
+from .identifier import PSOANNIdentifier, identification_provenance, swarm_options
+from .prior import canonical_order, identified_mask, identified_names
+from .results import Result, Stage, result_from_estimator, write_result
+
+__all__ = ["identify_broadband", "broadband_records", "broadband_start", "frequency_summary", "frequency_lines",
+           "BIAS_NOTE"]
+
+BIAS_NOTE = ("with friction the BLA is the best linear approximation of the whole plant at each level, not G: G "
+             "fitted to it is biased (a lower gain, poles moved; most at the lowest level); the time-domain fit of G "
+             "and the friction on the records is the result")
+
+
+def broadband_records(data, skip: float = 0.0) -> RecordData:
+    """The records of a broadband data file as one record, in the order they were played (the noisy output when
+    the file has one); ``skip`` seconds at its start left out of the fit."""
+    u = np.concatenate([lv.u.ravel() for lv in data.levels])
+    y = np.concatenate([(lv.v if lv.v_noisy is None else lv.v_noisy).ravel() for lv in data.levels])
+    t = np.arange(u.size) / data.plan.rate
+    if not (math.isfinite(skip) and skip >= 0):
+        raise UserError(f"skip must be 0 or a positive number of seconds, not {skip}")
+    fitted = t >= skip
+    if fitted.sum() < 10:
+        raise UserError(f"{data.path}: {fitted.sum()} samples after skipping {skip:g} s; it needs at least 10")
+    series = RecordSeries(name="broadband", time=t, u=u, y=y, output="v", hold="zoh", fitted=fitted)
+    return RecordData(records=(series,), source=str(data.path))
+
+
+def broadband_start(structure: Plant, fit: FrequencyFit, spread: float):
+    """(lower, upper, y0) in target coordinates: the prior's box widened so that G's part also holds the box of the
+    prior's widths centred on the frequency-domain fit (a G biased by friction may lie far from the truth: the
+    prior's box is kept), and the fit's G with the structure's friction (and load) as the first particle."""
+    names = identified_names(structure)
+    theta = structure.parameter_vector()[identified_mask(structure)]
+    g = [names.index(n) for n in fit.names]
+    theta[g] = fit.theta
+    y0 = to_targets(structure, canonical_order(structure, theta))[0]
+    lower, upper = prior_box(structure, spread)
+    centre = (lower + upper) / 2
+    bad = ~np.isfinite(y0)  # an unstable or overdamped fit has no log coordinates: the structure's instead
+    y0[bad] = centre[bad]
+    shift = np.zeros_like(y0)
+    shift[g] = (y0 - centre)[g]
+    return np.minimum(lower, lower + shift), np.maximum(upper, upper + shift), y0
+
+
+def frequency_summary(fit: FrequencyFit, levels, seconds: float) -> dict:
+    """What a result records of the frequency-domain fit (its provenance's ``frequency_fit``)."""
+    return {"names": list(fit.names), "theta": fit.theta.tolist(), "intervals": fit.intervals.tolist(),
+            "lines": int(sum(b.frequencies.size for _, b in levels)), "cost_ratio": fit.cost_ratio,
+            "levels": [{"level": level, "cost_ratio": r} for (level, _), r in zip(levels, fit.cost_ratios)],
+            "weights": fit.weights, "start": fit.start, "relative_error": fit.relative_error, "seconds": seconds,
+            "note": BIAS_NOTE}
+
+
+def frequency_lines(provenance: dict) -> list[str]:
+    """The identify table's lines on the frequency-domain fit (none for other data)."""
+    fd = provenance.get("frequency_fit")
+    if not fd:
+        return []
+    levels = ", ".join(f"{x['level']:g} N: {x['cost_ratio']:.3g}" for x in fd["levels"])
+    lines = [f"frequency-domain fit of G to the BLA ({fd['lines']} lines; weights: {fd['weights']} variance): "
+             f"relative error ‖G − G_BLA‖/‖G_BLA‖ {fd['relative_error']:.3g}, cost/dof {fd['cost_ratio']:.3g} ({levels}; about 1 "
+             "when a linear G explains the BLA)",
+             "  G from the BLA: " + ", ".join(f"{n} {v:.6g} [{lo:.6g}, {hi:.6g}]" for n, v, (lo, hi)
+                                              in zip(fd["names"], fd["theta"], fd["intervals"]))]
+    return lines + [f"  note: {fd['note']}"]
+
+
+def identify_broadband(data_file, structure_file, output, options, run: RunOptions, method: str,
+                       threads: int | None = None) -> Result:
+    """Identify the plant of a broadband data file and write its result (module docstring); ``options`` as
+    identification.run.IdentifyOptions, ``method`` the one chosen (only pso: the ANN works on stepped sines)."""
+    if method != "pso" or options.closed_loop is not None:
+        raise UserError(f"{data_file}: broadband data is identified by the frequency-domain fit of G and the swarm "
+                        "on its records (--method pso, no --ann, no --closed-loop)")
+    structure = load_plant(structure_file)
+    ds = read_data_file(data_file)
+    check_structure(structure, ds, f"the structure {structure_file}")
+    data, levels = frf_of_file(data_file)
+    t0 = time.perf_counter()
+    fit = fit_bla(structure, [b for _, b in levels], data.plan.rate)
+    seconds = time.perf_counter() - t0
+    est = PSOANNIdentifier(structure, method="pso", seed=options.seed, polish=options.polish,
+                           pso=swarm_options(options.iterations), progress=run.progress, threads=threads)
+    est.work_limit = options.work_limit
+    est.start = broadband_start(structure, fit, est.spread)
+    est.fit(broadband_records(data, options.skip))
+    theta0 = structure.parameter_vector()[identified_mask(structure)]
+    theta0[[identified_names(structure).index(n) for n in fit.names]] = fit.theta
+    est.stages_ = [Stage("frequency", theta0, fit.relative_error, seconds, fit.evaluations), *est.stages_]
+    est.seconds_ += seconds
+    provenance = identification_provenance(ds, structure_file, run.command, None, options.skip,
+                                           data_kind="broadband",
+                                           frequency_fit=frequency_summary(fit, levels, seconds))
+    provenance["date"] = utc_now()
+    result = result_from_estimator(est, "pso", provenance)
+    write_result(output, result, overwrite=True)  # claimed by the caller
+    return result

@@ -1,0 +1,145 @@
+"""The frequency-domain fit of G(s) to the BLA: exact on noise-free linear plants (the BLA from an independent
+state-space periodic steady state), intervals that cover the truth with noise, and `identify` on broadband data
+(the frequency-domain G as the start of the records' fit of G and the friction), with one-line refusals."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from clitools import assert_one_line_error, run
+from scipy import signal
+
+from servofmu.broadband import BroadbandPlan, estimate_bla, split_periods
+from servofmu.broadband.simulate import write_simulated
+from servofmu.errors import UserError
+from servofmu.identification.frequency_fit import fit_bla, g_names
+from servofmu.identification.results import read_result
+from servofmu.model.plant import load_plant
+from servofmu.selection.data import load_selection_data
+
+ROOT = Path(__file__).resolve().parent.parent
+
+RATE = 200.0
+
+
+def frictionless(name: str):
+    plant = load_plant(name)
+    levels = {k: 0.0 for k in ("fc_pos", "fc_neg", "fs_pos", "fs_neg") if getattr(plant.friction, k) is not None}
+    return replace(plant, friction=replace(plant.friction, **levels))
+
+
+def zoh_bla(plant, noise=0.0, seed=0, realisations=4):
+    """The BLA of the plant's linear part G/(1 + fv·G) from its exact periodic steady state (scipy's zero-order-hold
+    discretisation, independent of the fit's own response)."""
+    num, den = plant.transfer_function()
+    a, b, c, d, _ = signal.cont2discrete(signal.tf2ss(num, np.polyadd(den, plant.friction.fv * num)), 1 / RATE,
+                                         "zoh")
+    p = BroadbandPlan("multisine", (1.0,), (0.5, 40.0), RATE, period=2.0, periods=2, transient_periods=0,
+                      realisations=realisations, seed=1)
+    u = p.signals()[0]
+    ys = []
+    for x in u:
+        state = np.zeros(a.shape[0])
+        for k in range(p.samples):
+            state = a @ state + b[:, 0] * x[k]
+        x0 = np.linalg.solve(np.eye(a.shape[0]) - np.linalg.matrix_power(a, p.samples), state)
+        ys.append(signal.dlsim((a, b, c, d, 1 / RATE), x, x0=x0)[1][:, 0])
+    y = np.stack(ys)
+    y = y + noise * np.std(y) * np.random.default_rng(seed).standard_normal(y.shape)
+    return estimate_bla(*(split_periods(s, p.samples, 2, 0) for s in (u, y)), p.lines, RATE, p.free_lines)
+
+
+def truth_of(plant, names):
+    values = plant.parameters()
+    return np.array([values[n] for n in names])
+
+
+def perturbed(plant, factor=1.3):
+    vector, names = plant.parameter_vector(), plant.parameter_names()
+    for n in g_names(plant):
+        vector[names.index(n)] *= factor
+    return plant.with_parameters(vector)
+
+
+@pytest.mark.parametrize("name", ["g2", "stribeck_servo"])  # a resonance; two real poles with viscous friction
+def test_on_a_noise_free_linear_plant_the_fit_gives_gs_parameters_to_1e_6(name):
+    truth = frictionless(name)
+    fit = fit_bla(perturbed(truth), [zoh_bla(truth)], RATE)
+    assert fit.names == tuple(g_names(truth))
+    assert np.max(np.abs(fit.theta / truth_of(truth, fit.names) - 1)) <= 1e-6
+    assert fit.relative_error < 1e-9
+
+
+def test_with_noise_the_intervals_cover_the_truth_and_the_cost_is_the_noises():
+    truth = frictionless("g2")
+    covered, ratios = [], []
+    for seed in range(4):
+        fit = fit_bla(truth, [zoh_bla(truth, noise=0.01, seed=seed)], RATE)
+        t = truth_of(truth, fit.names)
+        covered += list((fit.intervals[:, 0] <= t) & (t <= fit.intervals[:, 1]))
+        ratios.append(fit.cost_ratio)
+        assert fit.weights == "total"
+    assert np.mean(covered) >= 0.8  # 16 intervals of 95 %
+    assert 0.8 < np.mean(ratios) < 1.3  # a linear G explains the BLA within its variance
+
+
+def test_a_bla_with_fewer_numbers_than_gs_parameters_is_refused():
+    truth = frictionless("g2")
+    bla = zoh_bla(truth)
+    few = replace(bla, frequencies=bla.frequencies[:1], G=bla.G[:1], var_total=bla.var_total[:1],
+                  var_noise=bla.var_noise[:1])
+    with pytest.raises(UserError, match="too few"):
+        fit_bla(truth, [few], RATE)
+
+
+SMALL = BroadbandPlan("multisine", (2.0, 0.8), (0.5, 20.0), RATE, period=2.0, periods=2, transient_periods=1,
+                      realisations=2, seed=3)
+
+
+def test_identify_on_broadband_data_fits_g_and_the_friction_from_the_frequency_domain_start(tmp_path):
+    truth = load_plant("g1")
+    data, out = tmp_path / "bb.h5", tmp_path / "r.h5"
+    write_simulated(data, truth, SMALL, noise_snr_db=40.0, seed=1)
+    proc = run("identify", data, "--structure", "g1", "-o", out, "--iterations", "10")
+    assert proc.returncode == 0, proc.stderr
+    assert "frequency-domain fit of G to the BLA" in proc.stdout and "biased" in proc.stdout
+    result = read_result(out)
+    assert [s.name for s in result.stages][:2] == ["frequency", "pso"]
+    fd = result.provenance["frequency_fit"]
+    assert fd["cost_ratio"] > 3  # friction: a linear G does not explain the BLA
+    t = truth_of(truth, result.names)
+    assert np.all(np.abs(result.theta / t - 1) < 0.02), (result.names, result.theta)
+    assert result.provenance["data_kind"] == "broadband"
+    proc = run("validate", out, data, "--json")  # its records, as identify fitted them
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["passed"] and report["own_data"] and len(report["records"]) == 1
+    proc = run("report", out, "-o", tmp_path / "r.html")
+    assert proc.returncode == 0, proc.stderr
+    assert "the G fitted to the BLA" in (tmp_path / "r.html").read_text()
+
+
+def test_identify_and_plot_refuse_what_they_cannot_do_with_broadband_data_and_select_reads_its_records(tmp_path):
+    data = tmp_path / "bb.h5"
+    write_simulated(data, frictionless("g1"), SMALL)
+    proc = run("identify", data, "--structure", "g1", "--method", "ga-ann", "--ann", data, "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, "broadband", "--method pso")
+    assert not (tmp_path / "r.h5").exists()
+    # select fits its candidates to the records as identify does (one run from rest); not in a loop
+    fit, files = load_selection_data([data])
+    (series,) = fit.records
+    assert series.u.size == 2 * 2 * 3 * SMALL.samples and files[0].kind == "broadband"
+    other = tmp_path / "other.h5"
+    write_simulated(other, frictionless("g1"), SMALL, noise_snr_db=30.0)
+    proc = run("select", data, "--validate", other, "--closed-loop", ROOT / "fmu_models" / "axis_controller.toml",
+               "-o", tmp_path / "s.h5")
+    assert_one_line_error(proc, "broadband data is open loop", "without --closed-loop")
+    assert not (tmp_path / "s.h5").exists()
+    proc = run("plot", data, "--what", "time", "-o", tmp_path / "t.png")
+    assert_one_line_error(proc, "broadband", "--what bode")
+    proc = run("plot", data, "-o", tmp_path / "bode.png")  # the BLA with its ±2σ band
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "bode.png").read_bytes()[:4] == b"\x89PNG"
