@@ -316,10 +316,9 @@ class PSOANNIdentifier:
         return self
 
     def _roughness(self, crit, chosen) -> float:
-        """The fit's roughness (roughness.response_roughness); a long open-loop record's on its reduced rate, whose
-        response is the record's in the input's band and whose information is the same for white noise (its
-        samples q times fewer, its noise variance q times smaller): 2p + 1 simulations of 6·10⁵ samples were a
-        quarter of a 10 kHz record's identification."""
+        """The fit's roughness (roughness.response_roughness); a long open-loop record's on its reduced rate (the
+        same information for white noise, docs/identification.md: 2p + 1 simulations of every sample were a quarter
+        of a 10 kHz record's identification)."""
         covariance = finite_covariance(chosen.covariance, chosen.intervals)
         if self._reduced_crit is not None:
             return response_roughness(self._reduced_crit, chosen.theta, covariance, centred=True,
@@ -328,8 +327,7 @@ class PSOANNIdentifier:
                                   information=curvature(chosen.jacobian, crit.blocks, chosen.r))
 
     def _check_work(self, cost, search) -> None:
-        """Refuse a search whose estimate (its model evaluations times one evaluation's measured time, up to the
-        selection's time budget) passes the work limit."""
+        """Refuse a search estimated (evaluations × one's measured time, up to a time budget) beyond the limit."""
         evaluations = self.pso.particles * (self.pso.iterations + 1) * (1 + self.restarts.restarts)
         if evaluations <= UNCHECKED_EVALUATIONS:
             return
