@@ -19,6 +19,7 @@ P = 1 leaves the noise unknown (NaN) and M = 1 the total variance; the estimate 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,7 +110,8 @@ def split_periods(x: np.ndarray, samples: int, periods: int, transient_periods: 
     return x[..., transient_periods * samples:].reshape(*x.shape[:-1], periods, samples)
 
 
-def estimate_bla(u: np.ndarray, y: np.ndarray, lines, rate: float, detection=()) -> BLA:
+def estimate_bla(u: np.ndarray, y: np.ndarray, lines: Sequence[int] | np.ndarray, rate: float,
+                 detection: Sequence[int] | np.ndarray = ()) -> BLA:
     """The robust BLA of periodic data (module docstring).
 
     Parameters
