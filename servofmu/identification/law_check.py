@@ -176,14 +176,20 @@ class _Log:
     """A log's arrays as the check uses them: the controller's own command (the disturbance taken off) and the
     samples that show the law (not saturated, past the law's start-up)."""
 
-    def __init__(self, controller, reference, position, command, disturbance, fitted):
+    def __init__(self, reference: np.ndarray, position: np.ndarray, own: np.ndarray, use: np.ndarray,
+                 scale: float):
+        self.reference, self.position, self.own, self.use, self.scale = reference, position, own, use, scale
+
+    @classmethod
+    def of(cls, controller, reference, position, command, disturbance, fitted) -> "_Log":
+        """The log of a record: ``fitted`` (bool per sample, or None) restricts the samples used."""
         own = np.asarray(command, float) - (0.0 if disturbance is None else np.asarray(disturbance, float))
         at_limit = np.abs(own) >= controller["force_limit"] * (1 - 1e-9)
-        self.reference, self.position, self.own = np.asarray(reference, float), np.asarray(position, float), own
         start = int(controller["delay"] + controller["filter_window"] + 2)
         use = ~at_limit & (np.arange(own.size) >= start)
-        self.use = use & fitted if fitted is not None else use
-        self.scale = float(np.std(own[self.use])) if np.any(self.use) else 0.0
+        use = use & fitted if fitted is not None else use
+        return cls(np.asarray(reference, float), np.asarray(position, float), own, use,
+                   float(np.std(own[use])) if np.any(use) else 0.0)
 
     def residual(self, controller: ControllerSpec, shift: int = 0) -> float:
         """The relative RMS of the logged command minus the law's, the reference taken ``shift`` samples later than
@@ -205,13 +211,11 @@ class _Log:
         return float(np.sqrt(np.mean(error[use] ** 2))) / self.scale if self.scale > 0 and np.any(use) else 0.0
 
     def window(self, samples: int) -> "_Log":
-        """The log's first ``samples`` samples (the alternatives' search)."""
+        """The log's first ``samples`` samples (the alternatives' search), scaled as the whole log."""
         if self.own.size <= samples:
             return self
-        part = object.__new__(_Log)
-        part.reference, part.position, part.own = self.reference[:samples], self.position[:samples], self.own[:samples]
-        part.use, part.scale = self.use[:samples], self.scale
-        return part
+        return _Log(self.reference[:samples], self.position[:samples], self.own[:samples], self.use[:samples],
+                    self.scale)
 
 
 def _quantum(position: np.ndarray) -> float:
@@ -269,7 +273,7 @@ def law_fit(controller: ControllerSpec, reference, position, command, disturbanc
     to those samples.  Where the file's law misses (beyond LAW_WARNED), the delay (1–16), the reference's
     alignment (±MAX_SHIFT samples), the encoder quantum (the log's own, or none) and the gains are each tried on
     the log's first SEARCH_SAMPLES samples; the best alternative is kept."""
-    log = _Log(controller, reference, position, command, disturbance, fitted)
+    log = _Log.of(controller, reference, position, command, disturbance, fitted)
     residual = log.residual(controller)
     if residual <= LAW_WARNED or log.scale == 0:
         return LawFit(residual)
