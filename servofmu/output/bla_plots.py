@@ -42,14 +42,19 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
         style = ("-", "-.", "--")[k % 3]
         ax_mag.semilogx(f, _db(G), style, color="k", lw=1.2, label=label)
         ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(G))), style, color="k", lw=1.2)
-    ax_mag.set_ylabel(f"|G_BLA| [dB re 1 {unit}]")
-    ax_ph.set_ylabel("phase of G_BLA [deg]")
+    _label(ax_mag, ax_ph, "G_BLA", unit, title or "best linear approximation, ±2σ (shaded)")
+    return finish_figure(plt, fig, path, overwrite)
+
+
+def _label(ax_mag, ax_ph, name: str, unit: str, title: str) -> None:
+    """The Bode axes' labels (the response ``name`` in ``unit``), grid, legend and title."""
+    ax_mag.set_ylabel(f"|{name}| [dB re 1 {unit}]")
+    ax_ph.set_ylabel(f"phase of {name} [deg]")
     ax_ph.set_xlabel("frequency [Hz]")
     for ax in (ax_mag, ax_ph):
         ax.grid(True, which="both", alpha=0.4)
     ax_mag.legend(fontsize=7)
-    ax_mag.set_title(title or "best linear approximation, ±2σ (shaded)")
-    return finish_figure(plt, fig, path, overwrite)
+    ax_mag.set_title(title)
 
 
 def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker):
@@ -83,11 +88,5 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
             good = c.coherence_ru >= 0.9
             ax_mag.semilogx(c.frequencies[good], _db(c.G[good]), ".", color=f"C{2 * k + 1}", ms=4,
                             label=f"{e.name}: γ²_ru ≥ 0.9")
-    ax_mag.set_ylabel(f"|G| [dB re 1 {unit}]")
-    ax_ph.set_ylabel("phase of G [deg]")
-    ax_ph.set_xlabel("frequency [Hz]")
-    for ax in (ax_mag, ax_ph):
-        ax.grid(True, which="both", alpha=0.4)
-    ax_mag.legend(fontsize=7)
-    ax_mag.set_title(title or "frequency response of records, ±2σ (shaded)")
+    _label(ax_mag, ax_ph, "G", unit, title or "frequency response of records, ±2σ (shaded)")
     return finish_figure(plt, fig, path, overwrite)
