@@ -212,8 +212,7 @@ def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None =
     u, y = np.asarray(u, float).ravel(), np.asarray(y, float).ravel()
     if u.shape != y.shape or u.size < 16:
         raise UserError(f"u and y must be records of one length (≥ 16 samples), not {u.size} and {y.size}")
-    nperseg = int(segment or max(256, u.size // 8))
-    nperseg = min(nperseg, u.size)
+    nperseg, segments = _welch_segments(u.size, segment)
     f, Suu = welch(u, fs=rate, nperseg=nperseg)
     _, Syy = welch(y, fs=rate, nperseg=nperseg)
     _, Suy = csd(u, y, fs=rate, nperseg=nperseg)  # E[conj(U) Y]
@@ -223,10 +222,16 @@ def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None =
     f, Suu, Syy, Suy = f[keep], Suu[keep], Syy[keep], Suy[keep]
     G = Suy / Suu
     coherence = np.clip(np.abs(Suy) ** 2 / (Suu * Syy), 0.0, 1.0)
-    segments = max(1, 2 * u.size // nperseg - 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         var = np.abs(G) ** 2 * (1 - coherence) / (segments * coherence)
     return H1Estimate(frequencies=f, G=G, coherence=coherence, var=var, segments=segments)
+
+
+def _welch_segments(samples: int, segment: int | None) -> tuple[int, int]:
+    """Samples per Welch segment (``segment``, default the record / 8 and at least 256, at most the record) and
+    the number of half-overlapping segments the spectra average."""
+    nperseg = min(int(segment or max(256, samples // 8)), samples)
+    return nperseg, max(1, 2 * samples // nperseg - 1)
 
 
 @dataclass(frozen=True)
@@ -275,7 +280,7 @@ def closed_loop_estimate(r: np.ndarray, u: np.ndarray, y: np.ndarray, rate: floa
     if not (r.shape == u.shape == y.shape) or u.size < 16:
         raise UserError(f"r, u and y must be records of one length (≥ 16 samples), not {r.size}, {u.size} and "
                         f"{y.size}")
-    nperseg = min(int(segment or max(256, u.size // 8)), u.size)
+    nperseg, segments = _welch_segments(u.size, segment)
     f, Srr = welch(r, fs=rate, nperseg=nperseg)
     _, Suu = welch(u, fs=rate, nperseg=nperseg)
     _, Syy = welch(y, fs=rate, nperseg=nperseg)
@@ -287,7 +292,6 @@ def closed_loop_estimate(r: np.ndarray, u: np.ndarray, y: np.ndarray, rate: floa
         keep &= (f >= band[0]) & (f <= band[1])
     f, Srr, Suu, Syy, Sru, Sry, Suy = (x[keep] for x in (f, Srr, Suu, Syy, Sru, Sry, Suy))
     G = Sry / Sru
-    segments = max(1, 2 * u.size // nperseg - 1)
     coh_ru = np.clip(np.abs(Sru) ** 2 / (Srr * Suu), 0.0, 1.0)
     coh_ry = np.clip(np.abs(Sry) ** 2 / (Srr * Syy), 0.0, 1.0)
     See = np.clip(Syy - 2 * np.real(np.conj(G) * Suy) + np.abs(G) ** 2 * Suu, 0.0, None)
