@@ -23,15 +23,18 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
-from scipy import signal
 
 from servofmu.broadband import BroadbandPlan
 from servofmu.broadband.bla import closed_loop_estimate, h1_estimate
 from servofmu.broadband.simulate import simulate_broadband
 from servofmu.identification.frequency_fit import fit_bla, g_names, linear_response
 from servofmu.model.plant import load_plant
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from test_closed_loop_frf import GAIN, POLE, RATE, loop_log  # noqa: E402  (the test's velocity loop)
 
 PLAN = dict(band=(0.2, 50.0), rate=1000.0, period=5.0, periods=2, transient_periods=1, realisations=4)
 
@@ -96,19 +99,11 @@ def bias() -> None:
             print(f"| {name} | {lv.level:g} | {fit.cost_ratio:.3g} | {got} | {want} |")
 
 
-def closed_loop(seeds: int, n: int = 40000, rate: float = 1000.0) -> None:
-    pole = np.exp(-10 / rate)
-    gain = (1 - pole) / 10
+def closed_loop(seeds: int, n: int = 40000) -> None:
+    rate, pole, gain = RATE, POLE, GAIN
     ref_in, direct_in, direct_dev = [], [], []
     for seed in range(seeds):
-        rng = np.random.default_rng(seed)
-        r = 0.2 * rng.standard_normal(n)
-        noise = signal.lfilter([1.0], [1.0, -0.9], 0.02 * rng.standard_normal(n))
-        x, u, y = 0.0, np.zeros(n), np.zeros(n)
-        for k in range(n):
-            y[k] = x + noise[k]
-            u[k] = 30.0 * (r[k] - y[k])
-            x = pole * x + gain * u[k]
+        r, u, y = loop_log(n, seed)  # the test's loop (tests/test_closed_loop_frf.py), one log per seed
         cl = closed_loop_estimate(r, u, y, rate, n // 32, (1.0, 200.0))
         d = h1_estimate(u, y, rate, n // 32, (1.0, 200.0))
         g = gain / (np.exp(2j * np.pi * cl.frequencies / rate) - pole)
