@@ -36,7 +36,8 @@ import json, os, sys, time
 if os.path.exists(sys.argv[4]):
     os.unlink(sys.argv[4])  # the output of the previous run (later revisions refuse to replace it)
 t0 = time.perf_counter()
-from servofmu.identification.identifier import PSOANNIdentifier, load_identification_inputs
+from servofmu.identification.identifier import PSOANNIdentifier
+from servofmu.identification.inputs import load_identification_inputs
 from servofmu.identification.results import write_result
 t1 = time.perf_counter()
 data_file, structure, ann_file, out = sys.argv[1:5]

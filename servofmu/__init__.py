@@ -52,6 +52,12 @@ _API = {
     "analyse_loop": "servofmu.tuning.loop",
     "TuneOptions": "servofmu.tuning.search",
     "tune_axis": "servofmu.tuning.run",
+    "Records": "servofmu.api.records",
+    "identify": "servofmu.api.workflow",
+    "select": "servofmu.api.workflow",
+    "compare_models": "servofmu.api.workflow",
+    "tune": "servofmu.api.workflow",
+    "control_loops": "servofmu.api.control_loops",
 }
 __all__ = list(_API)
 
@@ -80,6 +86,9 @@ if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by 
     from .tuning.loop import analyse_loop  # noqa: F401
     from .tuning.run import tune_axis  # noqa: F401
     from .tuning.search import TuneOptions  # noqa: F401
+    from .api.control_loops import control_loops  # noqa: F401
+    from .api.records import Records  # noqa: F401
+    from .api.workflow import compare_models, identify, select, tune  # noqa: F401
 
 
 def __getattr__(name: str):

@@ -24,6 +24,7 @@ STAGES = [
     {"servofmu.control"},
     {"servofmu.tuning"},
     {"servofmu.output"},
+    {"servofmu.api"},
     {"servofmu.cli", "servofmu.__main__"},
 ]
 

@@ -174,7 +174,7 @@ def compare_files(data_file, structure_file, ann_file=None, truth=None, methods:
     ``overwrite``; ``command`` is recorded as provenance; ``announce(method)`` is called before each method runs.
     Returns the results by method and the true plant (or None)."""
     from ..fileio import atomic_write, claim_output, output_mode
-    from ..identification.identifier import load_identification_inputs
+    from ..identification.inputs import load_identification_inputs
     from ..identification.results import write_comparison
     from ..identification.run import default_method
     from ..model.plant import load_plant

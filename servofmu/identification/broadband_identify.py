@@ -23,7 +23,8 @@ from ..runtime import RunOptions, utc_now
 from .criterion import RecordData, RecordSeries, check_structure
 from .features import prior_box, to_targets
 from .frequency_fit import FrequencyFit, fit_bla
-from .identifier import PSOANNIdentifier, identification_provenance, swarm_options
+from .identifier import PSOANNIdentifier, swarm_options
+from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
 

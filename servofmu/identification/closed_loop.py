@@ -28,12 +28,12 @@ import numpy as np
 
 from ..errors import ServofmuWarning, UserError
 from ..measurement.clock import ClockFit, fit_clock
-from ..measurement.datafile import read_data_file
+from ..measurement.datafile import as_data_file
 from ..model.controller import ControllerSpec, load_controller
-from ..model.plant import Plant, load_plant
+from ..model.plant import Plant
 from ..simulation.closed_loop import LoopSimulator
 from .criterion import TimeDomainCriterion, check_structure, fitted_samples
-from .identifier import identification_provenance
+from .inputs import identification_provenance, structure_name, structure_of
 from .law_check import law_fit
 from .prior import full_vectors
 
@@ -227,14 +227,16 @@ class ClosedLoopCriterion(TimeDomainCriterion):
 
 
 def load_closed_loop_inputs(data_path, structure_path, controller_path, command: str = "", skip: float = 0.0):
-    """(structure, ClosedLoopData, provenance) for a closed-loop identification from files."""
-    structure = load_plant(structure_path)
-    data_file = read_data_file(data_path)
-    check_structure(structure, data_file, f"the structure {structure_path}")
-    data = closed_loop_data(data_file, load_controller(controller_path), skip)
+    """(structure, ClosedLoopData, provenance) for a closed-loop identification: each input a file or the object
+    read from it (DataFile, Plant, ControllerSpec)."""
+    structure = structure_of(structure_path)
+    data_file = as_data_file(data_path)
+    check_structure(structure, data_file, f"the structure {structure_name(structure_path)}")
+    controller = controller_path if isinstance(controller_path, ControllerSpec) else load_controller(controller_path)
+    data = closed_loop_data(data_file, controller, skip)
     clocks = {r.name: r.clock.summary() for r in data.records}
-    return structure, data, identification_provenance(data_file, structure_path, command, skip=skip,
-                                                      controller_file=str(controller_path), clocks=clocks)
+    return structure, data, identification_provenance(data_file, structure_name(structure_path), command, skip=skip,
+                                                      controller_file=str(controller.source), clocks=clocks)
 
 
 def clock_lines(provenance: dict) -> list[str]:

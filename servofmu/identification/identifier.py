@@ -23,12 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ServofmuWarning, UserError, check_int
-from ..measurement.datafile import DataFile, read_data_file
-from ..measurement.duplicates import file_items, refuse_repeats
-from ..model.plant import Plant, load_plant
+from ..model.plant import Plant
 from ..runtime import WORK_LIMIT_HOURS, Progress, check_work, check_work_limit
 from ..simulation.batch import BatchSimulator
-from .ann import AnnModel, FeatureLayout, load_ann
+from .ann import AnnModel, FeatureLayout
 from .criterion import (
     POLISH_RTOL,
     SEARCH_RTOL,
@@ -37,12 +35,9 @@ from .criterion import (
     SineCriterion,
     SineData,
     central_jacobian,
-    check_structure,
     covariance_from_jacobian,
     intervals_from_covariance,
-    record_data,
     rms,
-    sine_data,
     with_finite_columns,
 )
 from .confounding import with_free_directions
@@ -57,7 +52,7 @@ from .restarts import RestartOptions, fits_agree, floor_test, noise_half_widths,
 from .results import Result, Stage, result_from_estimator
 from .shortening import long_open_loop, search_share
 
-__all__ = ["PSOANNIdentifier", "polish", "load_identification_inputs", "identification_provenance", "swarm_options"]
+__all__ = ["PSOANNIdentifier", "polish", "swarm_options", "check_method"]
 
 @dataclass(frozen=True, eq=False)
 class _Fit:
@@ -450,51 +445,3 @@ def swarm_options(iterations: int | None = None) -> PsoOptions:
         return PsoOptions()
     check_int("--iterations (swarm iterations)", iterations, 0)
     return PsoOptions(iterations=iterations)
-
-
-# ---------------------------------------------------------------------------
-# Reading what `servofmu identify` is given
-# ---------------------------------------------------------------------------
-def load_identification_inputs(data_path, structure_path, ann_path, method: str, command: str = "",
-                               skip: float = 0.0):
-    """(structure, SineData | RecordData, AnnModel | None, provenance) for an identification from files.
-
-    Refuses a structure that does not match the plant the data was measured on (when the data file says which),
-    and a network trained for another plan or structure.  ``skip``: seconds left out at the start of every record.
-    """
-    check_method(method)
-    structure = load_plant(structure_path)
-    ds = read_data_file(data_path)
-    check_structure(structure, ds, f"the structure {structure_path}")
-    refuse_repeats(file_items(ds), "import each record once")
-    if ds.kind == "records":
-        data = record_data(ds, skip)
-    else:
-        if skip:
-            raise UserError(f"{data_path}: skip applies to records, not to stepped-sine experiments")
-        if not ds.experiments:
-            raise UserError(f"{data_path}: the file holds no experiments")
-        data = sine_data(ds)
-    ann = None
-    if method in NEEDS_ANN:
-        if ann_path is None:
-            raise UserError(f"method {method} needs a trained network (made by `servofmu dataset` and "
-                            "`servofmu train`); or use method pso")
-        ann = load_ann(ann_path)
-        if list(ann.layout.parameter_names) != identified_names(structure):
-            raise UserError(f"{ann_path} estimates {', '.join(ann.layout.parameter_names)}; the structure "
-                            f"{structure_path} has {', '.join(identified_names(structure))}")
-    return structure, data, ann, identification_provenance(ds, structure_path, command, ann_path, skip)
-
-
-def identification_provenance(data: DataFile, structure_path, command: str, ann_path=None, skip: float = 0.0,
-                              **extra) -> dict:
-    """What a result records of its inputs: the data file read (its path, the SHA-256 of the very bytes that were
-    read and identified from, and the digest of every record's or experiment's samples: servofmu.measurement.
-    duplicates), the structure, the network, the command, the skipped seconds and ``extra`` entries."""
-    provenance = {"data_file": str(data.path), "data_sha256": data.sha256, "structure_file": str(structure_path),
-                  "ann_file": str(ann_path) if ann_path else "", "command": command,
-                  "data_digests": [digest for _, digest in file_items(data)], **extra}
-    if skip:
-        provenance["skip"] = skip
-    return provenance

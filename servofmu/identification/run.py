@@ -9,7 +9,8 @@ from pathlib import Path
 from ..errors import UserError
 from ..fileio import claim_output, output_mode
 from ..runtime import WORK_LIMIT_HOURS, RunOptions, utc_now
-from .identifier import PSOANNIdentifier, load_identification_inputs, swarm_options
+from .identifier import PSOANNIdentifier, swarm_options
+from .inputs import load_identification_inputs
 from .results import Result, result_from_estimator, write_result
 
 __all__ = ["IdentifyOptions", "default_method", "identify_to_file"]
@@ -35,7 +36,7 @@ class IdentifyOptions:
     polish: bool = True
     iterations: int | None = None
     skip: float = 0.0
-    closed_loop: str | Path | None = None
+    closed_loop: object = None  # a controller file, or a ControllerSpec
     work_limit: float = WORK_LIMIT_HOURS
 
     def method_for(self, ann_file) -> str:
@@ -44,12 +45,12 @@ class IdentifyOptions:
 
 
 def _is_broadband(path) -> bool:
-    """Whether ``path`` is a data file of kind broadband (other files, and unreadable ones, are left to the
-    readers that name what is wrong with them)."""
-    from ..measurement.datafile import read_data_file
+    """Whether ``path`` is a data file (or a DataFile) of kind broadband (other files, and unreadable ones, are left
+    to the readers that name what is wrong with them)."""
+    from ..measurement.datafile import as_data_file
 
     try:
-        return read_data_file(path).kind == "broadband"
+        return as_data_file(path).kind == "broadband"
     except UserError:
         return False
 
@@ -60,14 +61,14 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
 
     Parameters
     ----------
-    data_file : str or Path
+    data_file : str, Path or DataFile
         Stepped-sine data (`servofmu measure`), records (`servofmu import`, `servofmu cosim`) or broadband data
-        (`servofmu measure --excitation`: identification.broadband_identify).
-    structure_file : str or Path
-        The structure: a plant file or the name of an example plant.
-    output : str or Path
-        The result file (RESULT.h5) to write.
-    ann_file : str or Path, optional
+        (`servofmu measure --excitation`: identification.broadband_identify); or such data held in memory.
+    structure_file : str, Path or Plant
+        The structure: a plant file, the name of an example plant or a Plant.
+    output : str, Path or None
+        The result file (RESULT.h5) to write; None writes nothing.
+    ann_file : str, Path or AnnModel, optional
         The trained network (`servofmu train`), for the methods that need one.
     options : IdentifyOptions, optional
         Method, seed, polish, swarm iterations, skip, closed loop.
@@ -90,8 +91,9 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
     """
     options, run = options or IdentifyOptions(), run or RunOptions()
     method = options.method_for(ann_file)
-    claim_output(output, output_mode(run.overwrite), inputs=(data_file, structure_file, ann_file,
-                                                            options.closed_loop))
+    if output is not None:
+        claim_output(output, output_mode(run.overwrite), inputs=[x for x in (data_file, structure_file, ann_file,
+                                                                            options.closed_loop) if _is_path(x)])
     if _is_broadband(data_file):
         from .broadband_identify import identify_broadband
 
@@ -113,5 +115,11 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
     est.fit(data)
     provenance["date"] = utc_now()
     result = result_from_estimator(est, method, provenance)
-    write_result(output, result, overwrite=True)  # claimed above
+    if output is not None:
+        write_result(output, result, overwrite=True)  # claimed above
     return result
+
+
+def _is_path(x) -> bool:
+    """Whether an input is named by a path (a file that an output must not be), not an object in memory."""
+    return isinstance(x, (str, Path))

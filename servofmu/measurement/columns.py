@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import MAX_MAGNITUDE, UserError
 from ..fileio import read_hdf5_image, read_image
 
-__all__ = ["read_columns", "MIN_SAMPLES"]
+__all__ = ["read_columns", "columns_from_arrays", "MIN_SAMPLES"]
 
 MIN_SAMPLES = 10
 _SNIFF = 1 << 16  # bytes looked at for NUL bytes: a binary file has them early
@@ -248,35 +248,47 @@ def _read_mat(path: Path, names: list[str], label) -> dict[str, np.ndarray]:
         content = _read_mat73(path)
     except Exception as exc:  # scipy raises many types for damaged files (MatReadError, IndexError, ...)
         raise UserError(f"{path}: not a readable MAT file ({(str(exc).splitlines() or ['damaged'])[0]})") from exc
+    return _checked(path, content, names, label, "variable")
+
+
+def columns_from_arrays(where: str, arrays: dict[str, object]) -> dict[str, np.ndarray]:
+    """Arrays given in memory (``{name: values}``, the time first), checked as a MAT file's variables are: each
+    one real vector of finite numbers within ±MAX_MAGNITUDE, all of one length, the time strictly increasing.
+    ``where`` names them in the messages (a record's name)."""
+    names = list(arrays)
+    return _checked(where, arrays, names, _labeller(names, None), "argument")
+
+
+def _checked(path, content: dict, names: list[str], label, what: str) -> dict[str, np.ndarray]:
     out = {}
     for n in names:
         if n not in content:
             raise UserError(f"{path}: no variable {n!r} (the file has {', '.join(sorted(content)) or 'none'})"
                             + _named_by(label, n))
-        out[n] = _vector(path, n, content[n], label)
+        out[n] = _vector(path, n, content[n], label, what)
     lengths = {n: len(v) for n, v in out.items()}
     if len(set(lengths.values())) > 1:
-        raise UserError(f"{path}: variables have different lengths ({', '.join(f'{k}: {v}' for k, v in lengths.items())})")
+        raise UserError(f"{path}: {what}s have different lengths ({', '.join(f'{k}: {v}' for k, v in lengths.items())})")
     _check_time(path, out[names[0]], names[0], lambda i: f"sample {i + 1}")
     return out
 
 
-def _vector(path: Path, name: str, value, label) -> np.ndarray:
+def _vector(path: Path, name: str, value, label, what: str = "variable") -> np.ndarray:
     """A MAT variable as one real vector: an N×1 or 1×N matrix; a larger matrix or a complex one is refused."""
     shape = np.shape(value)
     if sum(d != 1 for d in shape) > 1:
-        raise UserError(f"{path}: variable {label(name)} is a {'×'.join(map(str, shape))} array; a record's "
-                        "variable is one vector (N×1 or 1×N)")
+        raise UserError(f"{path}: {what} {label(name)} is a {'×'.join(map(str, shape))} array; a record's "
+                        f"{what} is one vector (N×1 or 1×N)")
     if np.iscomplexobj(value):
-        raise UserError(f"{path}: variable {label(name)} is complex; a record's samples are real numbers")
+        raise UserError(f"{path}: {what} {label(name)} is complex; a record's samples are real numbers")
     try:
         values = np.asarray(value, dtype=float).ravel()
     except (TypeError, ValueError) as exc:
-        raise UserError(f"{path}: variable {label(name)} is not numeric") from exc
+        raise UserError(f"{path}: {what} {label(name)} is not numeric") from exc
     bad = np.nonzero(~(np.abs(values) <= MAX_MAGNITUDE))[0]
     if len(bad):
         why = "NaN or Inf" if not np.isfinite(values[bad[0]]) else f"beyond ±{MAX_MAGNITUDE:g}"
-        raise UserError(f"{path}: variable {name!r}: sample {bad[0] + 1} is {why}")
+        raise UserError(f"{path}: {what} {name!r}: sample {bad[0] + 1} is {why}")
     return values
 
 

@@ -48,7 +48,8 @@ from .schema import (
 
 __all__ = ["DataFile", "Series", "ExperimentResult", "RecordAnalysis", "Record", "read_data_file",
            "create_measurement", "add_experiments", "mark_complete", "write_records", "experiment_group_name",
-           "FORMAT", "SCHEMA_VERSION", "READ_VERSION", "KINDS", "write_header"]
+           "FORMAT", "SCHEMA_VERSION", "READ_VERSION", "KINDS", "write_header", "as_data_file", "data_name",
+           "records_in_memory"]
 
 FORMAT = "servofmu-data"
 # 2: records carry their intersample behaviour ("intersample": "zoh" or "foh"); version 1 files are read as
@@ -404,6 +405,30 @@ def read_data_file(path: str | Path) -> DataFile:
     data, sha256 = read_hdf5(path, "data file", FORMAT, READ_VERSION,
                              lambda f, version: _read_data(path, f, version), with_sha256=True)
     return replace(data, sha256=sha256)
+
+
+def as_data_file(data) -> DataFile:
+    """``data`` itself when it is a DataFile (held in memory or read before), else the data file at that path."""
+    return data if isinstance(data, DataFile) else read_data_file(data)
+
+
+def data_name(data) -> str:
+    """What names ``data`` (a path or a DataFile) in provenance and messages: the path it was read from or the
+    name it was given in memory."""
+    return str(data.path) if isinstance(data, DataFile) else str(data)
+
+
+def records_in_memory(records: Iterable[Record], name: str, provenance: dict | None = None) -> DataFile:
+    """A data file of kind records held in memory (never written): ``name`` stands for its path in messages and
+    provenance, and its digest is that of its records' samples (the SHA-256 of a file's bytes otherwise)."""
+    import hashlib
+
+    records = tuple(records)
+    if not records:
+        raise UserError(f"{name}: holds no records")
+    digest = hashlib.sha256("".join(r.source_sha256 for r in records).encode()).hexdigest()
+    return DataFile(path=Path(name), kind="records", schema_version=SCHEMA_VERSION, complete=True, plan=None,
+                    experiments=(), records=records, provenance=dict(provenance or {}), sha256=digest)
 
 
 def _read_data(path: Path, f: h5py.File, version: int) -> DataFile:

@@ -27,12 +27,12 @@ from ..model.signals import INTERSAMPLE
 from ..runtime import RunOptions, utc_now
 from ..version import __version__
 from .clock import ClockFit, fit_clock
-from .columns import read_columns
+from .columns import MIN_SAMPLES, columns_from_arrays, read_columns
 from .datafile import DataFile, Record, RecordAnalysis, Series, read_data_file, write_records
 from .duplicates import TWICE, file_items, first_repeat, series_digest
 from .frf import HARMONICS, estimate_frequency, harmonics, settle_noisy
 
-__all__ = ["import_records", "load_record", "read_columns", "velocity_from_position", "analyse_record",
+__all__ = ["import_records", "load_record", "record_from_arrays", "read_columns", "velocity_from_position", "analyse_record",
            "LoopChannels", "KINDS", "other_tone", "periodic_note"]
 
 KINDS = ("velocity", "position")
@@ -184,7 +184,7 @@ class LoopChannels:
             raise UserError("--disturbance-scale needs --disturbance COLUMN")
 
 
-def _clock(path: Path, t: np.ndarray, required: bool) -> ClockFit | None:
+def _clock(path, t: np.ndarray, required: bool) -> ClockFit | None:
     """The stamps' grid; a UserError naming the first bad stamp when the record needs a regular clock (position
     records and closed-loop logs), else None when there is none."""
     try:
@@ -200,7 +200,7 @@ def _clock(path: Path, t: np.ndarray, required: bool) -> ClockFit | None:
 WRAP_RATIO = 50.0
 
 
-def check_wrap(path: Path, t: np.ndarray, x: np.ndarray, column: str) -> None:
+def check_wrap(path, t: np.ndarray, x: np.ndarray, column: str) -> None:
     """Refuse a position record that jumps between two samples by far more than it ever moves in one (an encoder
     counter that wrapped: every simulation of the axis would have to follow the jump)."""
     step = np.abs(np.diff(x))
@@ -215,7 +215,7 @@ def check_wrap(path: Path, t: np.ndarray, x: np.ndarray, column: str) -> None:
                         f"({jumps.size} such jumps): an encoder counter's overflow? unwrap the position first")
 
 
-def _scaled(path: Path, values: np.ndarray, column: str, scale: float, option: str) -> np.ndarray:
+def _scaled(path, values: np.ndarray, column: str, scale: float, option: str) -> np.ndarray:
     """``values * scale``, refused when a product leaves what servofmu's files hold (±MAX_MAGNITUDE)."""
     with np.errstate(over="ignore", invalid="ignore"):
         out = values * scale
@@ -233,12 +233,7 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     """One record from a CSV or MAT file (columns/variables named ``time``, ``input``, ``output``, and those of
     ``loop``: the reference and the injected disturbance of a drive's log, and the scales of the forces)."""
     path, loop = Path(path), loop or LoopChannels()
-    if kind not in KINDS:
-        raise UserError(f"kind must be velocity or position, not {kind!r}")
-    if intersample not in INTERSAMPLE:
-        raise UserError(f"intersample must be one of {', '.join(INTERSAMPLE)}, not {intersample!r}")
-    if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
-        raise UserError(f"frequency must be positive, not {frequency:g}")
+    _check_options(kind, intersample, frequency)
     loop.check()
     names = [time, input, output] + [c for c in (loop.reference, loop.disturbance) if c is not None]
     if len(set(names)) < len(names):
@@ -247,12 +242,66 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
     options = ["--time", "--input", "--output-variable"] + [o for c, o in ((loop.reference, "--reference"), (
         loop.disturbance, "--disturbance")) if c is not None]
     cols = read_columns(path, names, options)
-    t, u, y = cols[time], _scaled(path, cols[input], input, loop.input_scale, "--input-scale"), cols[output]
-    clock = _clock(path, t, required=kind == "position" or loop.reference is not None)
+    columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
+    columns.update({role: name for role, name in (("reference", loop.reference), ("disturbance", loop.disturbance))
+                    if name is not None})
+    return _record(str(path), path.stem, path.name, file_sha256(path), columns, cols, kind, cutoff, frequency,
+                   index, intersample, loop)
+
+
+def record_from_arrays(name: str, time, input, output, kind: str = "velocity", reference=None, disturbance=None,
+                       cutoff: float | None = None, frequency: float | None = None, index: int = 0,
+                       intersample: str = "zoh", input_scale: float = 1.0, disturbance_scale: float = 1.0) -> Record:
+    """One record from arrays in memory, made and checked exactly as :func:`load_record` makes one from a file's
+    columns (``name`` stands for the file in the record and in the messages; its source digest is that of the
+    samples)."""
+    _check_options(kind, intersample, frequency)
+    loop = LoopChannels(reference=None if reference is None else "reference",
+                        disturbance=None if disturbance is None else "disturbance",
+                        input_scale=input_scale, disturbance_scale=disturbance_scale)
+    loop.check()
+    arrays = {"time": time, "input": input, "output": output}
+    arrays.update({k: v for k, v in (("reference", reference), ("disturbance", disturbance)) if v is not None})
+    cols = columns_from_arrays(name, arrays)
+    _check_time_column(name, cols["time"])
+    digest = series_digest(Series(time=cols["time"], u=cols["input"], v=cols["output"]))
+    columns = {"time": "time", "u": "input", "position" if kind == "position" else "v": "output"}
+    columns.update({role: role for role in ("reference", "disturbance") if role in cols})
+    return _record(name, name, "memory", digest, columns, cols, kind, cutoff, frequency, index, intersample,
+                   loop, time="time", input="input", output="output")
+
+
+def _check_options(kind: str, intersample: str, frequency: float | None) -> None:
+    if kind not in KINDS:
+        raise UserError(f"kind must be velocity or position, not {kind!r}")
+    if intersample not in INTERSAMPLE:
+        raise UserError(f"intersample must be one of {', '.join(INTERSAMPLE)}, not {intersample!r}")
+    if frequency is not None and not (math.isfinite(frequency) and frequency > 0):
+        raise UserError(f"frequency must be positive, not {frequency:g}")
+
+
+def _check_time_column(where: str, t: np.ndarray) -> None:
+    """A time column as a file's must be: at least MIN_SAMPLES samples, strictly increasing."""
+    if len(t) < MIN_SAMPLES:
+        raise UserError(f"{where}: needs at least {MIN_SAMPLES} samples, has {len(t)}")
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise UserError(f"{where}: sample {i + 1}: time is not strictly increasing ({t[i]!r} s after {t[i - 1]!r} s)")
+
+
+def _record(where: str, name: str, source: str, sha256: str, columns: dict, cols: dict, kind: str, cutoff,
+            frequency, index: int, intersample: str, loop: LoopChannels, time: str | None = None,
+            input: str | None = None, output: str | None = None) -> Record:
+    """The record of checked columns ``cols`` (named as ``columns`` says: role -> column)."""
+    time, input = time or columns["time"], input or columns["u"]
+    output = output or columns.get("position", columns.get("v"))
+    t, u, y = cols[time], _scaled(where, cols[input], input, loop.input_scale, "--input-scale"), cols[output]
+    clock = _clock(where, t, required=kind == "position" or loop.reference is not None)
     fs = 1.0 / float(np.median(np.diff(t)))
     position = None
     if kind == "position":
-        check_wrap(path, t, y, output)
+        check_wrap(where, t, y, output)
         cutoff = fs / 10 if cutoff is None else cutoff
         position, v = y, velocity_from_position(t, y, cutoff)
         how = (f"zero-phase 4th-order Butterworth low-pass at {cutoff:g} Hz (forward-backward) of position, "
@@ -262,14 +311,11 @@ def load_record(path: str | Path, time: str, input: str, output: str, kind: str 
             raise UserError("a velocity cutoff applies to position records only")
         v, how = y, "measured"
     analysis, note = analyse_record(t, u, v, frequency)
-    columns = {"time": time, "u": input, "position" if kind == "position" else "v": output}
-    columns.update({role: name for role, name in (("reference", loop.reference), ("disturbance", loop.disturbance))
-                    if name is not None})
-    disturbance = None if loop.disturbance is None else _scaled(path, cols[loop.disturbance], loop.disturbance,
+    disturbance = None if loop.disturbance is None else _scaled(where, cols[loop.disturbance], loop.disturbance,
                                                                  loop.disturbance_scale, "--disturbance-scale")
     series = Series(time=t, u=u, v=v, position=position,
                     reference=None if loop.reference is None else cols[loop.reference], disturbance=disturbance)
-    return Record(index=index, name=path.stem, source=path.name, source_sha256=file_sha256(path), kind=kind,
+    return Record(index=index, name=name, source=source, source_sha256=sha256, kind=kind,
                   columns=columns, series=series, sample_rate=fs, velocity_estimate=how,
                   velocity_cutoff=cutoff if kind == "position" else None, analysis=analysis, note=note,
                   intersample=intersample, time_step=clock and clock.step, time_jitter=clock and clock.jitter_rms,

@@ -12,7 +12,7 @@ from ..errors import UserError
 from ..identification.criterion import RecordCriterion, RecordData, SineCriterion, SineData, record_data, sine_data
 from ..identification.shortening import first_share
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
-from ..measurement.datafile import DataFile, read_data_file
+from ..measurement.datafile import DataFile, as_data_file, data_name
 from ..measurement.duplicates import file_items, refuse_repeats
 from ..simulation.batch import BatchSimulator, RecordResponse, SteadyStateOptions, valid_parameter_sets
 from ..simulation.closed_loop import LoopSimulator
@@ -46,9 +46,9 @@ def data_kind(data) -> str:
     return "records" if isinstance(data, RecordData) else "closed-loop"
 
 
-def _one(path, skip: float, controller):
-    """(DataFile, identifier data) of one file."""
-    ds = read_data_file(path)
+def _one(source, skip: float, controller):
+    """(DataFile, identifier data) of one file or DataFile."""
+    ds, path = as_data_file(source), data_name(source)
     if ds.kind == "broadband":  # its records, as one run from rest (identification.broadband_identify)
         from ..broadband.store import read_broadband
         from ..identification.broadband_identify import broadband_records
@@ -56,7 +56,7 @@ def _one(path, skip: float, controller):
         if controller is not None:
             raise UserError(f"{path}: broadband data is open loop (the plant driven by the excitation): select "
                             "without --closed-loop")
-        return ds, broadband_records(read_broadband(path), skip)
+        return ds, broadband_records(read_broadband(source), skip)
     if controller is not None:
         from ..identification.closed_loop import closed_loop_data
 
@@ -102,10 +102,10 @@ def load_selection_data(paths, skip: float = 0.0, controller=None):
     """(data, DataFiles) of the files ``paths`` (one axis, one kind of data), merged as the identifier fits them:
     SineData, RecordData or closed-loop data (with ``controller``).  The plant a file may record is not checked
     against the candidates (every structure is tried); files recording different plants are refused."""
-    paths = [str(p) for p in paths]
     if not paths:
         raise UserError("no data files to select from")
     loaded = [_one(p, skip, controller) for p in paths]
+    paths = [data_name(p) for p in paths]
     files = [ds for ds, _ in loaded]
     refuse_repeats([item for ds in files for item in file_items(ds)], "give each measurement once")
     recorded = [(ds.path, _plant_values(ds)) for ds in files if _plant_values(ds)]

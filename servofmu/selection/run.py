@@ -16,6 +16,7 @@ from ..fileio import all_or_none, claim_outputs, file_sha256, holds_outputs, out
 from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
+from ..measurement.datafile import data_name
 from ..model.laws.registry import get_law
 from ..runtime import RunOptions, available_cores, check_work, utc_now
 from ..simulation.parallel import Workers
@@ -79,13 +80,13 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
 
     Parameters
     ----------
-    data_files : list of str or Path
+    data_files : list of str, Path or DataFile
         Data of one axis: stepped-sine measurements, or records (open-loop, or closed-loop with
-        ``options.closed_loop``), fitted jointly.
-    validation_file : str or Path
+        ``options.closed_loop``), fitted jointly; files or data held in memory.
+    validation_file : str, Path or DataFile
         Data of the same axis and signals that no candidate is fitted to.
-    output : str or Path
-        SELECT.h5: every candidate's result and the ranking (docs/selection.md).
+    output : str, Path or None
+        SELECT.h5: every candidate's result and the ranking (docs/selection.md); None writes nothing.
     options : SelectOptions, optional
         Candidates, orders, seed, swarm iterations and box, skip, closed loop.
     run : RunOptions, optional
@@ -107,26 +108,38 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         written then.  A candidate whose fit fails is ranked last, with its reason; the others go on.
     """
     options, run = options or SelectOptions(), run or RunOptions()
-    inputs = (*data_files, validation_file, options.closed_loop)
-    outputs = selection_outputs(output, plant_output, result_output)
-    claim_outputs(outputs, output_mode(run.overwrite), inputs=inputs)
+    paths = [x for x in (*data_files, validation_file, options.closed_loop) if isinstance(x, (str, Path))]
+    outputs = {} if output is None else selection_outputs(output, plant_output, result_output)
+    claim_outputs(outputs, output_mode(run.overwrite), inputs=paths)
     candidates = _check_options(options)
-    if any(Path(d).is_file() and Path(validation_file).is_file() and file_sha256(d) == file_sha256(validation_file)
-           for d in data_files):
+    if any(isinstance(d, (str, Path)) and isinstance(validation_file, (str, Path)) and Path(d).is_file()
+           and Path(validation_file).is_file() and file_sha256(d) == file_sha256(validation_file) for d in data_files):
         raise UserError(f"{validation_file}: is one of the fitted data files (the same contents): validate on data "
                         "no candidate is fitted to")
-    controller = None
-    if options.closed_loop is not None:
+    controller = options.closed_loop
+    if isinstance(controller, (str, Path)):
         from ..model.controller import load_controller
 
-        controller = load_controller(options.closed_loop)
+        controller = load_controller(controller)
     data, files = load_selection_data(data_files, options.skip, controller)
     validation, (vfile,) = load_selection_data([validation_file], options.skip, controller)
     check_validation(data, files, validation, vfile)
-    provenance = {"data_file": ", ".join(map(str, data_files)),
+    names = [data_name(d) for d in data_files]
+    provenance = {"data_file": ", ".join(names),
                   "data_sha256": ", ".join(f.sha256 for f in files),  # of the bytes read and fitted
-                  "validation_file": str(validation_file), "command": run.command, "date": utc_now(),
+                  "validation_file": data_name(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
+    selection = _select(candidates, data, files, validation, provenance, options, run)
+    selection = replace(selection, data_files=tuple(names), validation_file=data_name(validation_file))
+    if not outputs:
+        return selection
+    with all_or_none(outputs.values()):  # its three files, or none
+        return write_selection(selection, outputs)
+
+
+def _select(candidates: list[Candidate], data, files, validation, provenance: dict, options: SelectOptions,
+            run: RunOptions) -> Selection:
+    """The candidates fitted to ``data`` and ranked on ``validation`` (select_files' work, nothing written)."""
     screen = options.screen
     whole_job = CandidateJob(candidates[0], None, data, validation, options,
                              None if run.scheduler is None and run.workers == 0 else 1, provenance,
@@ -163,13 +176,11 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
                 whole = roughness
         scores = rank(scores)
         final = _final_fit(pool, whole_job, scores, run) if ranked_share < 1 and share == 1 else None
-    selection = Selection(scores=tuple(scores), data_files=tuple(map(str, data_files)),
-                          validation_file=str(validation_file), kind=data_kind(data), options=options, outputs={},
+    return Selection(scores=tuple(scores), data_files=(), validation_file="", kind=data_kind(data), options=options,
+                          outputs={},
                           roughness=roughness, horizon=share, roughness_whole=whole,
                           horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan,
                           ranked_share=ranked_share, final=final)
-    with all_or_none(outputs.values()):  # its three files, or none
-        return write_selection(selection, outputs)
 
 
 # The fitted samples (all records together) the candidates of a selection are ranked on at most (shortening.shortened:

@@ -114,7 +114,7 @@ class SelectOptions:
         The swarm's box around each candidate's linear estimate: factors in [1/(1+spread), 1+spread].
     skip : float
         Seconds left out at the start of every record.
-    closed_loop : str, optional
+    closed_loop : str or ControllerSpec, optional
         The controller file of closed-loop records.
     screen : bool
         Records: fit every candidate with its polish at SCREEN_RTOL first, and polish again at the identifier's
@@ -134,7 +134,7 @@ class SelectOptions:
     iterations: int | None = None
     spread: float = DEFAULT_SPREAD
     skip: float = 0.0
-    closed_loop: str | None = None
+    closed_loop: object = None  # a controller file's path, or a ControllerSpec
     screen: bool = True
     budget: float = DEFAULT_BUDGET
     work_limit: float = WORK_LIMIT_HOURS

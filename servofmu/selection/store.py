@@ -56,6 +56,11 @@ class Selection:
         return first if first is not None and first.status == "fitted" and math.isfinite(first.bic) else None
 
 
+def _controller_name(controller) -> str | None:
+    """The controller of a closed-loop selection as its file (a ControllerSpec by where it was read from)."""
+    return None if controller is None else str(getattr(controller, "source", controller))
+
+
 def _key(score: CandidateScore) -> str:
     """The group of a candidate in SELECT.h5's /methods: its name with '/' as '_' (coulomb_2z)."""
     return score.name.replace("/", "_")
@@ -98,7 +103,7 @@ def _fill_ranking(f, selection: Selection) -> None:
                                            "orders": list(selection.options.orders), "seed": selection.options.seed,
                                            "iterations": selection.options.iterations,
                                            "spread": selection.options.spread, "skip": selection.options.skip,
-                                           "closed_loop": selection.options.closed_loop,
+                                           "closed_loop": _controller_name(selection.options.closed_loop),
                                            "screen": selection.options.screen,
                                            "budget": selection.options.budget})})
     store_array(g, "name", [x.name for x in s])

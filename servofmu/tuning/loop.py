@@ -33,7 +33,7 @@ from ..model.laws.viscous import viscous_levels
 from ..model.plant import Plant
 
 __all__ = ["DiscreteLoop", "LoopAnalysis", "discrete_loop", "analyse_loop", "sensitivity_peak", "zoh_position_plant",
-           "axis_mass", "frequency_grid"]
+           "axis_mass", "frequency_grid", "velocity_estimate"]
 
 
 def axis_mass(plant: Plant) -> float:
@@ -83,7 +83,8 @@ def zoh_position_plant(plant: Plant, sample_time: float) -> tuple[np.ndarray, np
     return num_z[1:], den_z
 
 
-def _velocity_estimate(controller: ControllerSpec) -> tuple[np.ndarray, np.ndarray]:
+def velocity_estimate(controller: ControllerSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(num, den) in z, highest power first, of the drive's velocity estimate F(z) from the measured position."""
     ts = controller.sample_time
     kind = int(controller["velocity_filter"])
     if kind == 1:
@@ -132,7 +133,7 @@ def discrete_loop(plant: Plant, controller: ControllerSpec) -> DiscreteLoop:
     # a P-only velocity loop (ki = 0) has no integrator: C(z) = kp, not kp·(z − 1)/(z − 1), whose common factor left
     # a closed-loop pole at z = 1 and called every such drive unstable (Ms = inf; the EMPS axis's drive)
     c_num, c_den = (np.array([kp + ki * ts, -kp]), np.array([1.0, -1.0])) if ki else (np.array([kp]), np.array([1.0]))
-    f_num, f_den = _velocity_estimate(controller)
+    f_num, f_den = velocity_estimate(controller)
     outer = _add(controller["kp_position"] * f_den, f_num)  # kp_position + F(z)
     delay = np.r_[1.0, np.zeros(int(controller["delay"]))]
     num = np.convolve(np.convolve(c_num, outer), p_num)

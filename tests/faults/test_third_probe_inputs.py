@@ -291,7 +291,7 @@ def test_c7_validate_says_when_the_data_is_the_fitted_data_imported_again(tmp_pa
 
     from harness import command_env
 
-    from servofmu.identification.identifier import identification_provenance
+    from servofmu.identification.inputs import identification_provenance
     from servofmu.identification.prior import identified_mask, identified_names
     from servofmu.identification.results import Result, Stage, write_result
     from servofmu.measurement.datafile import read_data_file
