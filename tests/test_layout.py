@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "servofmu"
 STAGES = [
-    {"servofmu.version", "servofmu.errors", "servofmu.locks", "servofmu.runtime", "servofmu.claims", "servofmu.fileio",
+    {"servofmu.version", "servofmu.display", "servofmu.errors", "servofmu.locks", "servofmu.runtime", "servofmu.claims", "servofmu.fileio",
      "servofmu.integrity", "servofmu.text_digest"},
     {"servofmu.model", "servofmu.fmu_models"},
     {"servofmu.fmu"},
