@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 from typing import Iterable, Sequence
 
 __all__ = ["Figure", "Shown", "shown_repr", "shown_html", "short_repr", "html_table", "figure", "parameter_figures",
-           "option_figures", "quantity", "number", "format_interval", "unit_text", "gain_db", "hz", "REPR_LIMIT",
+           "option_figures", "options_shown", "options_repr", "options_html", "quantity", "number", "format_interval", "unit_text", "gain_db", "hz", "REPR_LIMIT",
            "escape"]
 
 # The longest repr: one line a reader takes in at a glance, also when a list of objects is printed.
@@ -92,6 +92,10 @@ class Figure:
         """The value alone, numbers to ``fmt``."""
         if isinstance(self.value, bool) or not isinstance(self.value, (int, float)):
             return str(self.value)
+        if isinstance(self.value, int):  # counts as they are
+            return str(self.value)
+        if math.isinf(self.value):  # e.g. an unstable loop's Ms, a gain margin without a phase crossover
+            return "inf" if self.value > 0 else "-inf"
         return number(self.value, self.fmt)
 
     def text(self) -> str:
@@ -200,3 +204,23 @@ def option_figures(options, units: dict[str, str] | None = None, changed_only: b
             ", ".join(map(str, value)) if isinstance(value, tuple) else str(value)
         out.append(Figure(f.name, shown, units.get(f.name, ""), None, ".6g"))
     return tuple(out)
+
+
+def options_shown(options) -> Shown:
+    """An options dataclass as a :class:`Shown`: the repr lists the fields changed from their defaults, the table
+    every field; the units are those of the class's ``_units`` (field -> unit), if it has one."""
+    units = getattr(options, "_units", {})
+    changed = option_figures(options, units, changed_only=True)
+    every = option_figures(options, units)
+    return Shown(type(options).__name__, f"{len(changed)} of {len(every)} fields changed from the defaults",
+                 changed, every)
+
+
+def options_repr(self) -> str:
+    """``__repr__`` of an options dataclass (:func:`options_shown`)."""
+    return options_shown(self).repr()
+
+
+def options_html(self) -> str:
+    """``_repr_html_`` of an options dataclass (:func:`options_shown`)."""
+    return options_shown(self).html()

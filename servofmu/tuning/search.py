@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import options_html, options_repr
 from ..errors import ServofmuWarning, UserError, check_int, is_real
 from ..identification.pso import PsoOptions, minimize_pso
 from ..identification.prior import full_vectors, identified_names
@@ -165,6 +166,8 @@ class TuneOptions:
     polish_steps: tuple[float, ...] = (0.02, 0.005)
     keep: tuple[str, ...] = ()
     work_limit: float = WORK_LIMIT_HOURS
+    _units = {"work_limit": "h"}
+    __repr__, _repr_html_ = options_repr, options_html
 
     def __post_init__(self):
         check_int("--particles", self.particles, 1, 10_000)
