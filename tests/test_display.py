@@ -6,6 +6,7 @@ from __future__ import annotations
 import inspect
 import math
 import re
+from dataclasses import replace
 from html.parser import HTMLParser
 
 import numpy as np
@@ -216,6 +217,10 @@ def test_the_data_file_says_what_it_holds(data):
                                      "2 frequencies), 0 records")
     assert "amplitudes 1–2 N" in repr(measured) and "frequencies 2–5 Hz" in repr(measured)
     assert repr(records).startswith("<DataFile 'r.h5': records, 1 record")
+    assert "#0 1 N at 2 Hz: |H|" in measured._repr_html_()
+    big = replace(measured, experiments=measured.experiments * 100)  # a file of 400 experiments: still a glance
+    text, page = assert_shows_itself(big)
+    assert "400 stepped-sine experiments" in text and page.count("<tr>") < 25 and "388 more" in page
 
 
 def test_the_loop_shows_its_margins_in_db_deg_and_hz():

@@ -19,7 +19,7 @@ from typing import Iterable
 import h5py
 import numpy as np
 
-from ..display import Shown, figure, shown_html, shown_repr
+from ..display import Shown, shown_html, shown_repr
 from ..errors import UserError
 from ..fileio import (
     READ_ERRORS,
@@ -33,6 +33,7 @@ from ..fileio import (
 )
 from ..model.signals import INTERSAMPLE
 from .excitation import ExperimentSpec, Plan
+from .shown import data_file_shown, experiment_shown, record_shown
 from .schema import (
     BOUNDED,
     DATASET,
@@ -134,13 +135,7 @@ class ExperimentResult:
     __repr__, _repr_html_ = shown_repr, shown_html
 
     def _shown(self) -> Shown:
-        figures = (figure("|H|", abs(self.H), RESULT_UNITS["H"]), figure("phase", np.degrees(np.angle(self.H)), "deg",
-                                                                       ".4g"),
-                   figure("distortion", self.distortion, "", ".2g"), figure("settled after", self.settling_time, "s"),
-                   figure("dc", self.dc, "m/s", ".3g"))
-        head = f"#{self.index}: {self.amplitude:.4g} N at {self.frequency:.4g} Hz, " + \
-            ("converged" if self.converged else "NOT converged")
-        return Shown(type(self).__name__, head, figures)
+        return experiment_shown(self)
 
     @property
     def spec(self) -> ExperimentSpec:
@@ -187,15 +182,7 @@ class Record:
     __repr__, _repr_html_ = shown_repr, shown_html
 
     def _shown(self) -> Shown:
-        t = np.asarray(self.series.time)
-        figures = (figure("duration", float(t[-1] - t[0]) if t.size else 0.0, "s"),
-                   figure("sample rate", self.sample_rate, "Hz"),
-                   figure("u peak", float(np.max(np.abs(self.series.u))) if t.size else 0.0, "N"),
-                   figure("v peak", float(np.max(np.abs(self.series.v))) if t.size else 0.0, "m/s"))
-        if self.analysis is not None:
-            figures += (figure("sine at", self.analysis.frequency, "Hz"),)
-        return Shown(type(self).__name__, f"#{self.index} {self.name!r}: {self.kind}, {t.size} samples", figures,
-                     notes=(f"from {self.source}", f"velocity: {self.velocity_estimate}"))
+        return record_shown(self)
 
     # the input between samples: held ("zoh") or linear ("foh"); schema version 1 files meant "foh"
     intersample: str = stored("zoh", optional=False, dtype=str, choices=INTERSAMPLE, since=2, before="foh")
@@ -227,28 +214,7 @@ class DataFile:
     __repr__, _repr_html_ = shown_repr, shown_html
 
     def _shown(self) -> Shown:
-        n = len(self.experiments)
-        size = f"{n} stepped-sine experiment{'s' * (n != 1)}"
-        if self.plan is not None:
-            size += f" ({len(self.plan.amplitudes)} amplitudes × {len(self.plan.frequencies)} frequencies)"
-        size = (f"{size}, " if n or self.plan is not None else "") + \
-            f"{len(self.records)} record{'s' * (len(self.records) != 1)}"
-        head = f"{self.path.name!r}: {self.kind}{'' if self.complete else ' (incomplete)'}, {size}"
-        figures = ()
-        if self.experiments:
-            amplitudes = [e.amplitude for e in self.experiments]
-            frequencies = [e.frequency for e in self.experiments]
-            figures += (figure("amplitudes", f"{min(amplitudes):.4g}–{max(amplitudes):.4g}", "N"),
-                        figure("frequencies", f"{min(frequencies):.4g}–{max(frequencies):.4g}", "Hz"),
-                        figure("converged", f"{sum(e.converged for e in self.experiments)}/{n}"))
-        if self.records:
-            duration = sum(float(r.series.time[-1] - r.series.time[0]) for r in self.records if r.series.time.size)
-            figures += (figure("records", ", ".join(r.name for r in self.records[:3])
-                               + (", …" if len(self.records) > 3 else "")),
-                        figure("recorded", duration, "s"))
-        missing = len(self.missing())
-        notes = (f"{missing} experiments of the plan not measured yet",) if missing else ()
-        return Shown(type(self).__name__, head, figures, notes=notes + (f"file {self.path}",))
+        return data_file_shown(self)
 
     def missing(self) -> tuple[ExperimentSpec, ...]:
         """The experiments of the plan not stored yet (what ``--resume`` runs)."""
