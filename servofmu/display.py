@@ -13,8 +13,8 @@ from dataclasses import dataclass, fields
 from typing import Iterable, Sequence
 
 __all__ = ["Figure", "Shown", "shown_repr", "shown_html", "short_repr", "html_table", "figure", "parameter_figures",
-           "option_figures", "options_shown", "options_repr", "options_html", "quantity", "number", "format_interval", "unit_text", "gain_db", "hz", "REPR_LIMIT",
-           "escape"]
+           "option_figures", "options_shown", "options_repr", "options_html", "quantity", "number", "format_interval",
+           "unit_text", "gain_db", "hz", "REPR_LIMIT", "escape"]
 
 # The longest repr: one line a reader takes in at a glance, also when a list of objects is printed.
 REPR_LIMIT = 300

@@ -96,7 +96,8 @@ def selection():
     first, second = parse_candidates(["coulomb", "stribeck"], orders=(1,))[:2]
     scores = (CandidateScore(first, "fitted", result=fake_result(plant), parameters=4, samples=12, bic=-120.0,
                              validation_fit={"v": 97.5}, rank=1),
-              CandidateScore(second, "fitted", parameters=7, samples=12, bic=-110.0, validation_fit={"v": 96.0}, rank=2))
+              CandidateScore(second, "fitted", parameters=7, samples=12, bic=-110.0, validation_fit={"v": 96.0},
+                             rank=2))
     return Selection(scores, ("g1.h5",), "g1-val.h5", "stepped-sine", sf.SelectOptions(), {})
 
 
@@ -176,6 +177,8 @@ PARTS = {
     "Stage": lambda d, tmp: fake_result(sf.load_plant("g1")).stages[0],
     "ControllerSpec": lambda d, tmp: load_controller("axis_controller"),
     "ModelRun": lambda d, tmp: tuning().runs["rule"],
+    "Task": lambda d, tmp: tuning().task,
+    "Figures": lambda d, tmp: tuning().runs["rule"].figures,
     "CandidateScore": lambda d, tmp: selection().scores[0],
     "Validation": lambda d, tmp: validation(d[0]),
     "Network": lambda d, tmp: ann_model().network,

@@ -63,8 +63,8 @@ class BaselineResult:
         fits = (figure("fitness (RMS residual)", self.fitness, "", ".3e"), figure("time", self.seconds, "s", ".3g"),
                 figure("evaluations", int(self.evaluations)), figure("iterations", int(self.iterations)))
         return Shown(type(self).__name__, f"{self.method}, {'succeeded' if self.success else 'FAILED'}, "
-                     f"{len(self.names)} parameters", fits[:2] + tuple(figure(f.label, f.value, f.unit) for f in params),
-                     params + fits, (self.message,) if self.message else ())
+                     f"{len(self.names)} parameters",
+                     fits[:2] + tuple(figure(f.label, f.value, f.unit) for f in params), params + fits, (self.message,) if self.message else ())
 
     def parameters(self) -> dict[str, float]:
         """The identified parameters by name (units of the plant file: 1/s, m/(N·s), N, ...)."""

@@ -25,8 +25,8 @@ from .roughness import rough_line
 from .prior import full_vectors, identified_names
 
 __all__ = ["Result", "Stage", "EstimatorDisplay", "result_from_estimator", "write_result", "write_comparison",
-           "read_result", "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json", "find_data_file",
-           "read_identified_data"]
+           "read_result", "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json",
+           "find_data_file", "read_identified_data"]
 
 FORMAT = "servofmu-result"
 COMPARE_FORMAT = "servofmu-comparison"

@@ -61,8 +61,8 @@ class TrainingSet:
         a, f = self.amplitudes, self.frequencies
         figures = (figure("done", f"{int(np.sum(self.done))}/{self.parameters.shape[0]}"),
                    figure("usable", int(np.sum(self.usable()))),
-                   figure("amplitudes", f"{a.min():.4g}–{a.max():.4g}", "N") if a.size else figure("amplitudes", "—"),
-                   figure("frequencies", f"{f.min():.4g}–{f.max():.4g}", "Hz") if f.size else figure("frequencies", "—"))
+                   figure("amplitudes", f"{a.min():.4g}–{a.max():.4g}" if a.size else "—", "N"),
+                   figure("frequencies", f"{f.min():.4g}–{f.max():.4g}" if f.size else "—", "Hz"))
         return Shown(type(self).__name__, f"{self.path.name!r} of {self.structure.name!r}: {self.parameters.shape[0]} "
                      f"parameter sets × {a.size} experiments", figures)
 

@@ -152,7 +152,8 @@ class Validation:
         figures = (figure("worst fit", min(fits) if fits else math.nan, "%", ".4g"),
                    figure("best fit", max(fits) if fits else math.nan, "%", ".4g"),
                    figure("asked", self.min_fit, "%", ".4g"), figure("failures", len(self.failures())))
-        table = figures + tuple(figure(f"record {r.name} ({r.output}) fit", r.fit, "%", ".4g") for r in self.records[:8])
+        table = figures + tuple(figure(f"record {r.name} ({r.output}) fit", r.fit, "%", ".4g")
+                                for r in self.records[:8])
         return Shown(type(self).__name__, head, figures, table, tuple(self.failures()[:5]) + (
             ("the data the model was identified from",) if self.own_data else ()))
 
