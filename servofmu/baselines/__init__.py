@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from ..display import Shown, figure, parameter_figures, shown_html, shown_repr
+
 if TYPE_CHECKING:  # this package is imported by the command line's parser: no numerical imports here
     import numpy as np
 
@@ -51,6 +53,18 @@ class BaselineResult:
         from ..identification.prior import full_vectors
 
         return structure.with_parameters(full_vectors(structure, self.theta)[0])
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        from ..model.plant import parameter_info  # lazily: the command line's parser imports this package
+
+        params = parameter_figures(self.names, self.theta, [parameter_info(n)[0] for n in self.names])
+        fits = (figure("fitness (RMS residual)", self.fitness, "", ".3e"), figure("time", self.seconds, "s", ".3g"),
+                figure("evaluations", int(self.evaluations)), figure("iterations", int(self.iterations)))
+        return Shown(type(self).__name__, f"{self.method}, {'succeeded' if self.success else 'FAILED'}, "
+                     f"{len(self.names)} parameters",
+                     fits[:2] + tuple(figure(f.label, f.value, f.unit) for f in params), params + fits, (self.message,) if self.message else ())
 
     def parameters(self) -> dict[str, float]:
         """The identified parameters by name (units of the plant file: 1/s, m/(N·s), N, ...)."""

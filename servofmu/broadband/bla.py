@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 
 __all__ = ["BLA", "H1Estimate", "estimate_bla", "split_periods", "h1_estimate", "ClosedLoopEstimate",
@@ -54,6 +55,17 @@ class BLA:
     detection_lines: np.ndarray
     periods: int
     realisations: int
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        figures = _band_figures(self.frequencies, self.G, self.coherence) + (
+            figure("distortion/noise", self.distortion_to_noise_db, "dB", ".3g"),
+            figure("relative distortion", self.relative_distortion_db, "dB", ".3g"),
+            figure("even detection/noise", self.detection_to_noise_db("even"), "dB", ".3g"),
+            figure("odd detection/noise", self.detection_to_noise_db("odd"), "dB", ".3g"))
+        return Shown(type(self).__name__, f"at {self.frequencies.size} lines, {self.realisations} realisations × "
+                     f"{self.periods} periods", figures)
 
     @property
     def std_noise(self) -> np.ndarray:
@@ -182,6 +194,22 @@ class H1Estimate:
     coherence: np.ndarray
     var: np.ndarray
     segments: int
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return Shown(type(self).__name__, f"at {self.frequencies.size} lines, {self.segments} segments averaged",
+                     _band_figures(self.frequencies, self.G, self.coherence))
+
+
+def _band_figures(frequencies: np.ndarray, G: np.ndarray, coherence: np.ndarray) -> tuple:
+    """The band (Hz), |G|'s range in dB (of the output unit per input unit) and the lowest coherence."""
+    if frequencies.size == 0:
+        return ()
+    mag = 20 * np.log10(np.maximum(np.abs(G), 1e-300))
+    return (figure("band", f"{frequencies.min():.4g}–{frequencies.max():.4g}", "Hz"),
+            figure("|G|", f"{mag.min():.3g} to {mag.max():.3g}", "dB"),
+            figure("lowest coherence", float(np.min(coherence)), "", ".3g"))
 
 
 def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None = None,

@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, options_shown, shown_html, shown_repr
 from ..errors import UserError, check_int
 
 __all__ = ["BroadbandPlan", "KINDS", "GRIDS", "crest_factor", "CLIP_FRACTION", "DEFAULT_CREST_ITERATIONS",
@@ -94,6 +95,16 @@ class BroadbandPlan:
     group: int = 4
     seed: int = 0
     crest_iterations: int = DEFAULT_CREST_ITERATIONS
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        figures = (figure("levels", ", ".join(f"{x:.4g}" for x in self.levels), "N"),
+                   figure("band", f"{self.band[0]:.4g}–{self.band[1]:.4g}", "Hz"), figure("rate", self.rate, "Hz"),
+                   figure("period", self.samples / self.rate, "s"), figure("periods", self.periods),
+                   figure("transient periods", self.transient_periods), figure("realisations", self.realisations))
+        head = f"{self.kind}, {len(self.levels)} level{'s' * (len(self.levels) != 1)} (RMS force)"
+        return Shown(type(self).__name__, head, figures, figures + options_shown(self).figures[4:])
 
     def __post_init__(self):
         if self.kind not in KINDS:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..fileio import check_output_path, check_values, hdf5_attr, read_hdf5, store_array, write_hdf5
 
@@ -58,6 +59,15 @@ class Network:
     train_loss: np.ndarray
     validation_loss: np.ndarray
     best_epoch: int
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        loss = self.validation_loss[self.best_epoch] if self.validation_loss.size > self.best_epoch else float("nan")
+        return Shown(type(self).__name__, f"{self.w1.shape[1]} inputs → {self.w1.shape[0]} hidden ({self.activation})"
+                     f" → {self.w2.shape[0]} outputs", (figure("best epoch", int(self.best_epoch)),
+                                                        figure("epochs", int(self.train_loss.size)),
+                                                        figure("validation loss", float(loss), "", ".3g")))
     optimizer: str = ""
     seed: int = 0
 
@@ -139,6 +149,14 @@ class AnnModel:
     network: Network
     layout: FeatureLayout
     source: str
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        net = self.network._shown()
+        return Shown(type(self).__name__, f"{self.source!r}: {len(self.layout.feature_names)} features → "
+                     f"{', '.join(self.layout.parameter_names)}", net.figures + (
+                         figure("network", net.head), figure("plan", f"{self.layout.plan.shape[-1]} experiments")))
 
 
 def describe_plan(plan: np.ndarray) -> str:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..measurement.datafile import DataFile
 from ..model.laws.registry import law_key_names
@@ -74,6 +75,15 @@ class SineData:
     source: str
     skipped: int  # experiments without steady state, left out
     noise: np.ndarray | None = None
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        n, a, f = self.amplitudes.size, self.amplitudes, self.frequencies
+        spans = (figure("amplitudes", f"{a.min():.4g}–{a.max():.4g}", "N"),
+                 figure("frequencies", f"{f.min():.4g}–{f.max():.4g}", "Hz")) if n else ()
+        return Shown(type(self).__name__, f"{n} experiments ({'noisy' if self.noisy else 'noise-free'}, {self.skipped} "
+                     f"without steady state left out) from {self.source!r}", spans)
 
     @property
     def plan(self) -> np.ndarray:

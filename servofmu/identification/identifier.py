@@ -49,7 +49,7 @@ from .prior import canonical_order, full_vectors, identified_names
 from .polish import MAX_POLISH_ITERATIONS, polish
 from .pso import PsoOptions, minimize_pso
 from .restarts import RestartOptions, fits_agree, floor_test, noise_half_widths, restart_box, restart_seed
-from .results import Result, Stage, result_from_estimator
+from .results import EstimatorDisplay, Result, Stage, result_from_estimator
 from .shortening import long_open_loop, search_share
 
 __all__ = ["PSOANNIdentifier", "polish", "swarm_options", "check_method"]
@@ -80,7 +80,7 @@ def check_method(method: str) -> None:
 UNCHECKED_EVALUATIONS, WORK_SAMPLE = 20_000, 2
 
 
-class PSOANNIdentifier:
+class PSOANNIdentifier(EstimatorDisplay):
     """PSO-ANN identification of a plant structure from stepped-sine data or records.
 
     Estimator-style: ``__init__`` only stores its arguments, :meth:`fit` runs the stages and returns ``self``.

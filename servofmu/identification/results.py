@@ -5,12 +5,13 @@ import dataclasses
 import json
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from ..display import Shown, figure, format_interval, parameter_figures, shown_html, shown_repr
 from ..errors import MAX_MAGNITUDE, UserError
 from ..fileio import check_values, claim_output, hdf5_attr, output_mode, read_hdf5, store_array, write_hdf5
 from ..measurement.datafile import DataFile, read_data_file
@@ -23,9 +24,9 @@ from .confounding import Confounded, confounded_groups
 from .roughness import rough_line
 from .prior import full_vectors, identified_names
 
-__all__ = ["Result", "Stage", "result_from_estimator", "write_result", "write_comparison", "read_result",
-           "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json", "find_data_file",
-           "read_identified_data"]
+__all__ = ["Result", "Stage", "EstimatorDisplay", "result_from_estimator", "write_result", "write_comparison",
+           "read_result", "read_results", "to_json", "to_json_text", "table_text", "paper_rows", "parameters_json",
+           "find_data_file", "read_identified_data"]
 
 FORMAT = "servofmu-result"
 COMPARE_FORMAT = "servofmu-comparison"
@@ -42,6 +43,12 @@ class Stage:
     fitness: float
     seconds: float
     evaluations: int
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return Shown(type(self).__name__, repr(self.name), (figure("fitness", self.fitness, "", ".3e"),
+                     figure("time", self.seconds, "s", ".3g"), figure("model evaluations", self.evaluations, "", "d")))
 
 
 @dataclass(frozen=True)
@@ -68,11 +75,43 @@ class Result:
     sha256: str = ""  # of the bytes of the file it was read from ("" for one not read from a file)
     covariance: np.ndarray | None = None  # (p, p) the estimates' covariance the intervals come from (None: unknown)
 
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        units = [parameter_info(n, self.structure)[0] for n in self.names]
+        table = parameter_figures(self.names, self.theta, units, self.intervals)
+        fits = (figure("fitness", self.fitness, "", ".3e"), figure("time", self.seconds, "s", ".3g"))
+        if self.fit_percent:
+            fits += (figure("worst record fit", min(self.fit_percent.values()), "%", ".4g"),)
+        # the repr's parameters as value ± half-width, to the digits the interval makes distinct
+        short = fits + tuple(figure(f.label, format_interval(f.value, *f.interval), f.unit) for f in table)
+        head = (f"{self.method} fit of {self.structure.name!r} ({self.structure.friction.model} friction), "
+                f"{len(self.names)} parameters")
+        notes = tuple(f"{s.name}: fitness {s.fitness:.3e} in {s.seconds:.3g} s" for s in self.stages)
+        return Shown(type(self).__name__, head, short, table + fits + (figure("model evaluations",
+                                                                               self.evaluations, "", "d"),), notes)
+
     def confounded(self) -> list[Confounded]:
         """The groups of parameters the data does not separate, with the combinations it determines
         (servofmu.identification.confounding; none without a covariance)."""
         units = {n: parameter_info(n, self.structure)[0] for n in self.names}
         return confounded_groups(self.names, self.theta, self.covariance, self.intervals, units)
+
+
+class EstimatorDisplay:
+    """How an identifier (:class:`servofmu.PSOANNIdentifier`) shows itself: its settings before a fit, its result
+    (parameters with units and 95 % intervals, fitness) after one."""
+
+    def _shown(self) -> Shown:
+        kind, name = type(self).__name__, self.structure.name
+        if not hasattr(self, "theta_"):
+            return Shown(kind, f"{self.method} of {name!r}, not fitted", (
+                figure("swarm", f"{self.pso.particles} particles × {self.pso.iterations} iterations"),
+                figure("seed", self.seed), figure("polish", str(self.polish)), figure("box", self.box, "", ".3g")))
+        shown = result_from_estimator(self, self.method, {})._shown()
+        return replace(shown, kind=kind, head=f"{self.method} of {name!r}, fitted: {len(self.names_)} parameters")
+
+    __repr__, _repr_html_ = shown_repr, shown_html
 
 
 def result_from_estimator(est, method: str, provenance: dict) -> Result:

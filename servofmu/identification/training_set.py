@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError, check_int
 from ..fileio import check_values, claim_output, holds_outputs, output_mode, read_hdf5, store_array, write_hdf5
 from ..model.plant import Plant, plant_from_dict
@@ -53,6 +54,17 @@ class TrainingSet:
     converged: np.ndarray
     done: np.ndarray
     attributes: dict
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        a, f = self.amplitudes, self.frequencies
+        figures = (figure("done", f"{int(np.sum(self.done))}/{self.parameters.shape[0]}"),
+                   figure("usable", int(np.sum(self.usable()))),
+                   figure("amplitudes", f"{a.min():.4g}–{a.max():.4g}" if a.size else "—", "N"),
+                   figure("frequencies", f"{f.min():.4g}–{f.max():.4g}" if f.size else "—", "Hz"))
+        return Shown(type(self).__name__, f"{self.path.name!r} of {self.structure.name!r}: {self.parameters.shape[0]} "
+                     f"parameter sets × {a.size} experiments", figures)
 
     @property
     def plan(self) -> np.ndarray:

@@ -19,6 +19,7 @@ from typing import Iterable
 import h5py
 import numpy as np
 
+from ..display import Shown, shown_html, shown_repr
 from ..errors import UserError
 from ..fileio import (
     READ_ERRORS,
@@ -32,6 +33,7 @@ from ..fileio import (
 )
 from ..model.signals import INTERSAMPLE
 from .excitation import ExperimentSpec, Plan
+from .shown import data_file_shown, experiment_shown, record_shown
 from .schema import (
     BOUNDED,
     DATASET,
@@ -131,6 +133,11 @@ class ExperimentResult:
     H_noisy: complex | None = stored(None, dtype=complex, check=FINITE)
     dc_noisy: float | None = stored(None, check=FINITE)
 
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return experiment_shown(self)
+
     @property
     def spec(self) -> ExperimentSpec:
         """The experiment of the plan that this is the result of."""
@@ -173,6 +180,11 @@ class Record:
     velocity_cutoff: float | None = stored(optional=True)
     analysis: RecordAnalysis | None = stored(kind=NESTED, nested=RecordAnalysis, flag="sinusoidal")
     note: str = stored("", dtype=str)
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return record_shown(self)
+
     # the input between samples: held ("zoh") or linear ("foh"); schema version 1 files meant "foh"
     intersample: str = stored("zoh", optional=False, dtype=str, choices=INTERSAMPLE, since=2, before="foh")
     # the time stamps as logged, measured against their least-squares grid (servofmu.measurement.clock): its step
@@ -199,6 +211,11 @@ class DataFile:
     provenance: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
     sha256: str = ""  # of the bytes read (the file as it was parsed; provenance records this)
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return data_file_shown(self)
 
     def missing(self) -> tuple[ExperimentSpec, ...]:
         """The experiments of the plan not stored yet (what ``--resume`` runs)."""

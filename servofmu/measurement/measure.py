@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..display import options_html, options_repr
 from ..errors import ServofmuWarning, UserError, check_int
 from ..fileio import claim_output, holds_outputs, output_mode
 from ..runtime import RunOptions, check_memory, utc_now
@@ -85,6 +86,8 @@ class MeasureOptions:
     harmonics: int = HARMONICS
     noise_snr_db: float | None = None  # optional measurement noise on v, stored beside the clean signal
     seed: int | None = None
+    _units = {"max_time": "s", "noise_snr_db": "dB"}
+    __repr__, _repr_html_ = options_repr, options_html
 
     def validate(self) -> "MeasureOptions":
         """These options, after checking every value (UserError naming the first bad one)."""

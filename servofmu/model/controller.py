@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError, name_problem
 from ..text_digest import checked_text
 from .friction import viscous_damping
@@ -95,6 +96,17 @@ class ControllerSpec:
 
     def __getitem__(self, name: str) -> float:
         return self.values[INDEX[name]]
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        key = ("kp_position", "kp_velocity", "ki_velocity", "sample_time", "delay")
+        units = {p.name: "" if p.unit == "1" else p.unit for p in PARAMETERS} | {"delay": "samples"}
+        figures = tuple(figure(n, self[n], units[n]) for n in key)
+        if self["friction_feedforward"]:
+            figures += (figure("friction_feedforward", self["friction_feedforward"]),)
+        table = tuple(figure(p.name, v, units[p.name], ".6g") for p, v in zip(PARAMETERS, self.values))
+        return Shown(type(self).__name__, f"{self.name!r} ({len(self.values)} parameters)", figures, table)
 
     def vector(self) -> np.ndarray:
         """The parameter values as an array, in :data:`PARAMETERS` order."""

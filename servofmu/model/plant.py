@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..display import Shown, figure, parameter_figures, shown_html, shown_repr
 from ..errors import MAX_MAGNITUDE, UserError, name_problem
 from ..text_digest import checked_text
 from .laws.base import FrictionLaw
@@ -91,6 +92,14 @@ class Friction:
         if law_key(name) is not None:
             return None
         raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        values = self.values()
+        units = [self.law.key(k).unit if get_law(self.model) and self.law.key(k) else "" for k in values]
+        return Shown(type(self).__name__, f"{self.model}{' symmetric' if self.symmetric else ''}, "
+                     f"{len(values)} parameters", parameter_figures(list(values), list(values.values()), units))
 
     @classmethod
     def of(cls, model: str, values: dict[str, float], symmetric: bool = False) -> "Friction":
@@ -169,6 +178,13 @@ class Load:
         """The load's parameters by name (units as in the class docstring)."""
         return {k: float(getattr(self, k)) for k in self.keys()}
 
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        values = self.values()
+        return Shown(type(self).__name__, f"{len(values)} parameters" if values else "none",
+                     parameter_figures(list(values), list(values.values()), [PARAMETER_INFO[k][0] for k in values]))
+
     def depends_on_position(self) -> bool:
         """True when the force depends on the position (a spring or a ripple): the position is then a state
         that acts back, not only the integral of v."""
@@ -223,6 +239,17 @@ class Plant:
     source: str = field(default="<memory>", compare=False)
     load: Load = field(default_factory=Load)
     fixed: tuple[str, ...] = ()
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        values = self.parameters()
+        units = [parameter_info(n, self)[0] for n in values]
+        head = f"{self.name!r}: G(s) of order {self.order}, {self.friction.model} friction, {len(values)} parameters"
+        figures = parameter_figures(list(values), list(values.values()), units)
+        short = tuple(figure(f.label, f.value, f.unit) for f in figures)  # 4 digits in the repr, 6 in the table
+        notes = (f"read from {self.source}",) + ((f"fixed: {', '.join(self.fixed)}",) if self.fixed else ())
+        return Shown(type(self).__name__, head, short, figures, notes)
 
     # ---- structure -------------------------------------------------------
     @property

@@ -4,10 +4,9 @@ from __future__ import annotations
 import base64
 import html
 import io
-import math
 from typing import Sequence
 
-import numpy as np
+from ..display import format_interval, number  # noqa: F401  (one format, shared with the reprs)
 
 __all__ = ["escape", "number", "format_interval", "table", "figure", "png_bytes", "page", "DPI"]
 
@@ -29,31 +28,6 @@ p.verdict.passed { color: #1a6b2a; } p.verdict.failed, #failures { color: #a11; 
 def escape(text) -> str:
     """Text for HTML (quotes too)."""
     return html.escape(str(text), quote=True)
-
-
-def number(x: float | None, fmt: str = ".8g") -> str:
-    """A number for a table cell; a dash for None, NaN or Inf."""
-    return "—" if x is None or not np.isfinite(x) else format(float(x), fmt)
-
-
-def format_interval(value: float, lo: float, hi: float) -> str:
-    """An interval as text whose bounds are distinct: ``value ± half-width`` (the half-width to two significant
-    digits, the value to the half-width's last digit), or ``[lo, hi]`` to the same digits when the interval is
-    not centred on the value; "unknown" for a NaN interval.  E.g. (−10.0000003, −10.0000005, −10.0000001) →
-    "−10.00000030 ± 2.0e−07", where a fixed 6 significant digits would print [−10, −10]."""
-    if not all(math.isfinite(x) for x in (value, lo, hi)):
-        return "unknown" if math.isfinite(value) else "—"
-    half = (hi - lo) / 2
-    if half <= 0:
-        return f"{value:.10g} ± 0"
-    decimals = 1 - math.floor(math.log10(half))  # the half-width's second significant digit
-
-    def fixed(x: float) -> str:
-        return f"{x:.{decimals}f}" if decimals > 0 else f"{round(x, decimals):.0f}"
-
-    if abs((lo + hi) / 2 - value) > 0.05 * half:  # not centred: both bounds
-        return f"[{fixed(lo)}, {fixed(hi)}]"
-    return f"{fixed(value)} ± {half:#.2g}"
 
 
 def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_from: int = 1) -> str:

@@ -24,6 +24,7 @@ from ..identification.criterion import POLISH_RTOL, SineData, sine_residuals
 from ..identification.results import paper_rows, read_identified_data
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.plant import Plant, load_plant, parameter_info
+from ..display import unit_text
 from ..runtime import utc_now
 from ..version import __version__
 from .html import escape, figure, format_interval, number, page, table
@@ -44,18 +45,6 @@ __all__ = ["make_report", "report_html", "transfer_function_html", "unit_text"]
 # ---------------------------------------------------------------------------
 def relative_error(value: float, true: float) -> float:
     return abs(value - true) / abs(true) if true != 0 else float("nan")
-
-
-def unit_text(unit: str) -> str:
-    """A unit as a reader writes it: the ASCII names of servofmu.model.plant (``N.s/m``, ``m/(N.s^2)``) with a
-    middle dot and superscripts."""
-    sup = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
-    out = unit.replace("N.s", "N·s")
-    if "^" in out:
-        head, _, tail = out.partition("^")
-        digits = "".join(c for c in tail if c.isdigit())
-        out = head + digits.translate(sup) + tail[len(digits):]
-    return out
 
 
 def parameter_unit(name: str, structure: Plant) -> str:

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..identification.criterion import POLISH_RTOL, check_structure, fit_percent, record_data, record_errors
 from ..identification.residuals import EXACT, LAGS, LEVEL, ResidualTest, residual_test
@@ -140,6 +141,21 @@ class Validation:
     def passed(self) -> bool:
         """Every record and experiment fits at least ``min_fit`` % and passes the residual tests that apply."""
         return all(r.passed for r in self.records) and all(e.passed for e in self.experiments)
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        items = (*self.records, *self.experiments)
+        fits = [i.fit for i in items if math.isfinite(i.fit)]
+        head = (f"of {self.result.structure.name!r} on {self.data_file.path.name!r}: {len(self.records)} records, "
+                f"{len(self.experiments)} experiments, {'passed' if self.passed else 'FAILED'}")
+        figures = (figure("worst fit", min(fits) if fits else math.nan, "%", ".4g"),
+                   figure("best fit", max(fits) if fits else math.nan, "%", ".4g"),
+                   figure("asked", self.min_fit, "%", ".4g"), figure("failures", len(self.failures())))
+        table = figures + tuple(figure(f"record {r.name} ({r.output}) fit", r.fit, "%", ".4g")
+                                for r in self.records[:8])
+        return Shown(type(self).__name__, head, figures, table, tuple(self.failures()[:5]) + (
+            ("the data the model was identified from",) if self.own_data else ()))
 
     def failures(self) -> list[str]:
         """One short line per record or experiment that fails, saying why."""

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..display import Shown, figure, options_html, options_repr, shown_html, shown_repr
 from ..errors import UserError
 from ..identification.confounding import interval_quantile
 from ..identification.criterion import POLISH_RTOL, SineData, fit_percent
@@ -139,6 +140,9 @@ class SelectOptions:
     budget: float = DEFAULT_BUDGET
     work_limit: float = WORK_LIMIT_HOURS
 
+    _units = {"skip": "s", "budget": "s", "work_limit": "h"}
+    __repr__, _repr_html_ = options_repr, options_html
+
 
 @dataclass(frozen=True)
 class CandidateJob:
@@ -201,6 +205,14 @@ class CandidateScore:
     def name(self) -> str:
         """The candidate's name."""
         return self.candidate.name
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return Shown(type(self).__name__, f"#{self.rank} {self.name!r}: {self.status}, {self.parameters} parameters",
+                     (figure("BIC", self.bic, "", ".6g"), figure("worst validation fit", self.worst_validation_fit, "%",
+                                                                 ".4g"), figure("time", self.seconds, "s", ".3g")),
+                     notes=tuple(x for x in (self.message, ", ".join(self.flags)) if x))
 
     @property
     def worst_validation_fit(self) -> float:

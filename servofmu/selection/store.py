@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..fileio import atomic_write, store_array, write_hdf5
 from ..text_digest import with_digest
 from ..identification.results import write_comparison, write_result
@@ -42,6 +43,26 @@ class Selection:
     # ranked on, and the chosen structure polished again from its fit there on the whole records (its result written)
     ranked_share: float = 1.0
     final: CandidateScore | None = None
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        chosen = self.chosen
+        head = (f"of {len(self.scores)} candidates on {len(self.data_files)} {self.kind} data file"
+                f"{'s' * (len(self.data_files) != 1)}: " + (f"chosen {chosen.name!r} ({chosen.parameters} parameters)"
+                                                          if chosen else "no fit succeeded"))
+        fitted = [s for s in self.scores if s.status == "fitted" and math.isfinite(s.bic)]
+        figures = ()
+        if chosen is not None:
+            figures += (figure("BIC", chosen.bic, "", ".6g"),)
+            if len(fitted) > 1:
+                figures += (figure(f"ΔBIC to {fitted[1].name}", fitted[1].bic - chosen.bic, "", ".3g"),)
+            figures += (figure("worst validation fit", chosen.worst_validation_fit, "%", ".4g"),)
+        table = tuple(figure(f"#{s.rank} {s.name} ({s.parameters} parameters): BIC", s.bic, "", ".6g")
+                      for s in self.scores[:12])
+        notes = ((f"{len(self.scores) - 12} more candidates",) if len(self.scores) > 12 else ()) + \
+            ((f"validated on {self.validation_file}",) if self.validation_file else ())
+        return Shown(type(self).__name__, head, figures, figures + table, notes)
 
     @property
     def rough(self) -> bool:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..model.controller import PARAMETERS, ControllerSpec
 from ..runtime import temporary_folder
@@ -50,6 +51,16 @@ class Figures:
     overshoot: float
     reversal_velocity_error: float
     saturated: float
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        return Shown(type(self).__name__, "of a controller on a task", (
+            figure("RMS error", self.rms_error, "m", ".3g"), figure("peak error", self.peak_error, "m", ".3g"),
+            figure("settling time", self.settling_time, "s", ".3g"),
+            figure("overshoot", 100 * self.overshoot, "%", ".3g"),
+            figure("reversal velocity error", self.reversal_velocity_error, "m/s", ".3g"),
+            figure("saturated", 100 * self.saturated, "%", ".3g")))
 
     def as_dict(self) -> dict:
         """The figures by name."""

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, gain_db, hz, shown_html, shown_repr
 from ..errors import UserError
 from ..model.controller import ControllerSpec
 from ..model.laws.viscous import viscous_levels
@@ -162,6 +163,17 @@ class LoopAnalysis:
     stable: bool
     omega: np.ndarray
     response: np.ndarray
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        figures = (figure("Ms", self.ms, "", ".3g"), figure("at", hz(self.ms_frequency), "Hz", ".3g"),
+                   figure("gain margin", gain_db(self.gain_margin), "dB", ".3g"),
+                   figure("phase margin", self.phase_margin, "deg", ".3g"),
+                   figure("crossover", hz(self.crossover), "Hz", ".3g"))
+        return Shown(type(self).__name__, f"{'stable' if self.stable else 'UNSTABLE'} loop, {self.omega.size} "
+                     "frequencies", figures,
+                     figures + (figure("gain margin (factor)", self.gain_margin, "", ".4g"),))
 
     def summary(self) -> dict:
         """The figures as plain numbers (the frequencies in Hz)."""

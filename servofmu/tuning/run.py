@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, gain_db, hz, shown_html, shown_repr
 from ..errors import UserError
 from ..identification.results import Result
 from ..model.controller import ControllerSpec, friction_feedforward, load_controller
@@ -85,6 +86,14 @@ class ModelRun:
     v: np.ndarray
     step_position: np.ndarray
 
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        loop = self.loop._shown()
+        return Shown(type(self).__name__, f"{self.controller.name!r} on the model", loop.figures + (
+            figure("RMS error", self.figures.rms_error, "m", ".3g"),
+            figure("worst RMS error", self.worst_rms, "m", ".3g"), figure("worst Ms", self.worst_peak, "", ".3g")))
+
 
 @dataclass(frozen=True)
 class Tuning:
@@ -104,6 +113,26 @@ class Tuning:
     axis_runs: list[AxisRun] | None
     seconds: float
     uncertainty: Uncertainty = field(repr=False, default=None)
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        run = self.runs[self.chosen]
+        c, loop = run.controller, run.loop
+        figures = (figure("kp_position", c["kp_position"], "1/s"), figure("kp_velocity", c["kp_velocity"], "N.s/m"),
+                   figure("ki_velocity", c["ki_velocity"], "N/m"), figure("Ms", loop.ms, "", ".3g"),
+                   figure("gain margin", gain_db(loop.gain_margin), "dB", ".3g"),
+                   figure("phase margin", loop.phase_margin, "deg", ".3g"),
+                   figure("crossover", hz(loop.crossover), "Hz", ".3g"),
+                   figure("RMS error", run.figures.rms_error, "m", ".3g"))
+        table = figures + (figure("Ms, worst corner of the 95 % box", run.worst_peak, "", ".3g"),
+                           figure("RMS error, worst of the uncertainty set", run.worst_rms, "m", ".3g"),
+                           figure("time", self.seconds, "s", ".3g"))
+        notes = tuple(f"{label}: Ms {r.loop.ms:.3g}, gain margin {gain_db(r.loop.gain_margin):.3g} dB, RMS error "
+                      f"{r.figures.rms_error:.3g} m" for label, r in self.runs.items() if label != self.chosen)
+        head = (f"{self.method} of {self.result.structure.name!r}: {self.chosen} controller of {len(self.runs)}, task "
+                f"{self.task.label!r}" + (", checked on the axis" if self.axis_runs else ""))
+        return Shown(type(self).__name__, head, figures, table, notes)
 
     @property
     def chosen(self) -> str:

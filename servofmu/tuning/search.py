@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, options_html, options_repr, shown_html, shown_repr
 from ..errors import ServofmuWarning, UserError, check_int, is_real
 from ..identification.pso import PsoOptions, minimize_pso
 from ..identification.prior import full_vectors, identified_names
@@ -165,6 +166,8 @@ class TuneOptions:
     polish_steps: tuple[float, ...] = (0.02, 0.005)
     keep: tuple[str, ...] = ()
     work_limit: float = WORK_LIMIT_HOURS
+    _units = {"work_limit": "h"}
+    __repr__, _repr_html_ = options_repr, options_html
 
     def __post_init__(self):
         check_int("--particles", self.particles, 1, 10_000)
@@ -215,6 +218,14 @@ class TuneSearch:
     history: np.ndarray
     simulated: int
     evaluations: int
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        c = self.controller
+        return Shown(type(self).__name__, f"{self.history.size} iterations, {self.simulated} candidates simulated", (
+            figure("worst RMS error", self.worst_rms, "m", ".3g"), figure("kp_position", c["kp_position"], "1/s"),
+            figure("kp_velocity", c["kp_velocity"], "N.s/m"), figure("ki_velocity", c["ki_velocity"], "N/m")))
 
 
 def search_gains(uncertainty: Uncertainty, controller: ControllerSpec, task: Task, options: TuneOptions,

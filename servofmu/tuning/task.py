@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..model.controller import ControllerSpec
 from ..model.laws.viscous import viscous_levels
@@ -34,6 +35,13 @@ class Task:
     time: np.ndarray
     position: np.ndarray
     label: str
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        duration = float(self.time[-1] - self.time[0]) if self.time.size else 0.0
+        return Shown(type(self).__name__, f"{self.label!r}: {self.time.size} samples", (
+            figure("duration", duration, "s"), figure("span", self.span if self.time.size else 0.0, "m")))
 
     @property
     def span(self) -> float:
