@@ -107,6 +107,12 @@ def validation(measured):
     return validate(fake_result(sf.load_plant("g1")), measured)
 
 
+def comparison(measured):
+    from servofmu.api.workflow import ModelComparison
+
+    return ModelComparison({"g1": validation(measured), "g1 again": validation(measured)})
+
+
 def training_set(tmp_path):
     from servofmu.identification.training_set import TrainingSet
 
@@ -147,6 +153,7 @@ CLASSES = {
     "PSOANNIdentifier": lambda d, tmp: fitted_identifier(d[0]),
     "SelectOptions": lambda d, tmp: sf.SelectOptions(skip=0.5),
     "TuneOptions": lambda d, tmp: sf.TuneOptions(),
+    "Records": lambda d, tmp: sf.Records(d[1].records, "r"),
 }
 RETURNS = {
     "load_plant": lambda d, tmp: sf.load_plant("g1"),
@@ -165,6 +172,11 @@ RETURNS = {
     "select_with_report": lambda d, tmp: selection(),
     "analyse_loop": lambda d, tmp: sf.analyse_loop(sf.load_plant("linear_axis"), load_controller("axis_controller")),
     "tune_axis": lambda d, tmp: tuning(),
+    "identify": lambda d, tmp: fake_result(sf.load_plant("g1")),
+    "select": lambda d, tmp: selection(),
+    "tune": lambda d, tmp: tuning(),
+    "compare_models": lambda d, tmp: comparison(d[0]),
+    "control_loops": lambda d, tmp: sf.control_loops(sf.load_plant("linear_axis"), load_controller("axis_controller")),
 }
 NOTHING_TO_SHOW = {"build_fmu": "a path", "simulate": "an array", "export_result": "(path, text)",
                    "train_from_file": "(Network, epochs)", "write_result": "None"}

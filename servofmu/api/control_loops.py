@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..model.controller import ControllerSpec
 from ..tuning.loop import analyse_loop, discrete_loop, velocity_estimate, zoh_position_plant
@@ -61,11 +62,15 @@ class ControlLoops:
                 "phase_crossover_hz": float(wpcs[i]) / (2 * np.pi) if i is not None else np.nan,
                 "crossover_hz": float(wgcs[j]) / (2 * np.pi) if j is not None else np.nan}
 
-    def __repr__(self) -> str:
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
         m = self.margins()
-        return (f"ControlLoops(Ts={self.loop.dt:g} s, order {len(self.loop.poles())}: gain margin "
-                f"{m['gain_margin_db']:.3g} dB, phase margin {m['phase_margin_deg']:.3g} deg at "
-                f"{m['crossover_hz']:.3g} Hz)")
+        figures = (figure("gain margin", m["gain_margin_db"], "dB", ".3g"),
+                   figure("phase margin", m["phase_margin_deg"], "deg", ".3g"),
+                   figure("crossover", m["crossover_hz"], "Hz", ".3g"),
+                   figure("sample time", float(self.loop.dt), "s"))
+        return Shown("ControlLoops", f"python-control, discrete, order {len(self.loop.poles())}", figures)
 
 
 def control_loops(axis: object, controller: ControllerSpec | None = None) -> ControlLoops:

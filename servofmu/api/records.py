@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
 from ..measurement.datafile import DataFile, Record, read_data_file, records_in_memory, write_records
 from ..measurement.duplicates import TWICE, first_repeat, series_digest
@@ -185,6 +186,21 @@ class Records:
             raise UserError(f"{self.name}: record index {key!r} out of range (it holds {len(self)})")
         r = self.records[key]
         return Records((replace(r, index=0),), r.name)
+
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        rs = self.records
+        total = sum(r.series.time.size for r in rs)
+        seconds = sum(float(r.series.time[-1] - r.series.time[0]) for r in rs)
+        kinds = sorted({r.kind for r in rs})
+        head = (f"{self.name!r}: {len(rs)} record{'s' * (len(rs) != 1)} of {'/'.join(kinds)}"
+                f"{', closed loop' if self.closed_loop else ''}")
+        figures = (figure("samples", total), figure("duration", seconds, "s"),
+                   figure("sample rate", rs[0].sample_rate, "Hz"))
+        table = figures + tuple(figure(f"{r.name}", float(r.series.time[-1] - r.series.time[0]), "s")
+                                for r in rs[:12])
+        return Shown("Records", head, figures, table, (f"{len(rs) - 12} more records",) if len(rs) > 12 else ())
 
     @property
     def names(self) -> list[str]:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
+from ..display import escape, figure, short_repr
 from ..errors import UserError
 from ..identification.results import Result
 from ..measurement.datafile import DataFile, read_data_file
@@ -139,10 +140,33 @@ class ModelComparison:
                 rows.setdefault(name, {})[label] = f"{value:.6g} [{low:.6g}, {high:.6g}]"
         return rows
 
+    def __repr__(self) -> str:
+        fits = self.table()["fit % (mean)"]
+        return short_repr("ModelComparison", f"{len(fits)} models on one data set",
+                          [figure(f"{label} fit", value, "%", ".4g") for label, value in fits.items()])
+
+    def _repr_html_(self) -> str:
+        """One table, a column per model."""
+        rows = self.table()
+        labels = list(self.validations)
+        head = "".join(f"<th>{escape(label)}</th>" for label in labels)
+        body = "".join(f"<tr><td style=\"text-align:left\">{escape(row)}</td>" + "".join(
+            f"<td>{escape(_cell(values.get(label, '')))}</td>" for label in labels) + "</tr>"
+            for row, values in rows.items())
+        return (f'<div><table class="servofmu"><caption style="text-align:left"><b>ModelComparison</b> '
+                f"{len(labels)} models</caption><thead><tr><th>quantity</th>{head}</tr></thead><tbody>{body}"
+                "</tbody></table></div>")
+
     def best(self) -> str:
         """The label of the model with the highest mean fit."""
         fits = self.table()["fit % (mean)"]
         return max(fits, key=lambda k: -math.inf if math.isnan(fits[k]) else fits[k])
+
+
+def _cell(value) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def _parameters(result: Result):
