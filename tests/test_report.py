@@ -6,17 +6,14 @@ refusals of bad input; validate's verdict on a right and a wrong model (exit sta
 import base64
 import json
 import re
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import replace
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+from browser import chromium
 from clitools import assert_one_line_error, run
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 
 from servofmu.identification.criterion import POLISH_RTOL, sine_data
 from servofmu.identification.results import read_result, write_comparison, write_result
@@ -29,10 +26,6 @@ from servofmu.fileio import file_sha256
 from servofmu.model.friction import steady_friction
 from hdf5edit import edit_hdf5
 
-CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
-CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--window-size=1200,900")
 PLAN = {"amplitudes": [2.0, 0.6], "frequencies": [0.5, 2.0, 10.0]}
 # The "true" plant the report is given: g1 with other values, so that every relative error is large and known.
 TRUTH_TOML = """name = "g1_other"
@@ -78,20 +71,8 @@ def report(g1_result, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def browser():
-    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
-    if missing:
-        pytest.fail(f"{', '.join(missing)} missing: scripts/test.sh installs Debian's chromium and chromium-driver")
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for flag in CHROMIUM_FLAGS:
-        options.add_argument(flag)
-    profile = tempfile.TemporaryDirectory(ignore_cleanup_errors=True)
-    options.add_argument(f"--user-data-dir={profile.name}")
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=options)  # no Selenium Manager
-    yield driver
-    driver.quit()
-    profile.cleanup()
+    with chromium() as driver:
+        yield driver
 
 
 def interval_bounds(text: str) -> tuple[float, float]:

@@ -215,8 +215,10 @@ class Records:
     def to_dataframe(self, record: int | str = 0) -> pandas.DataFrame:
         """One record's signals as a pandas DataFrame indexed by time (s); columns input (N), output (m or m/s),
         velocity (m/s) and the log's reference and disturbance when present."""
-        import pandas as pd
-
+        try:
+            import pandas as pd
+        except ImportError as exc:
+            raise UserError("pandas is not installed: pip install 'servofmu[notebook]'") from exc
         r = self[record].records[0]
         s = r.series
         columns = {"input": s.u, "output": _output(r), "velocity": s.v, "reference": s.reference,
