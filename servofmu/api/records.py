@@ -59,7 +59,14 @@ class Records:
     drive's log the reference and the injected disturbance), fitted, validated and saved as a records file is.
 
     Build them with :meth:`from_arrays`, :meth:`from_dataframe` or :meth:`load`; every method returns new
-    Records.  ``name`` stands for the file in messages and in a result's provenance.
+    Records.
+
+    Parameters
+    ----------
+    records : tuple of Record
+        The records (servofmu.measurement.datafile.Record), each made as ``import`` makes one.
+    name : str
+        What stands for the file in messages and in a result's provenance.
     """
 
     records: tuple[Record, ...]

@@ -189,6 +189,12 @@ def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike
         The drive whose logs ``data`` holds: each model is replayed in its loop.
     skip, min_fit
         As ``servofmu validate``.
+
+    Returns
+    -------
+    ModelComparison
+        One Validation per model; ``table()`` has a column per model (mean fit %, verdicts, parameters with
+        their 95 % intervals) and the notebook shows it as one table.
     """
     if isinstance(results, Result):
         results = [results]
