@@ -36,6 +36,12 @@ def test_records_from_a_dataframe_equal_the_import_of_the_same_columns(tmp_path)
         np.testing.assert_array_equal(getattr(r.series, name), getattr(imported.series, name))
     assert (r.sample_rate, r.velocity_cutoff, r.time_step) == (imported.sample_rate, imported.velocity_cutoff,
                                                                imported.time_step)
+    # the frequency response of the records in memory is the one `servofmu frf` computes from the file
+    from servofmu.broadband.records_frf import records_frf
+
+    (in_memory,), (from_file,) = mine.frf(), records_frf(tmp_path / "log.h5")[1]
+    np.testing.assert_array_equal(in_memory.direct.G, from_file.direct.G)
+    assert len(repr(in_memory)) <= 300 and "Hz" in repr(in_memory)
     # the index stands for the time column when none is named
     by_index = sf.Records.from_dataframe(frame.set_index("t"), input="force", output="x", kind="position")
     np.testing.assert_array_equal(by_index.records[0].series.v, r.series.v)

@@ -238,6 +238,14 @@ class Records:
         take)."""
         return records_in_memory(self.records, self.name, {"package": "servofmu", "sources": self.names})
 
+    def frf(self, closed_loop: bool = False, segment: int | None = None) -> list:
+        """Every record's frequency response (``servofmu frf``): the H1 estimate with its coherence and, for a
+        drive's log with ``closed_loop``, the estimate from the reference that its loop's noise does not bias
+        (servofmu.broadband.records_frf.RecordFrf)."""
+        from ..broadband.records_frf import records_frf
+
+        return records_frf(self.to_data_file(), closed_loop, segment)[1]
+
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the records file (docs/hdf5.md) that :meth:`load` and every command read."""
         provenance = {"package": "servofmu", "package_version": __version__, "command": "Records.save",

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..measurement.datafile import DataFile, read_data_file
+from ..display import Shown, figure, shown_html, shown_repr
+from ..measurement.datafile import DataFile, as_data_file, data_name
 from .bla import ClosedLoopEstimate, H1Estimate, closed_loop_estimate, h1_estimate
 
 __all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", "SEGMENTS"]
@@ -32,6 +33,18 @@ class RecordFrf:
     direct: H1Estimate
     closed_loop: ClosedLoopEstimate | None
 
+    __repr__, _repr_html_ = shown_repr, shown_html
+
+    def _shown(self) -> Shown:
+        d = self.direct
+        figures = [figure("samples", self.samples), figure("rate", self.rate, "Hz"),
+                   figure("band", f"{d.frequencies[0]:.3g}–{d.frequencies[-1]:.3g}", "Hz"),
+                   figure("median coherence", float(np.median(d.coherence)))]
+        if self.closed_loop is not None:
+            figures.append(figure("direct vs from the reference", self.direct_deviation()))
+        return Shown("RecordFrf", f"{self.name!r}: {'H1 and from the reference' if self.closed_loop else 'H1'}",
+                     tuple(figures))
+
     def direct_deviation(self) -> float:
         """Median |G_direct/G_reference − 1| over the lines where γ²_ru ≥ TRUSTED_COHERENCE (NaN without)."""
         if self.closed_loop is None:
@@ -45,11 +58,11 @@ class RecordFrf:
         return float(np.median(np.abs(direct[good] / cl.G[good] - 1)))
 
 
-def records_frf(path: str | Path, closed_loop: bool = False, segment: int | None = None) -> tuple[DataFile,
-                                                                                                  list[RecordFrf]]:
-    """The estimates of every record of a records file; with ``closed_loop`` every record must have a reference
-    (a UserError names the first without)."""
-    data = read_data_file(path)
+def records_frf(path: str | Path | DataFile, closed_loop: bool = False, segment: int | None = None
+                ) -> tuple[DataFile, list[RecordFrf]]:
+    """The estimates of every record of a records file (or a DataFile held in memory); with ``closed_loop`` every
+    record must have a reference (a UserError names the first without)."""
+    data, path = as_data_file(path), data_name(path)
     if data.kind != "records" or not data.records:
         raise UserError(f"{path}: is a {data.kind} file without records; frf takes broadband data or records")
     out = []
