@@ -69,16 +69,12 @@ def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_
 
 
 def png_bytes(fig) -> bytes:
-    """A finished matplotlib figure (laid out tightly) as PNG bytes; the figure is closed."""
-    import matplotlib.pyplot as plt
-
-    try:
-        fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=DPI)
-        return buf.getvalue()
-    finally:
-        plt.close(fig)
+    """A finished matplotlib figure (laid out tightly) as PNG bytes, written through the figure's own canvas
+    (no pyplot: the user's backend is not touched)."""
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
 
 
 def figure(caption: str, image: bytes, alt: str) -> str:
