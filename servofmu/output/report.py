@@ -328,11 +328,11 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
     parts += ["<h2>Stages</h2>", stage_table(entries)]
 
     parts.append("<h2>Figures</h2>")
-    for e in entries:
-        figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e)]
-        if data_file.kind == "broadband":
-            figures.append(bla_report_figure(e, data_file))
-        parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
+    # one figure per view, the results overlaid (a comparison's methods on shared axes)
+    figures = bode_figures(entries, data_file, data) if data is not None else [records_figure(entries)]
+    if data_file.kind == "broadband":
+        figures.append(bla_report_figure(entries, data_file))
+    parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
     caption, png = friction_figure(entries, truth, velocity_range(data_file))
     parts.append(figure(caption, png, "friction against velocity"))
     convergence = convergence_figure(entries)
