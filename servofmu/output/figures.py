@@ -41,13 +41,15 @@ def _default_label(model, k: int) -> str:
 
 
 def labelled(models, labels: Sequence[str] | None = None) -> list[tuple[str, object]]:
-    """[(label, model)] of one model, a sequence of models or a mapping label -> model; ``labels`` replace the
-    labels (one per model).  Default labels: a result's method, a plant's name, a validation's method; repeated
-    labels are numbered."""
+    """[(label, model)] of one model, a sequence of models or of (label, model) pairs, or a mapping label ->
+    model; ``labels`` replace the labels (one per model).  Default labels: a result's method, a plant's name, a
+    validation's method; repeated labels are numbered."""
     if isinstance(models, Mapping):
         pairs = [(str(k), m) for k, m in models.items()]
     elif isinstance(models, (Result, Plant, Validation)) or not isinstance(models, Sequence):
         pairs = [(_default_label(models, 0), models)]
+    elif all(isinstance(m, tuple) and len(m) == 2 and isinstance(m[0], str) for m in models):
+        pairs = [(label, m) for label, m in models]  # (label, model) pairs
     else:
         pairs = [(_default_label(m, k), m) for k, m in enumerate(models)]
     if not pairs:
