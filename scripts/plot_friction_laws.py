@@ -62,7 +62,6 @@ def main(output: Path) -> None:
     right.set(xlabel="position x (µm)", ylabel="friction F (N)",
               title="Presliding: ±400 µm at 1 mm/s with an inner reversal")
     right.legend(fontsize=7)
-    fig.tight_layout()
     fig.savefig(output, dpi=110)
 
 

@@ -73,7 +73,8 @@ def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_
 def png_bytes(fig) -> bytes:
     """A finished matplotlib figure (laid out tightly) as PNG bytes, written through the figure's own canvas
     (no pyplot: the user's backend is not touched)."""
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     return buf.getvalue()

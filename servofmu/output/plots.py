@@ -33,7 +33,7 @@ def figure_axes(ax, panels: int, figsize: tuple[float, float], **subplots):
     if ax is None:
         from matplotlib.figure import Figure
 
-        fig = Figure(figsize=figsize)
+        fig = Figure(figsize=figsize, layout="constrained")  # laid out when drawn: inline, savefig alike
         subplots.setdefault("nrows", panels)
         axes = fig.subplots(squeeze=False, **subplots)
         return fig, list(np.asarray(axes).ravel())
@@ -60,8 +60,10 @@ def save_figure(fig, path: str | Path, overwrite: bool = False, dpi: int = 110) 
 
 
 def finish_figure(fig, path, overwrite: bool) -> Path:
-    """Lay out and save a figure (atomically; an existing ``path`` only with ``overwrite``)."""
-    fig.tight_layout()
+    """Lay out (unless it has a layout engine) and save a figure (atomically; an existing ``path`` only with
+    ``overwrite``)."""
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     save_figure(fig, Path(path), overwrite)
     return Path(path)
 

@@ -30,7 +30,8 @@ def _svg(fig) -> bytes:
     in the markup."""
     import matplotlib
 
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     buffer = io.BytesIO()
     with matplotlib.rc_context(SAVE_RC):
         fig.savefig(buffer, format="svg", dpi=DPI)
