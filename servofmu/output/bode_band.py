@@ -53,6 +53,8 @@ def log_response_jacobian(plant, names, omega: np.ndarray) -> np.ndarray:
     G = plant.frequency_response(omega)
     J = np.zeros((np.size(omega), len(names)), dtype=complex)
     for j, name in enumerate(names):
+        if name not in all_names:  # not a parameter of this plant: G does not depend on it
+            continue
         i = all_names.index(name)
         h = RELATIVE_STEP * max(abs(base[i]), 1e-12)
         up, down = base.copy(), base.copy()

@@ -12,6 +12,7 @@ or validations (servofmu.output.validate.Validation) for the views of a validati
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -216,7 +217,7 @@ def friction_curve(results, ax=None, labels: Sequence[str] | None = None, v_max:
         v_max = _velocity_range(plants + ([truth] if truth is not None else []), _data_file(data))
     half = np.geomspace(v_max * 1e-4, v_max, CURVE_POINTS)
     v = np.concatenate([-half[::-1], half])
-    panels = len(ax) if isinstance(ax, (Sequence, np.ndarray)) else 1
+    panels = np.asarray(ax, dtype=object).size if isinstance(ax, (Sequence, np.ndarray)) else 1
     fig, axes = figure_axes(ax, panels, (7, 4.5))
     curves = [(f"true ({truth.name})", truth, "-", "0.6", 4)] if truth is not None else []
     curves += [(label, plant, "--" if truth is not None else "-", f"C{k}", 1.5)
@@ -249,7 +250,10 @@ def item_unit(item) -> str:
 
 
 def _validations(models, data, labels, skip: float, controller) -> list[tuple[str, Validation]]:
-    """(label, Validation) of validations, or of results validated on ``data``."""
+    """(label, Validation) of validations, or of results validated on ``data`` (also given as (results, data))."""
+    pair = isinstance(models, tuple) and len(models) == 2 and isinstance(models[1], (DataFile, str, Path))
+    if data is None and pair:
+        models, data = models
     pairs = labelled(models, labels)
     if data is None:
         bad = [label for label, m in pairs if not isinstance(m, Validation)]
@@ -289,7 +293,8 @@ def validation_overlay(validations, data=None, ax=None, labels: Sequence[str] | 
     Parameters
     ----------
     validations : Validation, Result, sequence of them, or mapping label -> Validation/Result
-        Validations (servofmu.output.validate.validate) of the same data, or results with ``data``.
+        Validations (servofmu.output.validate.validate) of the same data, or results with ``data`` (or the
+        pair ``(results, data)``).
     data : DataFile or path, optional
         Data to validate results on (each simulated as `servofmu validate` does).
     ax : matplotlib Axes or sequence of Axes, optional

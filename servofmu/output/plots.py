@@ -14,7 +14,8 @@ from ..fileio import atomic_write, claim_output, output_mode
 from ..measurement.datafile import DataFile
 
 __all__ = ["bode_figure", "time_series_figure", "plot_bode_points", "plot_time_series", "bode_points",
-           "figure_axes", "finish_figure", "draw_measured", "time_series_panels", "save_figure", "MAX_PANELS", "REFERENCE_STYLES", "SAVE_RC"]
+           "figure_axes", "finish_figure", "draw_measured", "time_series_panels", "save_figure", "MAX_PANELS",
+           "REFERENCE_STYLES", "SAVE_RC"]
 
 MAX_PANELS = 8
 # Lines of references (models) drawn over measured points: the first black dashed as before, then colours the
@@ -178,7 +179,8 @@ def _window_panels(axes, experiments, amplitudes) -> None:
     for ax, m in zip(axes, amplitudes):
         for e in sorted((e for e in experiments if e.amplitude == m), key=lambda e: e.frequency):
             phase = (e.window.time - e.window_start) * e.frequency
-            ax.plot(phase, e.window.v, lw=1, label=f"{e.frequency:g} Hz" + ("" if e.converged else " (no steady state)"))
+            ax.plot(phase, e.window.v, lw=1,
+                    label=f"{e.frequency:g} Hz" + ("" if e.converged else " (no steady state)"))
         ax.set_title(f"amplitude {m:g} N: v over the analysed window")
         ax.set_ylabel("v [m/s]")
         ax.set_xlabel("time × frequency [periods]")

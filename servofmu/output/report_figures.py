@@ -125,9 +125,9 @@ def bla_report_figure(entries: Sequence[Entry], data_file: DataFile) -> tuple[st
             models.append((f"G fitted to the BLA (frequency domain){who}", f,
                            linear_response(result.structure, vector, f, data.plan.rate)))
     png = png_bytes(plot_bla(levels, f"{_who(entries)}: BLA, ±2σ", models=tuple(models)))
-    return (f"{_who(entries)}: the best linear approximation at each level (excited lines, ±2σ shaded; σ of the noise "
-            "dotted, of the nonlinear distortions dashed), the identified plant's linear part and the G fitted to "
-            "the BLA; with friction the BLA lies off G, more so at the lower level.", png)
+    return (f"{_who(entries)}: the best linear approximation at each level (excited lines, ±2σ shaded; σ of the "
+            "noise dotted, of the nonlinear distortions dashed), the identified plant's linear part and the G fitted "
+            "to the BLA; with friction the BLA lies off G, more so at the lower level.", png)
 
 
 def friction_figure(entries: Sequence[Entry], truth: Plant | None, v_max: float) -> tuple[str, bytes]:
