@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 from servofmu.model.friction import steady_friction
 from servofmu.model.plant import load_plant
 from servofmu.model.symbolic import friction_force
-from servofmu.output.plots import pyplot
+from servofmu.output.plots import figure_axes
 
 ROOT = Path(__file__).resolve().parent.parent
 CURVES = ["g1", "stribeck_servo", "stribeck_shaped", "viscous_axis", "lugre_servo", "dahl_servo"]
@@ -48,8 +48,7 @@ def presliding_loop(name: str, amplitude: float = 4e-4, minor: float = 1.5e-4):
 
 def main(output: Path) -> None:
     """Write the figure to ``output``."""
-    plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (left, right) = figure_axes(None, 2, (11, 4.2), nrows=1, ncols=2)
     v = np.concatenate([-np.geomspace(0.3, 1e-4, 300), np.geomspace(1e-4, 0.3, 300)])
     for name in CURVES:
         plant = load_plant(ROOT / "fmu_models" / f"{name}.toml")
@@ -63,7 +62,6 @@ def main(output: Path) -> None:
     right.set(xlabel="position x (µm)", ylabel="friction F (N)",
               title="Presliding: ±400 µm at 1 mm/s with an inner reversal")
     right.legend(fontsize=7)
-    fig.tight_layout()
     fig.savefig(output, dpi=110)
 
 

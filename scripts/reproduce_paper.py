@@ -97,7 +97,7 @@ def run(name: str, work: Path, samples: int, seeds: int, figures: Path, lines: l
               *md_table(head, body), ""]
 
     entries = compute_entries([("PSO-ANN", results["pso-ann"])], dataset)
-    shots = bode_figures(entries[0], dataset, data)
+    shots = bode_figures(entries[:1], dataset, data)
     shots.append(friction_figure(entries, plant, velocity_range(dataset)))
     conv = convergence_figure(compute_entries([(m, results[m]) for m in ("pso-ann", "pso", "ga-ann", "aga-ann")],
                                               dataset))

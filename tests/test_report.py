@@ -16,7 +16,7 @@ from browser import chromium
 from clitools import assert_one_line_error, run
 
 from servofmu.identification.criterion import POLISH_RTOL, sine_data
-from servofmu.identification.results import read_result, write_comparison, write_result
+from servofmu.identification.results import read_result, read_results, write_comparison, write_result
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.runtime import RunOptions
@@ -199,8 +199,30 @@ def test_report_renders_in_chromium(report, browser, g1_result):
     assert errors == []
 
 
+def page_fits(driver, width: int = 1280) -> dict:
+    """At a ``width`` px wide window: the page's height, the tables wider than their container (the reader would
+    have to scroll them sideways) and whether the page itself scrolls sideways."""
+    size = driver.get_window_size()
+    driver.set_window_size(width, 900)
+    try:
+        return driver.execute_script(
+            "return {height: document.documentElement.scrollHeight,"
+            " wide: Array.from(document.querySelectorAll('table')).filter(t => t.scrollWidth > "
+            "t.parentElement.clientWidth + 1).map(t => t.id),"
+            " sideways: document.documentElement.scrollWidth > document.documentElement.clientWidth};")
+    finally:
+        driver.set_window_size(size["width"], size["height"])
+
+
+def svg_text(src: str) -> str:
+    """The text of an SVG figure (a data: URI): its titles and legend."""
+    root = ET.fromstring(base64.b64decode(src.split(",", 1)[1]))
+    return " ".join(t.text or "" for t in root.iter("{http://www.w3.org/2000/svg}text"))
+
+
 def test_comparison_side_by_side(g1_result, browser, tmp_path):
-    """A COMPARE.h5 of two methods: one column per method, the figures of both, a clean console."""
+    """A COMPARE.h5 of two methods: one row per method in the parameter table, the methods overlaid in the same
+    figures as a single result's report, tables within a 1280 px page; seven methods: still five figures."""
     out = tmp_path / "compare.html"
     proc = run("report", g1_result["compare"], "-o", out)
     assert proc.returncode == 0, proc.stderr
@@ -208,15 +230,38 @@ def test_comparison_side_by_side(g1_result, browser, tmp_path):
     with h5py.File(g1_result["compare"], "r") as f:
         theta = {m: f[f"methods/{m}/theta"][()] for m in ("pso", "chen2002")}
     rows = table(browser, "parameters")
-    assert rows[0][2:] == ["identified (pso)", "95 % interval (pso)", "identified (chen2002)",
-                           "95 % interval (chen2002)"]
-    for r, a, b in zip(rows[1:], theta["pso"], theta["chen2002"]):
-        assert float(r[2]) == pytest.approx(a, rel=1e-7) and float(r[4]) == pytest.approx(b, rel=1e-7)
+    assert rows[0] == ["result", "pole1 [rad/s]", "dc_gain [m/(N·s)]", "fc_pos [N]", "fc_neg [N]"]
+    assert [r[0] for r in rows[1:]] == ["pso", "chen2002"]
+    for r in rows[1:]:
+        assert [float(cell.splitlines()[0]) for cell in r[1:]] == pytest.approx(theta[r[0]], rel=1e-7)
+        assert all(cell.splitlines()[1].startswith(("± ", "[")) for cell in r[1:])  # the interval beneath
     assert abs(theta["chen2002"][0] / theta["pso"][0] - 1) > 1e-6  # two different answers side by side
-    # per method one Bode figure per magnitude and one against G; then friction and PSO convergence
-    sizes = browser.execute_script("return Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0);")
-    assert len(sizes) == 2 * 3 + 2 and min(sizes) > 0
+    # the same five figures as for one result: both methods on shared axes
+    images = browser.execute_script(
+        "return Array.from(document.images).map(i => [i.getAttribute('src'), i.complete ? i.naturalWidth : 0]);")
+    assert len(images) == 5 and min(w for _, w in images) > 0
+    for src, _ in images[:2]:
+        assert "pso at" in svg_text(src) and "chen2002 at" in svg_text(src)
+    # G with the band from each covariance (Chen 2002's result has intervals but no covariance: no band)
+    assert "pso (95% band)" in svg_text(images[2][0]) and "chen2002 (no covariance" in svg_text(images[2][0])
+    two = page_fits(browser)
+    assert two["wide"] == [] and not two["sideways"], two
     assert [e for e in browser.get_log("browser") if e["level"] == "SEVERE"] == []
+
+    # seven methods (the CasADi and Chen columns among them) on one page: no figure more, no table scrolled
+    results = read_results(g1_result["compare"])
+    for k, name in enumerate(["pso-ann", "ga-ann", "aga-ann", "casadi-nls-ann", "casadi-nls"]):
+        results[name] = replace(results["pso"], method=name)
+    write_comparison(tmp_path / "seven.h5", results)
+    (tmp_path / "g1.h5").write_bytes(g1_result["data"].read_bytes())
+    proc = run("report", tmp_path / "seven.h5", "--truth", g1_result["truth"], "-o", tmp_path / "seven.html")
+    assert proc.returncode == 0, proc.stderr
+    browser.get((tmp_path / "seven.html").as_uri())
+    assert len(table(browser, "parameters")) == 1 + 7 + 1  # a row per method and the truth
+    assert browser.execute_script("return document.images.length") == 5
+    seven = page_fits(browser)
+    assert seven["wide"] == [] and not seven["sideways"], seven
+    assert seven["height"] < 1.5 * two["height"], (seven, two)
 
 
 @pytest.mark.parametrize("name", ["g1", "stribeck_servo", "lugre_servo"])

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from ..broadband.bla import BLA
-from .plots import finish_figure, pyplot
+from .plots import figure_axes, finish_figure
 
-__all__ = ["bla_figure", "records_frf_figure"]
+__all__ = ["bla_figure", "records_frf_figure", "plot_bla", "plot_records_frf"]
 
 
 def _db(x: np.ndarray) -> np.ndarray:
@@ -19,10 +19,17 @@ def _db(x: np.ndarray) -> np.ndarray:
 
 def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "", overwrite: bool = False,
                unit: str = "m/(N·s)", models: tuple = ()) -> Path:
+    """:func:`plot_bla` written to ``path`` (an existing file only with ``overwrite``)."""
+    return finish_figure(plot_bla(levels, title, unit, models), path, overwrite)
+
+
+def plot_bla(levels: list[tuple[float, BLA]], title: str = "", unit: str = "m/(N·s)", models: tuple = (), ax=None):
     """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA, and the
-    responses ``models`` ((label, frequencies in Hz, complex response), drawn as lines) over them."""
-    plt = pyplot()
-    fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    responses ``models`` ((label, frequencies in Hz, complex response), drawn as lines) over them.
+
+    ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
+    """
+    fig, (ax_mag, ax_ph) = figure_axes(ax, 2, (8, 7), sharex=True)
     for k, (level, b) in enumerate(levels):
         color, f = f"C{k}", b.frequencies
         mag, std = np.abs(b.G), b.std_total
@@ -43,7 +50,7 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
         ax_mag.semilogx(f, _db(G), style, color="k", lw=1.2, label=label)
         ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(G))), style, color="k", lw=1.2)
     _label(ax_mag, ax_ph, "G_BLA", unit, title or "best linear approximation, ±2σ (shaded)")
-    return finish_figure(plt, fig, path, overwrite)
+    return fig
 
 
 def _label(ax_mag, ax_ph, name: str, unit: str, title: str) -> None:
@@ -73,10 +80,17 @@ def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker):
 
 def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: bool = False,
                        unit: str = "m/(N·s)") -> Path:
+    """:func:`plot_records_frf` written to ``path`` (an existing file only with ``overwrite``)."""
+    return finish_figure(plot_records_frf(estimates, title, unit), path, overwrite)
+
+
+def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None):
     """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the reference
-    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band."""
-    plt = pyplot()
-    fig, (ax_mag, ax_ph) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band.
+
+    ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
+    """
+    fig, (ax_mag, ax_ph) = figure_axes(ax, 2, (8, 7), sharex=True)
     for k, e in enumerate(estimates):
         d = e.direct
         _with_band(ax_mag, ax_ph, d.frequencies, d.G, np.sqrt(d.var), f"C{2 * k}", f"{e.name}: direct S_uy/S_uu",
@@ -89,4 +103,4 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
             ax_mag.semilogx(c.frequencies[good], _db(c.G[good]), ".", color=f"C{2 * k + 1}", ms=4,
                             label=f"{e.name}: γ²_ru ≥ 0.9")
     _label(ax_mag, ax_ph, "G", unit, title or "frequency response of records, ±2σ (shaded)")
-    return finish_figure(plt, fig, path, overwrite)
+    return fig

@@ -18,9 +18,10 @@ from ..identification.results import read_result
 from ..model.plant import Plant, load_plant
 from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
-from .plots import pyplot
+from .plots import figure_axes
 
-__all__ = ["compensate_files", "compensation_json", "compensation_text", "compensation_html"]
+__all__ = ["compensate_files", "compensation_json", "compensation_text", "compensation_html",
+           "plot_compensation_friction", "plot_tracking_error"]
 
 
 def compensation_json(runs: list[TrackingRun]) -> dict:
@@ -45,11 +46,13 @@ def compensation_text(runs: list[TrackingRun]) -> str:
     return "\n".join(lines)
 
 
-def _friction_png(runs: list[TrackingRun], identified: Plant, truth: Plant | None) -> bytes:
-    plt = pyplot()
+def plot_compensation_friction(runs: list[TrackingRun], identified: Plant, truth: Plant | None = None, ax=None):
+    """Friction force against velocity: the identified (and true) curve with the viscous part, and the points
+    reconstructed from the uncompensated run.  ``ax``: a matplotlib Axes to draw into, else a new Figure.
+    Returns the Figure."""
     v_max = 1.1 * float(np.max(np.abs(runs[0].result["v"]))) or 1.0
     v = np.linspace(-v_max, v_max, 2000)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, (ax,) = figure_axes(ax, 1, (8, 4.5))
     points = reconstructed_friction(runs[0], identified)
     if points is not None:
         ax.plot(points[0], points[1], ".", ms=1.5, color="0.6", label="reconstructed from the uncompensated run")
@@ -60,12 +63,13 @@ def _friction_png(runs: list[TrackingRun], identified: Plant, truth: Plant | Non
     ax.set_ylabel("friction force [N]")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
-    return png_bytes(fig)
+    return fig
 
 
-def _error_png(runs: list[TrackingRun]) -> bytes:
-    plt = pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+def plot_tracking_error(runs: list[TrackingRun], ax=None):
+    """The tracking error of every run over time, and the reference beneath.  ``ax``: two matplotlib Axes to draw
+    into, else a new Figure.  Returns the Figure."""
+    fig, axes = figure_axes(ax, 2, (9, 5.5), sharex=True)
     for i, r in enumerate(runs):
         axes[0].plot(r.result.time, r.error, lw=1, color=f"C{i}", label=f"{r.label} (RMS {r.rms_error:.2e} m)")
     axes[0].set_ylabel("tracking error r − x [m]")
@@ -75,7 +79,7 @@ def _error_png(runs: list[TrackingRun]) -> bytes:
     axes[1].set_xlabel("time [s]")
     for ax in axes:
         ax.grid(True, alpha=0.4)
-    return png_bytes(fig)
+    return fig
 
 
 def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant | None, source: str) -> str:
@@ -90,9 +94,9 @@ def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant |
                                     "velocity distortion"], rows),
              f'<p class="note">{escape(compensation_text(runs).splitlines()[-1])}.</p>',
              figure("Friction force against velocity: the identified curve, the truth, and points reconstructed from "
-                    "the uncompensated run through the identified linear part.", _friction_png(runs, identified,
-                                                                                            truth), "friction"),
-             figure("Tracking error over time.", _error_png(runs), "tracking error"),
+                    "the uncompensated run through the identified linear part.",
+                    png_bytes(plot_compensation_friction(runs, identified, truth)), "friction"),
+             figure("Tracking error over time.", png_bytes(plot_tracking_error(runs)), "tracking error"),
              f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
     return page(f"Friction compensation on {source}", parts)
 

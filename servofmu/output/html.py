@@ -15,8 +15,10 @@ STYLE = """
 body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
 h1 { font-size: 1.6em; } h2 { font-size: 1.25em; margin-top: 2em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; } div.scroll { overflow-x: auto; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
-th { background: #f2f2f2; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; overflow-wrap: anywhere; white-space: pre-line; }
+table { max-width: 100%; } td:first-child { min-width: 7em; }
+th { background: #f2f2f2; text-align: left; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: pre; overflow-wrap: normal; }
 figure { margin: 1.2em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #444; } p.note { font-size: 0.9em; color: #555; }
 code { font-size: 0.95em; }
@@ -43,16 +45,13 @@ def table(table_id: str, head: Sequence[str], rows: Sequence[Sequence], numeric_
 
 
 def png_bytes(fig) -> bytes:
-    """A finished matplotlib figure (laid out tightly) as PNG bytes; the figure is closed."""
-    import matplotlib.pyplot as plt
-
-    try:
+    """A finished matplotlib figure (laid out tightly) as PNG bytes, written through the figure's own canvas
+    (no pyplot: the user's backend is not touched)."""
+    if fig.get_layout_engine() is None:
         fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=DPI)
-        return buf.getvalue()
-    finally:
-        plt.close(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
 
 
 def figure(caption: str, image: bytes, alt: str) -> str:

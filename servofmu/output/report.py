@@ -38,7 +38,7 @@ from .report_entries import Entry, compute_entries, loop_controller, read_entrie
 from .report_figures import bla_report_figure, bode_figures, convergence_figure, friction_figure, records_figure
 from .validation_report import validation_html
 
-__all__ = ["make_report", "report_html", "transfer_function_html", "unit_text"]
+__all__ = ["make_report", "report_html", "transfer_function_html", "unit_text", "compared_parameter_table"]
 
 # ---------------------------------------------------------------------------
 # HTML
@@ -83,6 +83,34 @@ def parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
             row += [number(relative_error(v, t), ".3e") if v is not None and t is not None else "—" for v in values]
         rows.append(row)
     return table("parameters", head, rows, numeric_from=2)
+
+
+def compared_parameter_table(entries: Sequence[Entry], truth: Plant | None) -> str:
+    """A comparison's parameters, one row per result (and one for the truth), one column per parameter: the
+    value, its 95 % interval beneath and, with ``truth``, the relative error; as wide as the parameters however
+    many results are compared."""
+    names = list(dict.fromkeys(n for e in entries for n in e.result.names))
+    structure = entries[0].result.structure
+    head = ["result"] + [f"{n} [{u}]" if (u := parameter_unit(n, structure)) else n for n in names]
+    true = truth.parameters() if truth is not None else {}
+    rows = []
+    for e in entries:
+        row = [e.label]
+        for n in names:
+            if n not in e.result.names:
+                row.append("—")
+                continue
+            i = e.result.names.index(n)
+            value = float(e.result.theta[i])
+            interval = format_interval(value, *map(float, e.result.intervals[i]))
+            lines = [number(value), "± " + interval.split(" ± ")[1] if " ± " in interval else interval]
+            if n in true:
+                lines.append(f"rel. error {number(relative_error(value, true[n]), '.3e')}")
+            row.append("\n".join(lines))
+        rows.append(row)
+    if truth is not None:
+        rows.append([f"true ({truth.name})"] + [number(true[n]) if n in true else "—" for n in names])
+    return table("parameters", head, rows)
 
 
 def separation_html(entries: Sequence[Entry]) -> list[str]:
@@ -214,6 +242,13 @@ def experiment_table(entries: Sequence[Entry], data: SineData) -> str:
     """Measured (as fitted) against identified response at each used experiment."""
     what = "measured (noisy)" if data.noisy else "measured"
     head = ["amplitude [N]", "frequency [Hz]", f"|H| {what} [m/(N·s)]", f"∠H {what} [deg]", f"dc {what} [m/s]"]
+    if len(entries) > 1:  # a comparison: one column per result, the relative error (the page stays narrow)
+        head += [f"|ΔH|/|H| ({e.label})" for e in entries]
+        rows = [[number(data.amplitudes[k], "g"), number(data.frequencies[k], "g"), number(abs(data.H[k])),
+                 number(np.degrees(np.angle(data.H[k])), ".6f"), number(data.dc[k], ".6g")]
+                + [number(abs(e.sine[0][k] - data.H[k]) / abs(data.H[k]), ".3e") for e in entries]
+                for k in range(data.H.size)]
+        return table("experiments", head, rows, numeric_from=0)
     for e in entries:
         suffix = f" ({e.label})" if len(entries) > 1 else ""
         head += [f"|H| model{suffix}", f"∠H model{suffix} [deg]", f"dc model{suffix} [m/s]", f"|ΔH|/|H|{suffix}"]
@@ -232,15 +267,17 @@ def experiment_table(entries: Sequence[Entry], data: SineData) -> str:
 def records_table(entries: Sequence[Entry]) -> str:
     """Per record the fit (%) of every result and whether its residuals pass the tests of `servofmu validate`."""
     first = entries[0].records.records
-    label = (lambda e: f" ({e.label})") if len(entries) > 1 else (lambda e: "")
+    several = len(entries) > 1
     head = ["record", "output", "input", "samples"]
-    head += [f"{what}{label(e)}" for e in entries for what in ("fit %", "residual tests")]
+    # a comparison: one column per result (fit and verdict in one cell), else two
+    head += [f"fit %, residual tests ({e.label})" for e in entries] if several else ["fit %", "residual tests"]
     rows = []
     for k, r in enumerate(first):
         row = [r.name, r.output, r.hold, str(r.y.size)]
         for e in entries:
             check = e.records.records[k]
-            row += [number(check.fit, ".6f"), "passed" if check.passed else "failed"]
+            verdict = "passed" if check.passed else "failed"
+            row += [f"{number(check.fit, '.6f')} ({verdict})"] if several else [number(check.fit, ".6f"), verdict]
         rows.append(row)
     return table("records", head, rows, numeric_from=3)
 
@@ -293,7 +330,8 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
             parts.append(f"<p>Load{who}: {escape(e.result.plant.load.describe())}, adding to u: v = G(s)·(u − F(v) "
                          "+ L(x)).</p>")
 
-    parts += ["<h2>Identified parameters</h2>", parameter_table(entries, truth),
+    parameters = parameter_table(entries, truth) if len(entries) == 1 else compared_parameter_table(entries, truth)
+    parts += ["<h2>Identified parameters</h2>", parameters,
               '<p class="note">Intervals: 95 % from the Gauss–Newton covariance of the final fit, written as the '
               "value ± the half-width (two significant digits; the value to the half-width's last digit, so that "
               "the bounds differ), or as [low, high] when not centred on the value. Parameters not listed keep the "
@@ -317,11 +355,11 @@ def report_html(entries: Sequence[Entry], data_file: DataFile, truth: Plant | No
     parts += ["<h2>Stages</h2>", stage_table(entries)]
 
     parts.append("<h2>Figures</h2>")
-    for e in entries:
-        figures = bode_figures(e, data_file, data) if data is not None else [records_figure(e)]
-        if data_file.kind == "broadband":
-            figures.append(bla_report_figure(e, data_file))
-        parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
+    # one figure per view, the results overlaid (a comparison's methods on shared axes)
+    figures = bode_figures(entries, data_file, data) if data is not None else [records_figure(entries)]
+    if data_file.kind == "broadband":
+        figures.append(bla_report_figure(entries, data_file))
+    parts += [figure(caption, png, caption.split(":")[0]) for caption, png in figures]
     caption, png = friction_figure(entries, truth, velocity_range(data_file))
     parts.append(figure(caption, png, "friction against velocity"))
     convergence = convergence_figure(entries)

@@ -16,10 +16,10 @@ from ..selection.summary import rough_warning
 from ..selection.select import STRONG_EVIDENCE, SelectOptions
 from ..selection.validation import VALIDATION_LEVEL
 from .html import escape, figure, number, page, png_bytes, table
-from .plots import pyplot
+from .plots import figure_axes
 from .validate import Validation, validate
 
-__all__ = ["select_with_report", "selection_page", "SIDE_BY_SIDE"]
+__all__ = ["select_with_report", "selection_page", "plot_side_by_side", "SIDE_BY_SIDE"]
 
 SIDE_BY_SIDE = 4  # candidates drawn beside each other (the best fitted ones)
 ROWS = 3          # records or experiments drawn per candidate
@@ -40,14 +40,14 @@ def _validations(selection: Selection) -> list[tuple[str, Validation]]:
     return out
 
 
-def _side_by_side(validations: list[tuple[str, Validation]]) -> bytes | None:
-    """PNG: one column per candidate, one row per record or experiment: measured and simulated output."""
-    if not validations:
-        return None
+def plot_side_by_side(validations: list[tuple[str, Validation]], ax=None):
+    """One column per candidate (name, validation), one row per record or experiment (at most ROWS): measured
+    and simulated output.  ``ax``: rows × candidates matplotlib Axes (row by row) to draw into, else a new Figure.
+    Returns the Figure."""
     rows = max(min(len(v.records) + len(v.experiments), ROWS) for _, v in validations)
-    plt = pyplot()
-    fig, axes = plt.subplots(rows, len(validations), figsize=(3.6 * len(validations), 2.6 * rows), squeeze=False,
-                             sharey="row")
+    cols = len(validations)
+    fig, flat = figure_axes(ax, rows * cols, (3.6 * cols, 2.6 * rows), nrows=rows, ncols=cols, sharey="row")
+    axes = [flat[r * cols:(r + 1) * cols] for r in range(rows)]
     for col, (name, v) in enumerate(validations):
         items = [*v.records, *v.experiments][:rows]
         for row, item in enumerate(items):
@@ -62,7 +62,12 @@ def _side_by_side(validations: list[tuple[str, Validation]]) -> bytes | None:
                 ax.set_ylabel({"position": "position [m]", "force": "force [N]"}.get(getattr(item, "output", "v"),
                                                                                      "v [m/s]"))
         axes[0][col].legend(fontsize=7, loc="upper right")
-    return png_bytes(fig)
+    return fig
+
+
+def _side_by_side(validations: list[tuple[str, Validation]]) -> bytes | None:
+    """PNG of :func:`plot_side_by_side`; None without candidates."""
+    return png_bytes(plot_side_by_side(validations)) if validations else None
 
 
 def _ranking_rows(selection: Selection) -> list[list[str]]:

@@ -22,9 +22,10 @@ from ..tuning.run import Tuning, tune_axis
 from ..tuning.search import TuneOptions
 from ..tuning.task import Task, stroke_task, task_from_csv
 from .html import escape, figure, number, page, png_bytes, table
-from .plots import pyplot
+from .plots import figure_axes
 
-__all__ = ["tune_files", "tune_text", "tune_json", "tune_html", "load_task", "DEFAULT_STROKE", "DEFAULT_SPEED"]
+__all__ = ["tune_files", "tune_text", "tune_json", "tune_html", "load_task", "DEFAULT_STROKE", "DEFAULT_SPEED",
+           "plot_loop_bode", "plot_nyquist", "plot_responses"]
 
 DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15  # m, m/s: the reversing stroke tuned for when no task is given
 LABELS = {"given": "given gains", "rule": "reference rule", "tuned": "tuned (swarm)"}
@@ -98,9 +99,10 @@ def tune_text(tuning: Tuning) -> str:
     return "\n".join(lines)
 
 
-def _bode_png(tuning: Tuning) -> bytes:
-    plt = pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True)
+def plot_loop_bode(tuning: Tuning, ax=None):
+    """|L|, phase of L and |S| of every tuning's loop with the crossovers, phase margins and the sensitivity
+    bound.  ``ax``: three matplotlib Axes to draw into, else a new Figure.  Returns the Figure."""
+    fig, axes = figure_axes(ax, 3, (9, 8.5), sharex=True)
     for i, (label, run) in enumerate(tuning.runs.items()):
         keep = run.loop.omega < 0.98 * run.loop.omega[-1]  # L's zero near z = −1 (the hold) is no figure
         f, resp, color = run.loop.omega[keep] / (2 * np.pi), run.loop.response[keep], f"C{i}"
@@ -126,12 +128,13 @@ def _bode_png(tuning: Tuning) -> bytes:
     axes[0].set_ylim(-60, 100)
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
-    return png_bytes(fig)
+    return fig
 
 
-def _nyquist_png(tuning: Tuning) -> bytes:
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 6))
+def plot_nyquist(tuning: Tuning, ax=None):
+    """The loops' Nyquist curves near −1 with the circle of the sensitivity bound.  ``ax``: a matplotlib Axes to
+    draw into, else a new Figure.  Returns the Figure."""
+    fig, (ax,) = figure_axes(ax, 1, (6.5, 6))
     for i, (label, run) in enumerate(tuning.runs.items()):
         resp = np.where(np.abs(run.loop.response) < 5, run.loop.response, np.nan)  # the part near −1
         ax.plot(resp.real, resp.imag, "-", lw=1.2, color=f"C{i}",
@@ -148,12 +151,13 @@ def _nyquist_png(tuning: Tuning) -> bytes:
     ax.set_ylabel("Im L")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
-    return png_bytes(fig)
+    return fig
 
 
-def _responses_png(tuning: Tuning) -> bytes:
-    plt = pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9))
+def plot_responses(tuning: Tuning, ax=None):
+    """Tracking and velocity errors on the task and the step response of every tuning (and of the axis when
+    co-simulated).  ``ax``: three matplotlib Axes to draw into, else a new Figure.  Returns the Figure."""
+    fig, axes = figure_axes(ax, 3, (9, 9))
     axis = {r.label: r for r in tuning.axis_runs or ()}
     for i, (label, run) in enumerate(tuning.runs.items()):
         color = f"C{i}"
@@ -177,7 +181,7 @@ def _responses_png(tuning: Tuning) -> bytes:
     for ax in axes:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
-    return png_bytes(fig)
+    return fig
 
 
 def _tables(tuning: Tuning) -> list[str]:
@@ -226,12 +230,12 @@ def tune_html(tuning: Tuning, result_source: str, controller_source: str) -> str
              "<h2>Figures</h2>",
              figure("The loop L broken at the force (discrete, at the controller's sample time): magnitude with the "
                     "crossovers dotted, phase with the phase margins, and the sensitivity |S| against its bound.",
-                    _bode_png(tuning), "Bode plots"),
+                    png_bytes(plot_loop_bode(tuning)), "Bode plots"),
              figure("Nyquist curves of L near −1 and the circle |1 + L| = 1/Ms of the bound: a curve outside it "
-                    "meets the bound.", _nyquist_png(tuning), "Nyquist plot"),
+                    "meets the bound.", png_bytes(plot_nyquist(tuning)), "Nyquist plot"),
              figure(f"The tracking error on the task (model solid, axis dashed), the velocity error, and the step "
                     f"of {tuning.step.position[-1]:.3g} m with the feed-forward off (model; the band: ±2 %).",
-                    _responses_png(tuning), "responses"),
+                    png_bytes(plot_responses(tuning)), "responses"),
              f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
     return page(f"Tuning {controller_source}", parts)
 

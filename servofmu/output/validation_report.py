@@ -4,100 +4,79 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
-from ..identification.residuals import ResidualTest
 from ..identification.results import read_result
 from ..measurement.datafile import read_data_file
 from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
-from .plots import MAX_PANELS, pyplot
-from .validate import MIN_FIT, RecordValidation, Validation, own_data_warning, validate
+from .figures import item_title, item_unit, residual_tests, validation_items, validation_overlay
+from .plots import MAX_PANELS, figure_axes
+from .validate import MIN_FIT, Validation, own_data_warning, validate
 
-__all__ = ["validate_files", "validation_html", "validation_figure", "residual_figure"]
-
-
-def _correlation_panels(ax_auto, ax_cross, r: ResidualTest) -> None:
-    """The residuals' autocorrelation and cross-correlation with the input, with their joint bounds."""
-    lags = np.arange(r.autocorrelation.size)
-    ax_auto.bar(lags[1:], r.autocorrelation[1:], width=0.6)
-    ax_cross.bar(r.cross_lags, r.cross_correlation, width=0.6)
-    for ax, bound, title in ((ax_auto, r.z * r.auto_sigma, "autocorrelation of e"),
-                             (ax_cross, r.z * r.cross_sigma, "cross-correlation of e and u")):
-        ax.axhline(bound, color="r", ls="--", lw=1)
-        ax.axhline(-bound, color="r", ls="--", lw=1)
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel("lag [samples]")
+__all__ = ["validate_files", "validation_html", "validation_figure", "residual_figure", "plot_validation",
+           "plot_residuals"]
 
 
-def _item_title(item) -> str:
-    """A record's name (and output) or an experiment's magnitude and frequency."""
-    if isinstance(item, RecordValidation):
-        return f"{item.name} ({item.output})"
-    return f"{item.amplitude:g} N, {item.frequency:g} Hz"
+def _pairs(v) -> list[tuple[str, Validation]]:
+    """A validation, or several as (label, validation) pairs."""
+    return [(v.result.method, v)] if isinstance(v, Validation) else list(v)
 
 
-def _unit(item) -> str:
-    """The unit of the compared signal."""
-    return "m" if getattr(item, "output", "v") == "position" else "N" if getattr(item, "output", "") == "force" \
-        else "m/s"
+def plot_validation(v, which: str, ax=None):
+    """Measured against simulated for every record (``which="records"``; with the residual correlations and
+    their bounds beside) or every experiment's window (``"experiments"``), at most MAX_PANELS each.
 
-
-def validation_figure(v: Validation, which: str) -> bytes | None:
-    """PNG: measured against simulated for every record (``which="records"``; with the residual correlations and
-    their bounds) or every experiment's window (``"experiments"``), at most MAX_PANELS each."""
-    items = (v.records if which == "records" else v.experiments)[:MAX_PANELS]
-    if not items:
-        return None
-    plt = pyplot()
+    ``v``: a Validation, or (label, Validation) pairs of the same data, overlaid.  ``ax``: the Axes to draw into,
+    row by row (three per record, one per experiment), else a new Figure.  Returns the Figure.
+    """
+    vals = _pairs(v)
+    n = len(validation_items(vals[0][1], which))
     cols = 3 if which == "records" else 1
-    fig, axes = plt.subplots(len(items), cols, figsize=(12 if cols == 3 else 9, 2.8 * len(items)), squeeze=False,
-                             gridspec_kw={"width_ratios": [2, 1, 1]} if cols == 3 else None)
-    for row, item in zip(axes, items):
-        unit = _unit(item)
-        row[0].plot(item.time, item.y, lw=1, label="measured")
-        row[0].plot(item.time, item.y_model, "k--", lw=1, label="model")
-        row[0].set_title(f"{_item_title(item)}: fit {item.fit:.3f} %")
-        row[0].set_ylabel({"m": "position [m]", "N": "force [N]"}.get(unit, "v [m/s]"))
-        row[0].set_xlabel("time [s]")
-        row[0].legend(fontsize=8, loc="upper right")
-        if which == "records":
-            _correlation_panels(row[1], row[2], item.residuals)
-        for ax in row:
-            ax.grid(True, alpha=0.4)
-    return png_bytes(fig)
+    fig, axes = figure_axes(ax, n * cols, (12 if cols == 3 else 9, 2.8 * n), nrows=n, ncols=cols,
+                            gridspec_kw={"width_ratios": [2, 1, 1]} if cols == 3 else None)
+    validation_overlay(vals, ax=axes[::cols], which=which)
+    if which == "records":
+        residual_tests(vals, ax=[a for i, a in enumerate(axes) if i % 3], which=which)
+    return fig
 
 
-def residual_figure(v: Validation) -> bytes | None:
-    """PNG: the residuals e = ŷ − y over time of every record and experiment (at most MAX_PANELS), beside their
-    autocorrelation and cross-correlation with the input and the joint bounds where they are tested."""
-    items = [*v.records, *v.experiments][:MAX_PANELS]
-    if not items:
-        return None
-    plt = pyplot()
-    fig, axes = plt.subplots(len(items), 3, figsize=(12, 2.6 * len(items)), squeeze=False,
-                             gridspec_kw={"width_ratios": [2, 1, 1]})
-    for row, item in zip(axes, items):
-        e = item.y_model - item.y
-        row[0].plot(item.time, e, lw=0.8, color="C3")
-        row[0].axhline(0, color="k", lw=0.5)
-        row[0].set_title(f"residuals, {_item_title(item)}: fit {item.fit:.3f} % "
-                         f"({'passed' if item.passed else 'FAILED'})", fontsize=9)
-        row[0].set_ylabel(f"e = ŷ − y [{_unit(item)}]")
-        row[0].set_xlabel("time [s]")
-        if item.residuals is not None:
-            _correlation_panels(row[1], row[2], item.residuals)
-        else:
-            for ax in row[1:]:
-                ax.text(0.5, 0.5, "noise-free: nothing to test", ha="center", va="center", fontsize=8,
-                        transform=ax.transAxes)
-                ax.set_xticks([])
-                ax.set_yticks([])
-        for ax in row:
-            ax.grid(True, alpha=0.4)
-    return png_bytes(fig)
+def validation_figure(v, which: str) -> bytes | None:
+    """PNG of :func:`plot_validation`; None when there is nothing of ``which`` to draw."""
+    first = _pairs(v)[0][1]
+    return png_bytes(plot_validation(v, which)) if validation_items(first, which) else None
+
+
+def plot_residuals(v, ax=None):
+    """The residuals e = ŷ − y over time of every record and experiment (at most MAX_PANELS), beside their
+    autocorrelation and cross-correlation with the input and the joint bounds where they are tested.
+
+    ``v``: a Validation, or (label, Validation) pairs of the same data, overlaid.  ``ax``: three Axes per record
+    or experiment, row by row, else a new Figure.  Returns the Figure.
+    """
+    vals = _pairs(v)
+    items = validation_items(vals[0][1])
+    fig, axes = figure_axes(ax, 3 * len(items), (12, 2.6 * len(items)), nrows=len(items), ncols=3,
+                            gridspec_kw={"width_ratios": [2, 1, 1]})
+    for i, first in enumerate(items):
+        a = axes[3 * i]
+        for k, (label, other) in enumerate(vals):
+            item = validation_items(other)[i]
+            a.plot(item.time, item.y_model - item.y, lw=0.8, color="C3" if len(vals) == 1 else f"C{k}",
+                   label=f"{label}: fit {item.fit:.3f} % ({'passed' if item.passed else 'FAILED'})")
+        a.axhline(0, color="k", lw=0.5)
+        a.set_title(f"residuals, {item_title(first)}", fontsize=9)
+        a.set_ylabel(f"e = ŷ − y [{item_unit(first)}]")
+        a.set_xlabel("time [s]")
+        a.grid(True, alpha=0.4)
+        a.legend(fontsize=7, loc="upper right")
+    residual_tests(vals, ax=[a for i, a in enumerate(axes) if i % 3])
+    return fig
+
+
+def residual_figure(v) -> bytes | None:
+    """PNG of :func:`plot_residuals`; None without records and experiments."""
+    return png_bytes(plot_residuals(v)) if validation_items(_pairs(v)[0][1]) else None
 
 
 def validation_html(v: Validation) -> list[str]:
