@@ -58,6 +58,10 @@ _API = {
     "compare_models": "servofmu.api.workflow",
     "tune": "servofmu.api.workflow",
     "control_loops": "servofmu.api.control_loops",
+    "bode": "servofmu.output.figures",
+    "friction_curve": "servofmu.output.figures",
+    "validation_overlay": "servofmu.output.figures",
+    "residual_tests": "servofmu.output.figures",
 }
 __all__ = list(_API)
 
@@ -89,6 +93,7 @@ if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by 
     from .api.control_loops import control_loops  # noqa: F401
     from .api.records import Records  # noqa: F401
     from .api.workflow import compare_models, identify, select, tune  # noqa: F401
+    from .output.figures import bode, friction_curve, residual_tests, validation_overlay  # noqa: F401
 
 
 def __getattr__(name: str):

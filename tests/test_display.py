@@ -179,7 +179,9 @@ RETURNS = {
     "control_loops": lambda d, tmp: sf.control_loops(sf.load_plant("linear_axis"), load_controller("axis_controller")),
 }
 NOTHING_TO_SHOW = {"build_fmu": "a path", "simulate": "an array", "export_result": "(path, text)",
-                   "train_from_file": "(Network, epochs)", "write_result": "None"}
+                   "train_from_file": "(Network, epochs)", "write_result": "None", "bode": "a matplotlib Figure",
+                   "friction_curve": "a matplotlib Figure", "validation_overlay": "a matplotlib Figure",
+                   "residual_tests": "a matplotlib Figure"}
 # objects the public ones hold and hand out
 PARTS = {
     "Friction": lambda d, tmp: sf.load_plant("lugre_servo").friction,

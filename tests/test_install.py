@@ -44,7 +44,8 @@ def test_the_dependencies_leave_the_extras_out():
     assert "dask" not in names and "control" not in names and "torch" in names and "libcosimpy" in names
     extras = project["optional-dependencies"]
     assert extras["dask"][0].startswith("dask[distributed]") and extras["control"][0].startswith("control")
-    assert "servofmu[dask,control]" in extras["test"]  # scripts/setup.sh installs [test]: the suite needs both
+    assert extras["notebook"][0].startswith("pandas")
+    assert "servofmu[dask,control,notebook]" in extras["test"]  # scripts/setup.sh installs [test]: the suite needs all
     package_data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
     assert "py.typed" in package_data["servofmu"] and (ROOT / "servofmu" / "py.typed").is_file()
 

@@ -35,7 +35,10 @@ def test_the_tutorial_runs_writes_nothing_and_renders_every_figure(tmp_path, bro
     assert sum("<table" in o["data"]["text/html"] for o in html_outputs) >= 6
 
     page = tmp_path / "tutorial.html"
-    page.write_text(HTMLExporter().from_notebook_node(notebook)[0])
+    exporter = HTMLExporter(template_name="lab", extra_template_basedirs=[str(folder)],
+                            template_file=str(folder / "offline.html.j2"))
+    page.write_text(exporter.from_notebook_node(notebook)[0])
+    assert "<script src=" not in page.read_text()  # nothing from the web: the page opens offline
     browser.get(page.as_uri())
     loaded = browser.execute_script(
         "return Array.from(document.images).filter(i => i.complete && i.naturalWidth > 100).length")

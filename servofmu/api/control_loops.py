@@ -16,6 +16,7 @@ import numpy as np
 
 from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
+from ..runtime import optional_import
 from ..model.controller import ControllerSpec
 from ..tuning.loop import analyse_loop, discrete_loop, velocity_estimate, zoh_position_plant
 from .workflow import check_plant
@@ -94,10 +95,7 @@ def control_loops(axis: object, controller: ControllerSpec | None = None) -> Con
     UserError
         Without python-control (``pip install servofmu[control]``), or for an axis a force does not accelerate.
     """
-    try:
-        import control
-    except ImportError as exc:
-        raise UserError("python-control is not installed: pip install 'servofmu[control]'") from exc
+    control = optional_import("control", "control_loops", "control", package="python-control")
     if hasattr(axis, "runs") and hasattr(axis, "result"):  # a Tuning
         controller = axis.controller if controller is None else controller
         axis = axis.result

@@ -21,7 +21,7 @@ from ..errors import UserError
 from ..measurement.datafile import DataFile, Record, read_data_file, records_in_memory, write_records
 from ..measurement.duplicates import TWICE, first_repeat, series_digest
 from ..measurement.records import record_from_arrays
-from ..runtime import utc_now
+from ..runtime import optional_import, utc_now
 from ..version import __version__
 
 if TYPE_CHECKING:
@@ -222,10 +222,7 @@ class Records:
     def to_dataframe(self, record: int | str = 0) -> pandas.DataFrame:
         """One record's signals as a pandas DataFrame indexed by time (s); columns input (N), output (m or m/s),
         velocity (m/s) and the log's reference and disturbance when present."""
-        try:
-            import pandas as pd
-        except ImportError as exc:
-            raise UserError("pandas is not installed: pip install 'servofmu[notebook]'") from exc
+        pd = optional_import("pandas", "Records.to_dataframe", "notebook", package="pandas")
         r = self[record].records[0]
         s = r.series
         columns = {"input": s.u, "output": _output(r), "velocity": s.v, "reference": s.reference,

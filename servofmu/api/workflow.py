@@ -22,6 +22,8 @@ from ..runtime import Progress, RunOptions
 from .records import Records
 
 if TYPE_CHECKING:  # loaded where they are used: selection and tuning import much
+    from matplotlib.figure import Figure
+
     from ..selection.select import SelectOptions
     from ..selection.store import Selection
     from ..tuning.run import Tuning
@@ -156,6 +158,27 @@ class ModelComparison:
         return (f'<div><table class="servofmu"><caption style="text-align:left"><b>ModelComparison</b> '
                 f"{len(labels)} models</caption><thead><tr><th>quantity</th>{head}</tr></thead><tbody>{body}"
                 "</tbody></table></div>")
+
+    def overlay(self, ax: object = None, which: str | None = None) -> Figure:
+        """Measured and simulated outputs of every model on one axes per record or experiment
+        (servofmu.validation_overlay)."""
+        from ..output.figures import validation_overlay
+
+        return validation_overlay(self.validations, ax=ax, which=which)
+
+    def residual_tests(self, ax: object = None) -> Figure:
+        """Every model's residual autocorrelation and input cross-correlation with their bounds
+        (servofmu.residual_tests)."""
+        from ..output.figures import residual_tests
+
+        return residual_tests(self.validations, ax=ax)
+
+    def bode(self, ax: object = None, bands: bool = True) -> Figure:
+        """Every model's G(jω) with its 95 % band over the data's measured points, if any (servofmu.bode)."""
+        from ..output.figures import bode
+
+        data = next(iter(self.validations.values())).data_file
+        return bode({k: v.result for k, v in self.validations.items()}, data=data, bands=bands, ax=ax)
 
     def best(self) -> str:
         """The label of the model with the highest mean fit."""

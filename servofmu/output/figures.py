@@ -77,6 +77,9 @@ def _plant(model) -> Plant:
 
 
 def _data_file(data) -> DataFile | None:
+    """A DataFile of ``data``: a DataFile, a data file's path, or records held in memory (servofmu.Records)."""
+    if hasattr(data, "to_data_file"):
+        return data.to_data_file()
     return data if data is None or isinstance(data, DataFile) else read_data_file(data)
 
 
@@ -251,7 +254,8 @@ def item_unit(item) -> str:
 
 def _validations(models, data, labels, skip: float, controller) -> list[tuple[str, Validation]]:
     """(label, Validation) of validations, or of results validated on ``data`` (also given as (results, data))."""
-    pair = isinstance(models, tuple) and len(models) == 2 and isinstance(models[1], (DataFile, str, Path))
+    pair = isinstance(models, tuple) and len(models) == 2 and (isinstance(models[1], (DataFile, str, Path))
+                                                               or hasattr(models[1], "to_data_file"))
     if data is None and pair:
         models, data = models
     pairs = labelled(models, labels)
@@ -261,6 +265,10 @@ def _validations(models, data, labels, skip: float, controller) -> list[tuple[st
             raise UserError(f"{bad[0]}: give validations, or results with data=")
         return pairs
     data_file = _data_file(data)
+    if isinstance(controller, (str, Path)):
+        from ..model.controller import load_controller
+
+        controller = load_controller(controller)
     return [(label, m if isinstance(m, Validation) else validate(m, data_file, skip, controller, min_fit=0.0))
             for label, m in pairs]
 
