@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,16 @@ from ..model.plant import Plant
 from .bode_band import response_band
 from .plots import MAX_PANELS, bode_points, draw_measured, figure_axes
 from .validate import RecordValidation, Validation, validate
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+    from numpy.typing import ArrayLike
+
+# what the figure functions take (names only, under ``from __future__ import annotations``): one model or several
+# (a sequence, (label, model) pairs, a dict label -> model), data (a DataFile, its path, servofmu.Records), axes
+Models = "Result | Plant | Validation | Sequence | Mapping"
+DataLike = "DataFile | str | Path | Records"
+AxesLike = "Axes | Sequence[Axes] | None"
 
 __all__ = ["bode", "friction_curve", "validation_overlay", "residual_tests", "labelled", "item_title",
            "item_unit", "validation_items"]
@@ -104,8 +115,8 @@ def _bode_axes(ax):
     return fig, ax_mag, ax_ph
 
 
-def bode(results_or_plants, data=None, bands: bool = True, ax=None, labels: Sequence[str] | None = None,
-         frequencies=None, level: float = 0.95):
+def bode(results_or_plants: Models, data: DataLike | None = None, bands: bool = True, ax: AxesLike = None,
+         labels: Sequence[str] | None = None, frequencies: ArrayLike | None = None, level: float = 0.95) -> Figure:
     """Bode magnitude and phase of the linear part G(jω) of one or several models, each with its uncertainty
     band, over the measured first harmonics of a data file.
 
@@ -185,8 +196,8 @@ def _velocity_range(plants: Sequence[Plant], data_file: DataFile | None) -> floa
     return 10 * max(scales) if scales else 1.0
 
 
-def friction_curve(results, ax=None, labels: Sequence[str] | None = None, v_max: float | None = None, data=None,
-                   truth: Plant | None = None):
+def friction_curve(results: Models, ax: AxesLike = None, labels: Sequence[str] | None = None,
+                   v_max: float | None = None, data: DataLike | None = None, truth: Plant | None = None) -> Figure:
     """Friction force against velocity in steady sliding (a law's states at rest) of one or several models.
 
     Parameters
@@ -293,8 +304,9 @@ def _rows(vals: list[tuple[str, Validation]], which, max_panels: int) -> list[li
     return [[items[i] for items in per_model] for i in range(n)]
 
 
-def validation_overlay(validations, data=None, ax=None, labels: Sequence[str] | None = None,
-                       which: str | None = None, skip: float = 0.0, controller=None, max_panels: int = MAX_PANELS):
+def validation_overlay(validations: Models, data: DataLike | None = None, ax: AxesLike = None,
+                       labels: Sequence[str] | None = None, which: str | None = None, skip: float = 0.0,
+                       controller: object = None, max_panels: int = MAX_PANELS) -> Figure:
     """Measured against simulated output of one or several models: one Axes per record or experiment, the
     models overlaid.
 
@@ -361,8 +373,9 @@ def _correlation_pair(ax_auto, ax_cross, tests: list[tuple[int, str, object]]) -
         ax_auto.legend(fontsize=7)
 
 
-def residual_tests(validations, data=None, ax=None, labels: Sequence[str] | None = None,
-                   which: str | None = None, skip: float = 0.0, controller=None, max_panels: int = MAX_PANELS):
+def residual_tests(validations: Models, data: DataLike | None = None, ax: AxesLike = None,
+                   labels: Sequence[str] | None = None, which: str | None = None, skip: float = 0.0,
+                   controller: object = None, max_panels: int = MAX_PANELS) -> Figure:
     """The residual tests of one or several models: per record or experiment the autocorrelation of the
     residuals e = ŷ − y and their cross-correlation with the input, with the joint 99 % bounds.
 
