@@ -75,6 +75,9 @@ def test_between_detrend_resample_and_merge_against_numpy():
     both = sf.Records.merge(data, sf.Records.from_arrays(t, -u, -x, kind="position", name="a"))
     assert len(both) == 2 and len(set(both.names)) == 2
     assert both.to_data_file().kind == "records"
+    # records of no sine have no first harmonics: a Bode plot over them draws the model alone
+    fig = sf.bode(sf.load_plant("g1"), data=both)
+    assert len(fig.axes) == 2 and len(fig.axes[0].lines) == 1
 
 
 @pytest.mark.parametrize("call, fragment", [

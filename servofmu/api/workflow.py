@@ -180,6 +180,12 @@ class ModelComparison:
         data = next(iter(self.validations.values())).data_file
         return bode({k: v.result for k, v in self.validations.items()}, data=data, bands=bands, ax=ax)
 
+    def friction_curve(self, ax: object = None) -> Figure:
+        """Every model's friction force against velocity in steady sliding (servofmu.friction_curve)."""
+        from ..output.figures import friction_curve
+
+        return friction_curve({k: v.result for k, v in self.validations.items()}, ax=ax)
+
     def best(self) -> str:
         """The label of the model with the highest mean fit."""
         fits = self.table()["fit % (mean)"]

@@ -97,7 +97,8 @@ def _data_file(data) -> DataFile | None:
 def _frequencies(plants: Sequence[Plant], data_file: DataFile | None) -> np.ndarray:
     """A log grid (Hz) a factor 2 beyond the measured first harmonics, else a decade beyond the models' corner
     frequencies."""
-    measured = np.concatenate([f for f, _, _ in bode_points(data_file).values()]) if data_file else np.array([])
+    points = [f for f, _, _ in bode_points(data_file).values()] if data_file else []
+    measured = np.concatenate(points) if points else np.array([])  # records without first harmonics have none
     if measured.size:
         lo, hi = measured.min() / 2, measured.max() * 2
     else:
@@ -170,7 +171,7 @@ def bode(results_or_plants: Models, data: DataLike | None = None, bands: bool = 
             ax_mag.fill_between(f, *band.magnitude_db(), color=color, alpha=0.2, lw=0)
             if ax_ph is not None:
                 ax_ph.fill_between(f, *band.phase_deg(phase), color=color, alpha=0.2, lw=0)
-    if data_file is not None:
+    if data_file is not None and bode_points(data_file):  # records of no sine have no first harmonics to draw
         draw_measured(ax_mag, ax_ph, data_file, colors=False)
     ax_mag.set_ylabel("|G| [dB re 1 m/(N·s)]")
     ax_mag.set_title("identified G(jω)" + (f", {level:.0%} bands" if bands else ""))
