@@ -4,7 +4,7 @@ For g2 and stribeck_servo with their friction set to zero (linear plants), 40 dB
 (one level 2 N RMS, band 0.2–50 Hz, period 5 s, 1 + 2 periods, 4 realisations, odd-random grid, 1000 Hz), 20
 seeds, simulated without an FMU (servofmu.broadband.simulate):
 
-1. the BLA: the share of the lines at which its ±2σ band (σ its total standard deviation) holds the true
+1. the BLA: the share of the lines at which its ±2σ band and its 95 % band (σ its total standard deviation) hold the true
    zero-order-hold response, and its noise variance over the true one (4σ_v²/(N·P·M·|U|²), white noise σ_v);
 2. the fit (servofmu.identification.frequency_fit): per parameter, the share of seeds whose 95 % interval holds
    the truth, the RMS error over the mean standard deviation the fit claims, the cost over its degrees of freedom,
@@ -55,7 +55,7 @@ def perturbed(plant, factor=1.3):
 def coverage(name: str, seeds: int) -> None:
     truth = frictionless(name)
     plan = BroadbandPlan("multisine", (2.0,), **PLAN)
-    band_cover, noise_ratio, inside, errors, sds, costs, seconds = [], [], [], [], [], [], []
+    band_cover, band95_cover, noise_ratio, inside, errors, sds, costs, seconds = [], [], [], [], [], [], [], []
     values = truth.parameters()
     for seed in range(seeds):
         plan = replace(plan, seed=seed)
@@ -63,6 +63,7 @@ def coverage(name: str, seeds: int) -> None:
         b = lv.bla
         g = linear_response(truth, truth.parameter_vector(), b.frequencies, plan.rate)
         band_cover.append(np.mean(np.abs(b.G - g) <= 2 * b.std_total))
+        band95_cover.append(np.mean(np.abs(b.G - g) <= b.band_factor() * b.std_total))
         sigma_v = np.sqrt(np.var(lv.v) / 1e4)
         true_var = 4 * sigma_v ** 2 / (plan.samples * plan.periods * plan.realisations * b.U ** 2)
         noise_ratio.append(np.mean(b.var_noise) / np.mean(true_var))
@@ -77,7 +78,9 @@ def coverage(name: str, seeds: int) -> None:
     inside, errors, sds = np.array(inside), np.array(errors), np.array(sds)
     print(f"\n{name}, friction 0, 40 dB, {seeds} seeds, {b.frequencies.size} lines: BLA ±2σ band holds the true G at "
           f"{100 * np.mean(band_cover):.1f} % of the lines (seeds {100 * np.min(band_cover):.0f}–"
-          f"{100 * np.max(band_cover):.0f} %); noise variance estimated / true {np.mean(noise_ratio):.3f} "
+          f"{100 * np.max(band_cover):.0f} %), its 95 % band (±{b.band_factor():.3g}σ, BLA.band_factor) at "
+          f"{100 * np.mean(band95_cover):.1f} % (seeds {100 * np.min(band95_cover):.0f}–{100 * np.max(band95_cover):.0f}"
+          f" %); noise variance estimated / true {np.mean(noise_ratio):.3f} "
           f"(seeds {np.min(noise_ratio):.3f}–{np.max(noise_ratio):.3f}); fit cost/dof {np.mean(costs):.3f}; "
           f"fit {np.median(seconds) * 1e3:.0f} ms (median)\n")
     print("| parameter | truth | 95 % interval holds the truth | RMS error / mean claimed σ |\n|---|---|---|---|")

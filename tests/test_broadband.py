@@ -75,6 +75,22 @@ def test_the_noise_variance_is_the_one_made_within_20_percent():
     assert abs(b.total_to_noise_db) < 1.0  # a linear plant: realisations differ only by the noise
 
 
+def test_the_95_percent_band_holds_the_true_response_at_95_percent_of_the_lines_with_four_realisations():
+    """A linear plant under noise, M = 4 realisations, 12 seeds pooled (≈ 1400 lines): G ± band_factor·σ holds
+    the true response at 95 % ± 2 % of them, where ±2σ holds about 92 % (the σ is estimated from 4 realisations:
+    the error over it follows F(2, 6), not a normal law)."""
+    held, held_2s = [], []
+    for seed in range(12):
+        b, sys_ = run_linear(plan(realisations=4, periods=2, seed=seed), noise=0.02, seed=100 + seed)
+        error = np.abs(b.G - frequency_response(sys_, b.frequencies))
+        held.append(error <= b.band_factor() * b.std_band)
+        held_2s.append(error <= 2 * b.std_total)
+    share, share_2s = np.mean(np.concatenate(held)), np.mean(np.concatenate(held_2s))
+    assert b.band_factor() == pytest.approx(np.sqrt(3 * (20 ** (1 / 3) - 1)), rel=1e-9)  # √F⁻¹(0.95; 2, 6)
+    assert abs(share - 0.95) <= 0.02, share
+    assert share_2s < share and abs(share_2s - 0.921) <= 0.03, share_2s
+
+
 def coulomb_loop(u: np.ndarray, friction: float, rate=RATE) -> np.ndarray:
     """A mass (1 kg) with viscous (5 N·s/m) and Coulomb friction, Euler-discretised: v' = u − 5v − Fc·sign(v)."""
     v, out = 0.0, np.empty_like(u)

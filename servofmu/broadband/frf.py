@@ -41,7 +41,8 @@ def frf_json(data: BroadbandData, levels: list[tuple[float, BLA]]) -> dict:
         doc["levels"].append({
             "level": level, "frequency": b.frequencies.tolist(), "re": b.G.real.tolist(), "im": b.G.imag.tolist(),
             "std_noise": [_finite(x) for x in b.std_noise], "std_distortion": [_finite(x) for x in b.std_distortion],
-            "std_total": [_finite(x) for x in b.std_total], "coherence": b.coherence.tolist(),
+            "std_total": [_finite(x) for x in b.std_total], "band_factor_95": _finite(b.band_factor()),
+            "coherence": b.coherence.tolist(),
             "distortion_to_noise_db": _finite(b.distortion_to_noise_db),
             "relative_distortion_db": _finite(b.relative_distortion_db),
             "total_to_noise_db": _finite(b.total_to_noise_db),

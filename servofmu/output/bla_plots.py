@@ -1,4 +1,4 @@
-"""The Bode plot of a BLA with its uncertainty: per level the BLA at the excited lines (markers), its ±2σ band,
+"""The Bode plot of a BLA with its uncertainty: per level the BLA at the excited lines (markers), its 95 % band,
 and beneath it the standard deviations from noise and from nonlinear distortions (docs/broadband.md)."""
 from __future__ import annotations
 
@@ -24,7 +24,8 @@ def bla_figure(levels: list[tuple[float, BLA]], path: str | Path, title: str = "
 
 
 def plot_bla(levels: list[tuple[float, BLA]], title: str = "", unit: str = "m/(N·s)", models: tuple = (), ax=None):
-    """Magnitude (with the ±2σ band and the noise and distortion levels) and phase of each level's BLA, and the
+    """Magnitude (with the 95 % band, ±k·σ with k from the realisations (BLA.band_factor), and the noise and
+    distortion levels) and phase of each level's BLA, and the
     responses ``models`` ((label, frequencies in Hz, complex response), drawn as lines) over them.
 
     ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
@@ -32,10 +33,10 @@ def plot_bla(levels: list[tuple[float, BLA]], title: str = "", unit: str = "m/(N
     fig, (ax_mag, ax_ph) = figure_axes(ax, 2, (8, 7), sharex=True)
     for k, (level, b) in enumerate(levels):
         color, f = f"C{k}", b.frequencies
-        mag, std = np.abs(b.G), b.std_total
+        mag, std = np.abs(b.G), b.band_factor() * b.std_band  # the half-width of the 95 % band
         ax_mag.semilogx(f, _db(b.G), ".", color=color, ms=4, label=f"BLA at {level:g} N RMS (excited lines)")
         if np.isfinite(std).any():
-            ax_mag.fill_between(f, _db(np.maximum(mag - 2 * std, mag * 1e-3)), _db(mag + 2 * std), color=color,
+            ax_mag.fill_between(f, _db(np.maximum(mag - std, mag * 1e-3)), _db(mag + std), color=color,
                                 alpha=0.2, lw=0)
             ax_mag.semilogx(f, _db(b.std_noise), ":", color=color, lw=1, label=f"σ noise at {level:g} N")
             ax_mag.semilogx(f, _db(b.std_distortion), "--", color=color, lw=1,
@@ -43,13 +44,13 @@ def plot_bla(levels: list[tuple[float, BLA]], title: str = "", unit: str = "m/(N
         phase = np.degrees(np.unwrap(np.angle(b.G)))
         ax_ph.semilogx(f, phase, ".", color=color, ms=4)
         if np.isfinite(std).any():
-            half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
+            half = np.degrees(np.arcsin(np.clip(std / mag, 0, 1)))
             ax_ph.fill_between(f, phase - half, phase + half, color=color, alpha=0.2, lw=0)
     for k, (label, f, G) in enumerate(models):
         style = ("-", "-.", "--")[k % 3]
         ax_mag.semilogx(f, _db(G), style, color="k", lw=1.2, label=label)
         ax_ph.semilogx(f, np.degrees(np.unwrap(np.angle(G))), style, color="k", lw=1.2)
-    _label(ax_mag, ax_ph, "G_BLA", unit, title or "best linear approximation, ±2σ (shaded)")
+    _label(ax_mag, ax_ph, "G_BLA", unit, title or "best linear approximation, 95 % band (shaded)")
     return fig
 
 
