@@ -150,10 +150,13 @@ def validation_html(v: Validation) -> list[str]:
 
 def validate_files(result_path: str | Path, data_path: str | Path, output: str | Path | None = None,
                    skip: float = 0.0, controller: str | Path | None = None, min_fit: float = MIN_FIT,
-                   overwrite: bool = False) -> Validation:
+                   overwrite: bool = False, progress=None) -> Validation:
     """Validate a result file on a data file (closed-loop records with the controller file ``controller``) with
     the minimum fit ``min_fit`` (%); write ``output`` (.html page or .png figure) if given (an existing one only
-    with ``overwrite``)."""
+    with ``overwrite``).  ``progress(done, total)`` (runtime.Progress) counts the two steps: the model simulated
+    on the data, the output written."""
+    steps = 1 if output is None else 2
+    report = progress or (lambda done, total: None)
     if output is not None:
         output = claim_output(output, output_mode(overwrite), inputs=(result_path, data_path, controller))
         if output.suffix.lower() not in (".html", ".png"):
@@ -162,7 +165,9 @@ def validate_files(result_path: str | Path, data_path: str | Path, output: str |
     if controller is not None:
         from ..model.controller import load_controller
         law = load_controller(controller)
+    report(0, steps)
     v = validate(read_result(result_path), read_data_file(data_path), skip, law, min_fit=min_fit)
+    report(1, steps)
     if output is None:
         return v
     if output.suffix.lower() == ".png":
@@ -176,4 +181,5 @@ def validate_files(result_path: str | Path, data_path: str | Path, output: str |
                  "experiments.</p>", *validation_html(v),
                  f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
         atomic_write(output, page(title, parts))
+    report(2, steps)
     return v
