@@ -1,0 +1,172 @@
+"""One meaning per option across the command line (docs/cli.md): `-o/--output` is the file written, `--json` on
+every command that writes results, `--progress` on every long one; errors name the subcommand and the option;
+`--help` loads no numerical package; the API refuses a wrong argument by name."""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from clitools import assert_one_line_error, run
+
+# Every subcommand writes a file (or, for demo, a folder): all of them take -o/--output and --json.  simulate's
+# -o is optional (without it the CSV goes to stdout, and --json asks for -o).
+WRITES = ("build", "simulate", "measure", "import", "plot", "excitation", "frf", "dataset", "train", "identify",
+          "compare", "select", "validate", "report", "export", "controller", "system", "cosim", "compensate", "tune",
+          "demo")
+# Commands that can run longer than a few seconds: they simulate many experiments, plants, candidates, methods or
+# co-simulation steps, read many files, train a network or run the whole demo.  build, export, controller and
+# system compile or zip one model (seconds); plot, excitation, frf and report read or draw one file.
+LONG = ("measure", "import", "dataset", "train", "identify", "compare", "select", "validate", "cosim", "compensate",
+        "tune", "demo")
+HEAVY = ("numpy", "h5py", "scipy", "casadi", "torch")
+
+
+def subcommands() -> dict[str, argparse.ArgumentParser]:
+    from servofmu.cli import build_parser
+
+    parser = build_parser()
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def options(p: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+    return {o: a for a in p._actions for o in a.option_strings}
+
+
+def test_the_lists_name_every_subcommand():
+    assert set(WRITES) == set(subcommands()) and set(LONG) <= set(WRITES)
+
+
+@pytest.mark.parametrize("name", WRITES)
+def test_o_and_output_are_the_one_file_written(name):
+    p = subcommands()[name]
+    o = options(p)
+    assert o["-o"] is o["--output"], name  # the same option, two spellings
+    written = (*(p.get_default("outputs") or ()), *(p.get_default("output_folders") or ()))
+    assert o["-o"].dest in written, (name, o["-o"].dest, written)
+    assert not any(a.dest == "output_variable" for a in p._actions if "--output" in a.option_strings)
+
+
+@pytest.mark.parametrize("name", WRITES)
+def test_json_on_every_command_that_writes(name):
+    assert "--json" in options(subcommands()[name])
+
+
+@pytest.mark.parametrize("name", LONG)
+def test_progress_on_every_long_command(name):
+    assert "--progress" in options(subcommands()[name])
+
+
+def test_help_loads_no_numerical_package():
+    """`servofmu --help`, then every `servofmu CMD --help`, in one fresh process (sys.modules only grows, so the
+    first help that loads a package is the one named)."""
+    code = ("import runpy, sys\nfor argv in [[], *([c] for c in sys.argv[1:])]:\n"
+            "    sys.argv = ['servofmu', *argv, '--help']\n    try:\n"
+            "        runpy.run_module('servofmu', run_name='__main__')\n    except SystemExit:\n        pass\n"
+            f"    print(argv, sorted(m for m in {HEAVY!r} if m in sys.modules), file=sys.stderr)\n")
+    proc = subprocess.run([sys.executable, "-c", code, *WRITES], capture_output=True, text=True)
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("[")]
+    assert len(lines) == len(WRITES) + 1, proc.stderr[-2000:]
+    assert all(line.endswith(" []") for line in lines), lines
+
+
+def test_the_literal_defaults_of_the_command_line_are_the_librarys():
+    from servofmu.cli import measure, tune
+    from servofmu.measurement.excitation import MAX_STEPS
+    from servofmu.model.signals import INTERSAMPLE
+    from servofmu.output.tune_report import DEFAULT_SPEED, DEFAULT_STROKE
+    from servofmu.tuning.run import METHODS
+
+    assert (measure.MAX_STEPS, measure.INTERSAMPLE) == (MAX_STEPS, INTERSAMPLE)
+    assert (tune.DEFAULT_STROKE, tune.DEFAULT_SPEED, tune.METHODS) == (DEFAULT_STROKE, DEFAULT_SPEED, METHODS)
+
+
+def test_an_unrecognised_argument_is_reported_by_its_subcommand():
+    assert_one_line_error(run("build", "g1", "extra", "--bogus"),
+                          "servofmu build: error: unrecognized arguments: extra --bogus")
+
+
+def test_an_export_error_names_the_option_not_the_python_argument(tmp_path):
+    (tmp_path / "r.h5").write_bytes(b"x")
+    proc = run("export", tmp_path / "r.h5", "--format", "toml", "--fmi-version", "2", "-o", tmp_path / "p.toml")
+    assert_one_line_error(proc, "servofmu export: error: --fmi-version applies to FMU export only")
+    assert "fmi_version" not in proc.stderr
+
+
+def test_flags_named_maps_only_this_commands_arguments():
+    from servofmu.cli import build_parser, flags_named
+
+    export = build_parser().subcommands["export"]
+    assert flags_named("fmi_version must be 2 or 3; see out/fmi_version.txt", export) \
+        == "--fmi-version must be 2 or 3; see out/fmi_version.txt"
+    assert flags_named("relative_tolerance must be positive", export) == "relative_tolerance must be positive"
+
+
+def test_an_existing_identify_output_is_advised_an_option_identify_accepts(tmp_path):
+    (tmp_path / "r.h5").write_bytes(b"old")
+    proc = run("identify", "g1.h5", "--structure", "g1", "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, "r.h5: exists already (give --force to replace it)")
+    assert "--resume" not in proc.stderr
+    assert (tmp_path / "r.h5").read_bytes() == b"old"
+
+
+def test_demo_takes_o_and_its_old_out_with_one_line(tmp_path):
+    from servofmu.cli import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["demo", "-o", "d"]).output == "d"
+    assert parser.parse_args(["demo"]).output == "demo-output"
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "keep").write_text("x")
+    proc = run("demo", "--out", tmp_path / "d")  # a folder that is not empty: refused before any work
+    assert proc.returncode == 2 and proc.stderr.splitlines()[0] == \
+        "servofmu demo: warning: --out is deprecated, use -o/--output"
+    assert "exists already" in proc.stderr.splitlines()[1] and len(proc.stderr.splitlines()) == 2
+    assert [f.name for f in (tmp_path / "d").iterdir()] == ["keep"]
+
+
+def test_json_prints_what_was_written(tmp_path):
+    proc = run("excitation", "multisine", "--band", "1,20", "--realisations", "1", "--json", "-o",
+               tmp_path / "s.csv")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["written"] == [str(tmp_path / "s.csv")] and summary["kind"] == "multisine"
+    assert summary["lines"] > 0 and (tmp_path / "s.csv").stat().st_size > 0
+
+
+def test_simulate_json_asks_for_o(tmp_path):
+    assert_one_line_error(run("simulate", "g1.fmu", "--stop-time", "1", "--json"), "servofmu simulate: error:",
+                          "--json", "-o")
+
+
+def test_the_progress_bar_names_the_command_and_its_unit(capsys, monkeypatch):
+    from servofmu.cli.common import ProgressBar
+
+    args = argparse.Namespace(command="measure", progress=True)
+    with ProgressBar(args, "experiment", scale=1000) as bar:
+        bar.update(1000, 2000)
+    with ProgressBar(args, "step", label="demo") as bar:
+        bar.stage("g1: train", "epoch")(3, 10)
+    err = capsys.readouterr().err
+    assert "measure:" in err and "1.00/2 experiments" in err
+    assert "g1: train:" in err and "3/10 epochs" in err
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"input_signal": np.zeros((10, 2))}, "input_signal"),
+    ({"input_signal": [[0.0, 0.0], [1.0, 1.0]]}, "input_signal"),
+    ({"output_interval": "x"}, "output_interval"),
+    ({"outputs": "v"}, "outputs"),
+    ({"start_values": [1]}, "start_values"),
+    ({"relative_tolerance": "x"}, "relative_tolerance"),
+    ({"stop_time": "10"}, "stop_time"),
+])
+def test_simulate_refuses_a_wrong_argument_by_name(kwargs, name):
+    import servofmu
+
+    kwargs = {"stop_time": 10, **kwargs}
+    with pytest.raises(servofmu.UserError, match=f"^{name} must"):
+        servofmu.simulate("no-such.fmu", kwargs.pop("stop_time"), interface="cs", **kwargs)
