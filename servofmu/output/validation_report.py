@@ -14,13 +14,14 @@ from ..measurement.datafile import read_data_file
 from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import MAX_PANELS, pyplot
-from .validate import MIN_FIT, RecordValidation, Validation, own_data_warning, validate
+from .validate import MIN_FIT, RecordValidation, Validation, own_data_warning, residual_tests_phrase, validate
 
 __all__ = ["validate_files", "validation_html", "validation_figure", "residual_figure"]
 
 
 def _correlation_panels(ax_auto, ax_cross, r: ResidualTest) -> None:
-    """The residuals' autocorrelation and cross-correlation with the input, with their joint bounds."""
+    """The residuals' autocorrelation and cross-correlation with the input, with their joint bounds (titled as not
+    applying where the residuals are at the simulation's precision: noise-free data)."""
     lags = np.arange(r.autocorrelation.size)
     ax_auto.bar(lags[1:], r.autocorrelation[1:], width=0.6)
     ax_cross.bar(r.cross_lags, r.cross_correlation, width=0.6)
@@ -28,7 +29,7 @@ def _correlation_panels(ax_auto, ax_cross, r: ResidualTest) -> None:
                              (ax_cross, r.z * r.cross_sigma, "cross-correlation of e and u")):
         ax.axhline(bound, color="r", ls="--", lw=1)
         ax.axhline(-bound, color="r", ls="--", lw=1)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title + (" (noise-free: tests do not apply)" if r.exact else ""), fontsize=9)
         ax.set_xlabel("lag [samples]")
 
 
@@ -106,7 +107,7 @@ def validation_html(v: Validation) -> list[str]:
     verdict = "passed" if v.passed else "failed"
     parts = [f'<p id="verdict" class="verdict {verdict}"><strong>Verdict: {verdict}.</strong> Every record and '
              f"experiment must fit at least {escape(format(v.min_fit, 'g'))} % and pass the residual tests that "
-             "apply (docs/validation.md).</p>"]
+             f"apply (docs/validation.md){'; ' + escape(residual_tests_phrase(v)) if v.noise_free[0] else ''}.</p>"]
     if not v.passed:
         parts.append('<ul id="failures">' + "".join(f"<li>{escape(f)}</li>" for f in v.failures()) + "</ul>")
     warning = own_data_warning(v)
@@ -117,9 +118,10 @@ def validation_html(v: Validation) -> list[str]:
         for r in v.records:
             t = r.residuals
             auto_out, cross_out = t.outside_per_lag()
-            rows.append([r.name, r.output, r.hold, str(r.y.size), number(r.fit, ".4f"),
-                         "—" if r.closed_loop else ("yes" if t.white else "no"), "yes" if t.independent else "no",
-                         f"{auto_out} / {cross_out}", "passed" if r.passed else "failed"])
+            tests = ["—" if r.closed_loop else ("yes" if t.white else "no"), "yes" if t.independent else "no",
+                     f"{auto_out} / {cross_out}"] if r.residuals_apply else ["n/a (noise-free)"] * 3
+            rows.append([r.name, r.output, r.hold, str(r.y.size), number(r.fit, ".4f"), *tests,
+                         "passed" if r.passed else "failed"])
         parts += [table("validation-records", ["record", "output", "input", "samples", "fit %", "e white",
                                                "e independent of u", "lags outside per-lag 99 % bounds",
                                                "verdict"], rows, numeric_from=3),
@@ -131,7 +133,7 @@ def validation_html(v: Validation) -> list[str]:
     if v.experiments:
         rows = [[str(e.index), number(e.amplitude, "g"), number(e.frequency, "g"), number(e.fit, ".4f"),
                  number(e.H_error, ".3e"),
-                 "—" if e.residuals is None else ("passed" if e.residuals.passed else "failed"),
+                 "n/a (noise-free)" if not e.residuals_apply else ("passed" if e.residuals.passed else "failed"),
                  "passed" if e.passed else "failed"] for e in v.experiments]
         parts += [table("validation-experiments", ["experiment", "amplitude [N]", "frequency [Hz]", "fit %",
                                                    "|H_model − H|/|H|", "residual tests", "verdict"], rows,
