@@ -168,5 +168,39 @@ def test_simulate_refuses_a_wrong_argument_by_name(kwargs, name):
     import servofmu
 
     kwargs = {"stop_time": 10, **kwargs}
-    with pytest.raises(servofmu.UserError, match=f"^{name} must"):
+    with pytest.raises(servofmu.UserError, match=rf"^(simulate\(\): )?{name} must"):
         servofmu.simulate("no-such.fmu", kwargs.pop("stop_time"), interface="cs", **kwargs)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda sf: sf.load_plant(42), "plant"),
+    (lambda sf: sf.build_fmu("g1", "x.fmu"), "plant"),
+    (lambda sf: sf.measure(42, "x.h5"), "fmu"),
+    (lambda sf: sf.read_data_file(42), "path"),
+    (lambda sf: sf.sine_data("g1.h5"), "data"),
+    (lambda sf: sf.read_result(42), "path"),
+    (lambda sf: sf.write_result("w.h5", 42), "result"),
+    (lambda sf: sf.export_result(42, "x.toml"), "result_file"),
+    (lambda sf: sf.train_from_file(42, "n.h5"), "training_set"),
+])
+def test_public_functions_refuse_an_argument_of_the_wrong_type_by_name(call, name, tmp_path, monkeypatch):
+    import servofmu
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(servofmu.UserError, match=rf"^\w+\(\): {name} must be "):
+        call(servofmu)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_argument_check_leaves_what_it_does_not_know_to_the_function():
+    from servofmu.api_checks import argument_problem
+
+    from servofmu.runtime import Progress, RunOptions
+
+    assert argument_problem("run", "RunOptions | None", 3, {"RunOptions": RunOptions}) == \
+        "run must be a RunOptions or None, not int 3"
+
+    assert argument_problem("x", "Progress | None", lambda d, t: None, {"Progress": Progress}) is None  # a protocol
+    assert argument_problem("x", "np.ndarray", [1], {}) is None and argument_problem("x", "list[str]", 3, {}) is None
+    assert argument_problem("x", "str | Path | None", None, {}) is None
+    assert argument_problem("x", "float", True, {}) == "x must be a number, not bool True"
