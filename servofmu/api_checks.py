@@ -4,8 +4,8 @@ for a file name, a name for a Plant) is a :class:`~servofmu.errors.UserError` na
 
 Only annotations made of simple names are checked (``str | Path``, ``Plant``, ``Result | None``, ``float``);
 anything else (``np.ndarray``, ``Sequence[str]``, ``dict``) is left to the function, which checks its values.
-``servofmu.__getattr__`` wraps the functions of ``servofmu.__all__`` with :func:`checked`; the library's own calls
-go to the unwrapped functions.
+The package's ``__getattr__`` wraps the API's functions with :func:`checked`; the library's own calls go to the
+unwrapped functions.
 """
 from __future__ import annotations
 
