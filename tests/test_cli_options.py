@@ -96,6 +96,14 @@ def test_an_export_error_names_the_option_not_the_python_argument(tmp_path):
     assert "fmi_version" not in proc.stderr
 
 
+@pytest.mark.parametrize("option, value", [("--frequency", "-1"), ("--stop-time", "-1"), ("--tolerance", "0"),
+                                           ("--output-interval", "-1")])
+def test_a_simulate_error_names_the_option(option, value):
+    argv = {"--stop-time": "1", "--amplitude": "1", option: value}
+    proc = run("simulate", "no.fmu", *[x for item in argv.items() for x in item])
+    assert_one_line_error(proc, f"servofmu simulate: error: {option} must be a positive number")
+
+
 def test_flags_named_maps_only_this_commands_arguments():
     from servofmu.cli import build_parser, flags_named
 
@@ -162,6 +170,7 @@ def test_the_progress_bar_names_the_command_and_its_unit(capsys, monkeypatch):
     ({"outputs": "v"}, "outputs"),
     ({"start_values": [1]}, "start_values"),
     ({"relative_tolerance": "x"}, "relative_tolerance"),
+    ({"relative_tolerance": -1.0}, "relative_tolerance"),
     ({"stop_time": "10"}, "stop_time"),
 ])
 def test_simulate_refuses_a_wrong_argument_by_name(kwargs, name):
@@ -204,3 +213,23 @@ def test_the_argument_check_leaves_what_it_does_not_know_to_the_function():
     assert argument_problem("x", "np.ndarray", [1], {}) is None and argument_problem("x", "list[str]", 3, {}) is None
     assert argument_problem("x", "str | Path | None", None, {}) is None
     assert argument_problem("x", "float", True, {}) == "x must be a number, not bool True"
+
+
+def test_the_demo_draws_a_bar_per_long_step_under_its_lines(tmp_path, monkeypatch, capsys):
+    """The demo's CLI hands each long step (here a stand-in training) a labelled bar and prints its lines above."""
+    from servofmu.cli import main
+    from servofmu.output import demo
+
+    def fake_demo(out, report, overwrite=False, stage=None):
+        report("built g1.fmu")
+        train = stage("g1: train", "epoch")
+        for epoch in range(1, 11):
+            train(epoch, 10)
+        report("trained g1-ann.h5")
+        return {}
+
+    monkeypatch.setattr(demo, "run_demo", fake_demo)
+    assert main(["demo", "-o", str(tmp_path / "d"), "--progress"]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines() == ["built g1.fmu", "trained g1-ann.h5"]
+    assert "g1: train: 100%" in err and "10/10 epochs" in err

@@ -60,6 +60,9 @@ def flags_named(text: str, parser: argparse.ArgumentParser) -> str:
                                                                  if v in flags.values()}}
     for name, flag in names.items():
         text = re.sub(rf"(?<![\w./-]){re.escape(name)}(?![\w/.-]|=True)", flag, text)
+    first = re.match(r"(\w+) must\b", text)  # "frequency must be positive": a one-word argument, at the start
+    if first and first.group(1) in flags:
+        text = flags[first.group(1)] + text[first.end(1):]
     return text
 
 

@@ -187,9 +187,9 @@ def _check_arguments(fmu, stop_time, amplitude, frequency, input_signal, output_
     if not isinstance(fmu, (str, Path, FmuInfo)):
         raise UserError(f"fmu must be a file name, a Path or an FmuInfo, not {type(fmu).__name__}")
     check_positive("stop_time", stop_time)
-    for name, value in (("amplitude", amplitude), ("relative_tolerance", relative_tolerance)):
-        check_optional_real(name, value)
-    for name, value in (("frequency", frequency), ("output_interval", output_interval)):
+    check_optional_real("amplitude", amplitude)
+    for name, value in (("frequency", frequency), ("output_interval", output_interval),
+                        ("relative_tolerance", relative_tolerance)):
         if value is not None:
             check_positive(name, value)
     if input_signal is not None and not (isinstance(input_signal, np.ndarray) and input_signal.dtype.names
