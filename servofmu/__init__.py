@@ -84,9 +84,7 @@ if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by 
 
 def __getattr__(name: str):
     if name in _API:
-        from .api_checks import checked
-
-        value = checked(getattr(importlib.import_module(_API[name]), name))  # wrong argument types: UserError
+        value = getattr(importlib.import_module(_API[name]), name)
         globals()[name] = value  # loaded once
         return value
     raise AttributeError(f"module 'servofmu' has no attribute {name!r}")

@@ -4,8 +4,7 @@ for a file name, a name for a Plant) is a :class:`~servofmu.errors.UserError` na
 
 Only annotations made of simple names are checked (``str | Path``, ``Plant``, ``Result | None``, ``float``);
 anything else (``np.ndarray``, ``Sequence[str]``, ``dict``) is left to the function, which checks its values.
-The package's ``__getattr__`` wraps the API's functions with :func:`checked`; the library's own calls go to the
-unwrapped functions.
+The API's functions call :func:`check_arguments` first.
 """
 from __future__ import annotations
 
@@ -16,7 +15,7 @@ from numbers import Integral, Real
 
 from .errors import UserError
 
-__all__ = ["checked", "argument_problem"]
+__all__ = ["check_arguments", "argument_problem"]
 
 # annotation name -> (what a value must be, the test)
 _SIMPLE = {
@@ -54,24 +53,18 @@ def argument_problem(name: str, annotation, value, names: dict | None = None) ->
     return f"{name} must be {wanted}, not {type(value).__name__} {value!r:.60}"
 
 
-def checked(func):
-    """``func`` with its arguments checked against its annotations first (see the module's docstring)."""
-    if not inspect.isfunction(func):
-        return func
-    signature = inspect.signature(func)
-    plain = {n for n, p in signature.parameters.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+@functools.lru_cache(maxsize=None)
+def _signature(function) -> inspect.Signature:
+    return inspect.signature(function)
 
-    @functools.wraps(func)
-    def call(*args, **kwargs):
-        try:
-            bound = signature.bind(*args, **kwargs)
-        except TypeError:  # a missing or unknown argument: Python's own TypeError, raised by the call itself
-            return func(*args, **kwargs)
-        for name, value in bound.arguments.items():
-            problem = name in plain and argument_problem(name, signature.parameters[name].annotation, value,
-                                                         func.__globals__)
-            if problem:
-                raise UserError(f"{func.__name__}(): {problem}")
-        return func(*args, **kwargs)
 
-    return call
+def check_arguments(function, values: dict) -> None:
+    """Refuse, as a UserError naming the argument, a value in ``values`` (``locals()`` at the top of
+    ``function``: its arguments) that does not fit ``function``'s annotation (see the module's docstring).  Called
+    inside the function, not around it, so that the warnings it attributes to its caller's line stay there."""
+    for name, parameter in _signature(function).parameters.items():
+        if parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD) or name not in values:
+            continue
+        problem = argument_problem(name, parameter.annotation, values[name], function.__globals__)
+        if problem:
+            raise UserError(f"{function.__name__}(): {problem}")

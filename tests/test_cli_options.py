@@ -233,3 +233,14 @@ def test_the_demo_draws_a_bar_per_long_step_under_its_lines(tmp_path, monkeypatc
     out, err = capsys.readouterr()
     assert out.splitlines() == ["built g1.fmu", "trained g1-ann.h5"]
     assert "g1: train: 100%" in err and "10/10 epochs" in err
+
+
+def test_every_public_function_checks_its_arguments():
+    import inspect
+
+    import servofmu
+
+    functions = [getattr(servofmu, n) for n in servofmu.__all__ if inspect.isfunction(getattr(servofmu, n))]
+    assert len(functions) >= 15
+    unchecked = [f.__name__ for f in functions if f"check_arguments({f.__name__}, locals())" not in inspect.getsource(f)]
+    assert unchecked == []

@@ -324,6 +324,9 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
         number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``, a
         record whose samples are those of another record given or already in the output (one measurement twice).
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(import_records, locals())  # a wrong type: UserError naming it
     run, loop = run or RunOptions(), loop or LoopChannels()
     loop.check()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")

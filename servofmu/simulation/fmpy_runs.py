@@ -136,6 +136,9 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     UserError
         For a file that is not an FMU, unknown variables, bad options or a failing simulation.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(simulate, locals())  # a wrong type: UserError naming it
     from fmpy import extract, simulate_fmu
 
     _check_arguments(fmu, stop_time, amplitude, frequency, input_signal, output_interval, relative_tolerance,
