@@ -378,9 +378,6 @@ def fit_casadi_nls(structure: Plant, data: SineData, theta0: ArrayLike | None = 
     UserError
         For data that is not stepped-sine data, or start values of the wrong size or outside the valid region.
     """
-    from ..api_checks import check_arguments
-
-    check_arguments(fit_casadi_nls, locals())  # a wrong type: UserError naming it
     theta0 = _check_inputs(structure, data, theta0)
     start = time.perf_counter()
     crit = CasadiCriterion(structure, data, options)

@@ -82,9 +82,6 @@ def fit_chen2002(structure: Plant, data: SineData) -> BaselineResult:
     UserError
         For data that is not stepped-sine data or a structure the method cannot identify.
     """
-    from ..api_checks import check_arguments
-
-    check_arguments(fit_chen2002, locals())  # a wrong type: UserError naming it
     start = time.perf_counter()
     if not isinstance(data, SineData):
         raise UserError("the Chen 2002 method works on stepped-sine data (first harmonics at two magnitudes per "
