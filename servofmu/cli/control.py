@@ -45,12 +45,9 @@ def cmd_cosim(args) -> None:
     from ..control.cosim import cosimulate, write_cosim_records
     from .common import run_options
 
-    with ProgressBar(args, "step") as bar:  # two steps: the co-simulation, the records file written
-        bar.update(0, 2)
-        result = cosimulate(args.system, args.stop_time, engine=args.engine)
-        bar.update(1, 2)
-        data = write_cosim_records(result, args.system, args.output, append=args.append, run=run_options(args))
-        bar.update(2, 2)
+    with ProgressBar(args, "step") as bar:  # communication steps of the co-simulation
+        result = cosimulate(args.system, args.stop_time, engine=args.engine, progress=bar.update)
+    data = write_cosim_records(result, args.system, args.output, append=args.append, run=run_options(args))
     error = result["reference"] - result["position"]
     rms, peak = float(np.sqrt(np.mean(error ** 2))), float(np.max(np.abs(error)))
     print_written(args, f"wrote {args.output}: {len(data.records)} record(s); {result.engine}, {result.time.size - 1} "
