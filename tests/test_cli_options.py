@@ -245,3 +245,20 @@ def test_every_public_function_checks_its_arguments():
     unchecked = [f.__name__ for f in functions if f"check_arguments({f.__name__}, locals())" not in inspect.getsource(f)]
     # the comparators refuse records (RecordData for their SineData) with their own, better message: stepped-sine only
     assert sorted(unchecked) == ["fit_casadi_nls", "fit_chen2002"]
+
+
+@pytest.mark.parametrize("command", ["measure", "import"])
+def test_output_in_measure_and_import_is_the_data_file_or_a_line_pointing_to_output_variable(command, capsys):
+    from servofmu.cli import build_parser
+
+    parser = build_parser()
+    head = [command, "in.fmu"] if command == "measure" else [command, "in.csv", "--time", "t", "--input", "u"]
+    for spelling in ("-o", "--output"):
+        for value in ("g1.h5", "G1.HDF5", "out/g1"):
+            assert parser.parse_args([*head, spelling, value]).data == value
+    assert parser.parse_args([*head, "-o", "g1.data"]).data == "g1.data"  # -o takes any name
+    with pytest.raises(SystemExit) as exit_:
+        parser.parse_args([*head, "--output", "v", "-o", "g1.h5"])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err == (f"servofmu {command}: error: --output v: --output is the data file to write "
+                                       "(as -o, e.g. --output v.h5); the output variable is --output-variable v\n")
