@@ -351,7 +351,7 @@ def corrupt(path, folder):
     ("corrupt", ("corrupt.h5", "not a readable result file")),
     ("format", ("--format", "yaml")),
     ("suffix", ("out.xyz", "give the format")),
-    ("fmi_version", ("fmi_version", "format json")),
+    ("fmi_version", ("--fmi-version applies", "format json")),  # the option, not the Python argument
 ])
 def test_cli_bad_input_is_one_line_and_writes_nothing(result_file, tmp_path, case, fragments):
     good = result_file("g1")

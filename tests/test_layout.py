@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "servofmu"
 STAGES = [
     {"servofmu.version", "servofmu.errors", "servofmu.locks", "servofmu.runtime", "servofmu.claims", "servofmu.fileio",
-     "servofmu.integrity", "servofmu.text_digest", "servofmu.display"},
+     "servofmu.integrity", "servofmu.text_digest", "servofmu.display", "servofmu.api_checks"},
     {"servofmu.model", "servofmu.fmu_models"},
     {"servofmu.fmu"},
     {"servofmu.simulation"},

@@ -33,8 +33,8 @@ COMMANDS = {
     "cosim": ["cosim", "in.ssp", "-o", "OUT"],
     "compensate": ["compensate", "in.h5", "--axis", "in.ssp", "-o", "OUT"],
 }
-CONTINUE = {"measure": "--resume", "dataset": "--resume", "import": "--append", "cosim": "--append",
-            "identify": "--resume"}
+# (identify's --resume continues the results in --output-dir, never an -o file: not advised for one)
+CONTINUE = {"measure": "--resume", "dataset": "--resume", "import": "--append", "cosim": "--append"}
 
 
 def stand_ins(folder):
@@ -86,7 +86,7 @@ def test_identify_output_dir_refuses_an_existing_result(tmp_path):
 def test_demo_refuses_a_folder_that_is_not_empty(tmp_path):
     (tmp_path / "demo").mkdir()
     (tmp_path / "demo" / "keep.txt").write_bytes(PREVIOUS)
-    proc = run("demo", "--out", tmp_path / "demo")
+    proc = run("demo", "-o", tmp_path / "demo")
     assert_one_line_error(proc, "exists already", "--force")
     assert [p.name for p in (tmp_path / "demo").iterdir()] == ["keep.txt"]
     assert (tmp_path / "demo" / "keep.txt").read_bytes() == PREVIOUS

@@ -186,7 +186,9 @@ def test_validate_on_held_out_noise_free_records(g1_identified, tmp_path):
     assert proc.returncode == 0, proc.stderr
     obj = json.loads(proc.stdout)
     (record,) = obj["records"]
-    assert record["fit_percent"] >= 99.9 and record["residual_test"]["passed"] and obj["passed"]
+    assert record["fit_percent"] >= 99.9 and obj["passed"]
+    test = record["residual_test"]  # noise-free: tested only where the residuals exceed the simulation's precision
+    assert test["passed"] is True if test["applies"] else test["passed"] is None and "do not apply" in obj["verdict"]
     # a page and a figure
     for name in ("v.html", "v.png"):
         proc = run("validate", g1_identified["result"], g1_identified["val"], "-o", tmp_path / name)

@@ -166,12 +166,13 @@ def comparison_markdown(results: dict[str, Result], truth: Plant | None) -> str:
 
 def compare_files(data_file, structure_file, ann_file=None, truth=None, methods: list[str] | None = None,
                   seed: int = 0, output=None, command: str = "", announce=None,
-                  overwrite: bool = False) -> tuple[dict[str, Result], Plant | None]:
+                  overwrite: bool = False, progress=None) -> tuple[dict[str, Result], Plant | None]:
     """`servofmu compare`: every method (default: all that the inputs allow) on one data file.
 
     ``truth``: the true plant's file, when known (relative errors); ``output``: where to write every result
     (.h5, for `servofmu report`) or the table (any other suffix, Markdown), an existing one only with
-    ``overwrite``; ``command`` is recorded as provenance; ``announce(method)`` is called before each method runs.
+    ``overwrite``; ``command`` is recorded as provenance; ``announce(method)`` is called before each method runs,
+    ``progress(done, total)`` (runtime.Progress) as methods finish.
     Returns the results by method and the true plant (or None)."""
     from ..fileio import atomic_write, claim_output, output_mode
     from ..identification.inputs import load_identification_inputs
@@ -187,8 +188,13 @@ def compare_files(data_file, structure_file, ann_file=None, truth=None, methods:
     true_plant = load_plant(truth) if truth is not None else None
     if true_plant is not None:
         check_truth(structure, true_plant, str(truth))
-    progress = None if announce is None else lambda done, total: announce(methods[done]) if done < total else None
-    results = run_methods(structure, data, methods, ann=ann, seed=seed, provenance=provenance, progress=progress)
+    def report(done, total):
+        if announce is not None and done < total:
+            announce(methods[done])
+        if progress is not None:
+            progress(done, total)
+
+    results = run_methods(structure, data, methods, ann=ann, seed=seed, provenance=provenance, progress=report)
     if output is not None and str(output).endswith(".h5"):
         write_comparison(output, results, overwrite=True)
     elif output is not None:

@@ -160,6 +160,9 @@ def estimate_bla(u: np.ndarray, y: np.ndarray, lines: Sequence[int] | np.ndarray
         G_BLA, its noise, distortion and total variances and the coherence at ``lines``; the levels at
         ``detection``.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(estimate_bla, locals())  # a wrong type: UserError naming it
     u, y = np.asarray(u, float), np.asarray(y, float)
     if u.ndim != 3 or u.shape != y.shape:
         raise UserError(f"u and y must both have the shape (realisations, periods, samples), not {u.shape} and "
@@ -252,6 +255,9 @@ def h1_estimate(u: np.ndarray, y: np.ndarray, rate: float, segment: int | None =
     H1Estimate
         Frequencies, G, coherence and the variance of G.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(h1_estimate, locals())  # a wrong type: UserError naming it
     from scipy.signal import csd, welch
 
     u, y = np.asarray(u, float).ravel(), np.asarray(y, float).ravel()

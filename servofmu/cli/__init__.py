@@ -21,11 +21,12 @@ import argparse
 import shlex
 import sys
 
+from ..errors import UserError
 from ..runtime import EXIT_USER_ERROR, CommandRun, finish, run_command
 from . import broadband, control, demo, identify, measure, model, output, select, tune
 from .common import Parser, output_mode_of
 
-__all__ = ["main", "build_parser", "run"]
+__all__ = ["main", "build_parser", "run", "flags_named", "FLAG_OF"]
 
 GROUPS = (model, measure, broadband, identify, select, output, control, tune, demo)  # in the order of the help's list
 
@@ -40,7 +41,29 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for group in GROUPS:
         group.register(sub)
+    parser.subcommands = sub.choices  # an unrecognised argument is reported by its subcommand (Parser.parse_args)
     return parser
+
+
+# Library arguments that the command line spells otherwise than --NAME-WITH-DASHES (the rest follow the rule).
+FLAG_OF = {"relative_tolerance": "--tolerance", "noise_snr_db": "--noise-snr", "output_column": "--output-variable"}
+
+
+def flags_named(text: str, parser: argparse.ArgumentParser) -> str:
+    """A library message as the command line says it: the Python arguments it names (``fmi_version``) as the
+    options of this subcommand that set them (``--fmi-version``)."""
+    import re
+
+    flags = {a.dest: next((o for o in a.option_strings if o.startswith("--")), a.option_strings[0])
+             for a in parser._actions if a.option_strings and a.dest != "help"}
+    names = {**{d: f for d, f in flags.items() if "_" in d}, **{k: v for k, v in FLAG_OF.items()
+                                                                 if v in flags.values()}}
+    for name, flag in names.items():
+        text = re.sub(rf"(?<![\w./-]){re.escape(name)}(?![\w/.-]|=True)", flag, text)
+    first = re.match(r"(\w+) must\b", text)  # "frequency must be positive": a one-word argument, at the start
+    if first and first.group(1) in flags:
+        text = flags[first.group(1)] + text[first.end(1):]
+    return text
 
 
 def _claim_outputs(args) -> None:
@@ -56,7 +79,8 @@ def _claim_outputs(args) -> None:
         args.default_outputs(args)
     options = getattr(args, "output_options", {})
     outputs = {options.get(dest, f"--{dest}"): getattr(args, dest) for dest in getattr(args, "outputs", ())}
-    can_continue = next((name for name in ("resume", "append") if hasattr(args, name)), None)
+    can_continue = getattr(args, "continues_outputs", None) if hasattr(args, "continues_outputs") else \
+        next((name for name in ("resume", "append") if hasattr(args, name)), None)
     claim_outputs(outputs, output_mode_of(args), inputs, can_continue)
     for dest in getattr(args, "output_folders", ()):  # identify --output-dir, demo --out
         if getattr(args, dest) is not None:
@@ -88,7 +112,12 @@ def _command(run: CommandRun, argv: list[str]) -> None:
     sweep_temporary_folders()
     with output_claims(), show_warnings():  # outputs held until the command ends; warnings one line each
         _claim_outputs(args)
-        args.func(args)
+        try:
+            args.func(args)
+        except UserError as exc:  # the flags, not the library's argument names
+            if exc.args and isinstance(exc.args[0], str):
+                exc.args = (flags_named(exc.args[0], parser.subcommands[args.command]), *exc.args[1:])
+            raise
     run.quick_exit = getattr(args, "quick_exit", False)
 
 

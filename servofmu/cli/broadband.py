@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..errors import UserError
-from .common import float_list
+from .common import add_json_option, float_list, print_written
 
 __all__ = ["register", "add_plan_options", "cmd_excitation", "cmd_frf", "cmd_measure_broadband",
            "cmd_import_broadband"]
@@ -45,7 +45,13 @@ def cmd_excitation(args) -> None:
 
     plan = _plan(args, args.kind)
     write_excitation_csv(args.output, plan, overwrite=args.force)
-    print(f"wrote {args.output}: {_describe(plan)}")
+    print_written(args, f"wrote {args.output}: {_describe(plan)}", {"written": [args.output], **_plan_json(plan)})
+
+
+def _plan_json(plan) -> dict:
+    return {"kind": plan.kind, "levels_N_rms": list(plan.levels), "realisations": plan.realisations,
+            "periods": plan.periods, "transient_periods": plan.transient_periods, "period_s": plan.period,
+            "rate_Hz": plan.rate, "lines": int(plan.lines.size)}
 
 
 def cmd_frf(args) -> None:
@@ -144,9 +150,16 @@ def cmd_import_broadband(args) -> None:
     data = import_broadband(args.files[0], args.data, args.excitation, time=args.time, input=args.input,
                             output_column=args.output_variable, kind=args.kind, cutoff=args.cutoff,
                             input_scale=args.input_scale, run=run_options(args))
-    print(f"wrote {args.data}: {_describe(data.plan)}")
-    for lv in data.levels:
-        print(_frf_line(lv.level, lv.bla))
+    _print_broadband(args, data)
+
+
+def _print_broadband(args, data) -> None:
+    """What `measure --excitation` and `import --excitation` wrote: the plan and the BLA per level."""
+    print_written(args, "\n".join([f"wrote {args.data}: {_describe(data.plan)}",
+                                   *(_frf_line(lv.level, lv.bla) for lv in data.levels)]),
+                  {"written": [args.data], **_plan_json(data.plan),
+                   "bla_levels": [{"level_N_rms": float(lv.level), "lines": int(lv.bla.frequencies.size),
+                                   "min_coherence": float(min(lv.bla.coherence))} for lv in data.levels]})
 
 
 def cmd_measure_broadband(args) -> None:
@@ -165,9 +178,7 @@ def cmd_measure_broadband(args) -> None:
     plan = _plan(args, args.excitation)
     with ProgressBar(args, "signal", scale=PROGRESS_SCALE) as bar:
         data = measure_broadband(args.fmu, args.data, plan, options, run_options(args, bar))
-    print(f"wrote {args.data}: {_describe(plan)}")
-    for lv in data.levels:
-        print(_frf_line(lv.level, lv.bla))
+    _print_broadband(args, data)
 
 
 def add_plan_options(p, seed: bool = True) -> None:
@@ -193,8 +204,9 @@ def register(sub) -> None:
     p = sub.add_parser("excitation", help="a broadband excitation (multisine, chirp, PRBS) as CSV for a drive")
     p.add_argument("kind", choices=KINDS, help="multisine (periodic, random phases), chirp or prbs")
     add_plan_options(p)
-    p.add_argument("-o", dest="output", metavar="SIGNAL.csv", required=True,
+    p.add_argument("-o", "--output", metavar="SIGNAL.csv", required=True,
                    help="signal file: time (s), force (N), the plan on its first line")
+    add_json_option(p)
     p.set_defaults(func=cmd_excitation)
 
     p = sub.add_parser("frf", help="best linear approximation with noise and distortion levels of broadband data")
@@ -203,5 +215,5 @@ def register(sub) -> None:
     p.add_argument("--closed-loop", action="store_true", help="records of a drive's log with its reference: the "
                    "plant's response from the reference (S_ry/S_ru) beside the direct estimate")
     p.add_argument("--json", action="store_true", help="print the BLA per level as JSON (docs/broadband.md)")
-    p.add_argument("-o", dest="output", metavar="FRF.h5|FIG.png", help="write the BLA (HDF5) or its Bode plot")
+    p.add_argument("-o", "--output", metavar="FRF.h5|FIG.png", help="write the BLA (HDF5) or its Bode plot")
     p.set_defaults(func=cmd_frf)

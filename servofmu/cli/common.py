@@ -7,8 +7,11 @@ import sys
 
 from ..runtime import EXIT_USER_ERROR, WORK_LIMIT_HOURS, RunOptions, show_warnings, stop_if_asked
 
-__all__ = ["Parser", "DeprecatedAlias", "ProgressBar", "float_list", "add_progress_option", "add_work_limit_option", "run_options",
-           "output_mode_of"]
+__all__ = ["Parser", "DeprecatedAlias", "OutputFile", "ProgressBar", "float_list", "add_progress_option",
+           "add_work_limit_option", "add_output_option", "add_json_option", "print_written", "run_options",
+           "output_mode_of", "DATA_SUFFIXES"]
+
+DATA_SUFFIXES = (".h5", ".hdf5")  # what a data file's name ends with (measure's and import's -o)
 
 
 class Parser(argparse.ArgumentParser):
@@ -20,9 +23,18 @@ class Parser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}\n")
 
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, but an unrecognised argument is reported by the subcommand it was given to (``servofmu
+        identify: error: unrecognized arguments: --bogus``), not by the top parser."""
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            owner = getattr(self, "subcommands", {}).get(getattr(namespace, "command", None), self)
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace
+
     def add_argument(self, *flags, role: str | None = None, **kwargs):
         action = super().add_argument(*flags, **kwargs)
-        if "-o" in flags or role == "output":
+        if role != "folder" and ("-o" in flags or role == "output"):
             if not self.get_default("outputs"):
                 super().add_argument("--force", action="store_true", help="replace an existing output")
             self.set_defaults(outputs=(*(self.get_default("outputs") or ()), action.dest),
@@ -46,6 +58,50 @@ class DeprecatedAlias(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+class OutputFile(argparse.Action):
+    """``-o/--output`` of measure and import, where ``--output NAME`` once named the output variable: ``-o`` takes
+    any file name, ``--output`` one that is recognisably a file (a data file's suffix, or a folder in it); any other
+    value is refused with one line pointing to ``--output-variable`` (docs/cli.md)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from pathlib import Path
+
+        if option_string == "--output" and Path(values).suffix.lower() not in DATA_SUFFIXES and "/" not in values:
+            parser.error(f"--output {values}: --output is the data file to write (as -o, e.g. --output "
+                         f"{values}.h5); the output variable is --output-variable {values}")
+        setattr(namespace, self.dest, values)
+
+
+def add_output_option(p, help: str, metavar: str = "FILE", required: bool = False, **kwargs):
+    """``-o/--output``: the file (or folder, ``role="folder"``) the command writes; the same two spellings in every
+    subcommand."""
+    return p.add_argument("-o", "--output", metavar=metavar, required=required, help=help, **kwargs)
+
+
+def add_json_option(p, help: str = "print a JSON summary of what was written (files, counts, key figures) on "
+                                   "stdout instead of the text") -> None:
+    """``--json``: the command's summary as one JSON object on stdout."""
+    p.add_argument("--json", action="store_true", help=help)
+
+
+def print_written(args, text: str, summary: dict) -> None:
+    """What a command wrote: ``text`` (its lines), or with ``--json`` ``summary`` as one JSON object (numbers that
+    are not finite as null; paths as strings)."""
+    import json
+    import math
+
+    def safe(x):
+        if isinstance(x, dict):
+            return {str(k): safe(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [safe(v) for v in x]
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        return x if isinstance(x, (str, int, float, bool, type(None))) else str(x)
+
+    print(json.dumps(safe(summary), allow_nan=False) if getattr(args, "json", False) else text)
+
+
 def float_list(text: str) -> list[float]:
     """A comma-separated list of numbers (``--amplitudes 2.0,0.6``)."""
     try:
@@ -66,8 +122,9 @@ class ProgressBar:
     ``scale``: how many of the callback's units make one ``unit`` (measure counts thousandths of an experiment).
     Every update also raises a stop signal that a finaliser swallowed (runtime.stop_if_asked)."""
 
-    def __init__(self, args, unit: str, scale: int = 1):
+    def __init__(self, args, unit: str, scale: int = 1, label: str | None = None):
         self._unit, self._scale, self._bar = unit, scale, None
+        self._label = label or getattr(args, "command", None) or "servofmu"
         self.shown = not getattr(args, "json", False) and (getattr(args, "progress", False) or sys.stderr.isatty())
         self._warnings = show_warnings(self.warn)
 
@@ -83,11 +140,34 @@ class ProgressBar:
         total, done = (total, done) if self._scale == 1 else (total / self._scale, done / self._scale)
         if self._bar is None:  # created on first use: a run that fails early shows no bar
             from tqdm import tqdm
-            self._bar = tqdm(total=total, unit=self._unit, file=sys.stderr, dynamic_ncols=True,
-                             bar_format=None if self._scale == 1 else
-                             "{l_bar}{bar}| {n:.2f}/{total:g} [{elapsed}<{remaining}]")
+            self._bar = tqdm(total=total, unit=f" {self._unit}s", desc=self._label, file=sys.stderr,
+                             dynamic_ncols=True, bar_format="{l_bar}{bar}| " + (
+                                 "{n_fmt}/{total_fmt}" if self._scale == 1 else "{n:.2f}/{total:g}")
+                             + f" {self._unit}s [{{elapsed}}<{{remaining}}]")
         self._bar.total, self._bar.n = total, done
         self._bar.refresh()
+
+    def stage(self, label: str, unit: str | None = None, scale: int = 1):
+        """A new bar for the next step of a command of several (the demo's measure, training set, training):
+        ``label`` and ``unit`` name it; returns its progress callback."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+        self._label, self._unit, self._scale = label, unit or self._unit, scale
+        return self.update
+
+    def label(self, text: str) -> None:
+        """Name what the bar counts now (compare's current method)."""
+        self._label = text
+        if self._bar is not None:
+            self._bar.set_description_str(text)
+
+    def say(self, text: str) -> None:
+        """One line of the command's output on stdout, above the bar."""
+        if self._bar is None:
+            print(text)
+        else:
+            self._bar.write(text, file=sys.stdout)
 
     def warn(self, text: str) -> None:
         """One warning line on stderr, above the bar."""

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 __all__ = ["register", "cmd_controller", "cmd_system", "cmd_cosim", "cmd_compensate"]
 
+from .common import ProgressBar, add_json_option, add_progress_option, print_written
+
 ENGINES = ("libcosim", "fmpy")
 
 
@@ -12,8 +14,11 @@ def cmd_controller(args) -> None:
 
     output, spec = controller_fmu_from_file(args.controller, args.output, args.fmi_version, args.compensate,
                                             overwrite=args.force)
-    print(f"wrote {output} (FMI {args.fmi_version}.0 Co-Simulation, sampled every {spec.sample_time:g} s"
-          + (f"; friction feed-forward from {args.compensate}" if args.compensate else "") + ")")
+    print_written(args, f"wrote {output} (FMI {args.fmi_version}.0 Co-Simulation, sampled every "
+                  f"{spec.sample_time:g} s" + (f"; friction feed-forward from {args.compensate}" if args.compensate
+                                               else "") + ")",
+                  {"written": [output], "fmi_version": args.fmi_version, "sample_time_s": spec.sample_time,
+                   "compensate": args.compensate})
 
 
 def cmd_system(args) -> None:
@@ -27,8 +32,10 @@ def cmd_system(args) -> None:
     disturbance = read_disturbance_csv(args.disturbance) if args.disturbance else None
     path = write_system(args.plant_fmu, args.controller_fmu, read_reference_csv(args.reference), args.output,
                         controller=controller, overwrite=args.force, disturbance=disturbance)
-    print(f"wrote {path} (SSP: reference, {'disturbance, ' if disturbance else ''}controller and plant; controller "
-          "parameters in resources/controller.ssv)")
+    print_written(args, f"wrote {path} (SSP: reference, {'disturbance, ' if disturbance else ''}controller and "
+                  "plant; controller parameters in resources/controller.ssv)",
+                  {"written": [path], "plant_fmu": args.plant_fmu, "controller_fmu": args.controller_fmu,
+                   "disturbance": disturbance is not None})
 
 
 def cmd_cosim(args) -> None:
@@ -38,12 +45,16 @@ def cmd_cosim(args) -> None:
     from ..control.cosim import cosimulate, write_cosim_records
     from .common import run_options
 
-    result = cosimulate(args.system, args.stop_time, engine=args.engine)
+    with ProgressBar(args, "step") as bar:  # communication steps of the co-simulation
+        result = cosimulate(args.system, args.stop_time, engine=args.engine, progress=bar.update)
     data = write_cosim_records(result, args.system, args.output, append=args.append, run=run_options(args))
     error = result["reference"] - result["position"]
-    print(f"wrote {args.output}: {len(data.records)} record(s); {result.engine}, {result.time.size - 1} steps of "
-          f"{result.time[1]:g} s; tracking error RMS {np.sqrt(np.mean(error ** 2)):.3g} m, peak "
-          f"{np.max(np.abs(error)):.3g} m")
+    rms, peak = float(np.sqrt(np.mean(error ** 2))), float(np.max(np.abs(error)))
+    print_written(args, f"wrote {args.output}: {len(data.records)} record(s); {result.engine}, {result.time.size - 1} "
+                  f"steps of {result.time[1]:g} s; tracking error RMS {rms:.3g} m, peak {peak:.3g} m",
+                  {"written": [args.output], "records": len(data.records), "engine": result.engine,
+                   "steps": int(result.time.size - 1), "step_s": float(result.time[1]),
+                   "tracking_error_rms_m": rms, "tracking_error_peak_m": peak})
 
 
 def cmd_compensate(args) -> None:
@@ -52,8 +63,9 @@ def cmd_compensate(args) -> None:
 
     from ..output.compensation_report import compensate_files, compensation_json, compensation_text
 
-    runs = compensate_files(args.result, args.axis, truth=args.truth, output=args.output, engine=args.engine,
-                            overwrite=args.force)
+    with ProgressBar(args, "run") as bar:
+        runs = compensate_files(args.result, args.axis, truth=args.truth, output=args.output, engine=args.engine,
+                                overwrite=args.force, progress=bar.update)
     if args.json:
         print(json.dumps(compensation_json(runs), allow_nan=True))
         return
@@ -70,6 +82,7 @@ def register(sub) -> None:
     p.add_argument("--fmi-version", type=int, choices=(2, 3), default=3, help="FMI version (default 3)")
     p.add_argument("--compensate", metavar="RESULT.h5|PLANT.toml", role="input",
                    help="feed forward the friction of an identified result or a plant file")
+    add_json_option(p)
     p.add_argument("-o", "--output", help="FMU file to write (default: NAME.fmu)")
     p.set_defaults(func=cmd_controller)
 
@@ -85,7 +98,8 @@ def register(sub) -> None:
     p.add_argument("--encoder", type=float, metavar="M", help="encoder resolution (m; default the controller's)")
     p.add_argument("--force-noise", type=float, metavar="N", help="actuator noise, standard deviation (N)")
     p.add_argument("--seed", type=int, help="seed of the actuator noise")
-    p.add_argument("-o", dest="output", metavar="AXIS.ssp", required=True, help="SSP archive to write")
+    add_json_option(p)
+    p.add_argument("-o", "--output", metavar="AXIS.ssp", required=True, help="SSP archive to write")
     p.set_defaults(func=cmd_system)
 
     p = sub.add_parser("cosim", help="co-simulate an SSP system on libcosim or FMPy into a records file")
@@ -93,7 +107,9 @@ def register(sub) -> None:
     p.add_argument("--stop-time", type=float, help="seconds (default: the system's default experiment)")
     p.add_argument("--engine", choices=ENGINES, default="libcosim", help="co-simulation engine (default libcosim)")
     p.add_argument("--append", action="store_true", help="add the run to an existing records file")
-    p.add_argument("-o", dest="output", metavar="RECORDS.h5", required=True, help="records file to write")
+    add_json_option(p)
+    add_progress_option(p)
+    p.add_argument("-o", "--output", metavar="RECORDS.h5", required=True, help="records file to write")
     p.set_defaults(func=cmd_cosim)
 
     p = sub.add_parser("compensate", help="the axis with and without feed-forward of the identified friction")
@@ -103,5 +119,6 @@ def register(sub) -> None:
     p.add_argument("--truth", metavar="PLANT", help="the true plant, when known: a third run with its friction")
     p.add_argument("--engine", choices=ENGINES, default="libcosim", help="co-simulation engine (default libcosim)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("-o", dest="output", metavar="REPORT.html", help="HTML page to write")
+    add_progress_option(p)
+    p.add_argument("-o", "--output", metavar="REPORT.html", help="HTML page to write")
     p.set_defaults(func=cmd_compensate)

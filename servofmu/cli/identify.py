@@ -4,7 +4,8 @@ from __future__ import annotations
 import sys
 
 from ..errors import UserError
-from .common import ProgressBar, add_progress_option, add_work_limit_option, run_options
+from .common import (ProgressBar, add_json_option, add_progress_option, add_work_limit_option, print_written,
+                     run_options)
 
 __all__ = ["register", "cmd_dataset", "cmd_train", "cmd_identify", "cmd_compare"]
 
@@ -20,8 +21,10 @@ def cmd_dataset(args) -> None:
     with ProgressBar(args, "plant") as bar:
         ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
                                run=run_options(args, bar))
-    print(f"wrote {args.output}: {ts.done.sum()} plants like {structure.name} under the plan of {args.like} "
-          f"({data.amplitudes.size} experiments); {ts.usable().sum()} with every experiment at steady state")
+    print_written(args, f"wrote {args.output}: {ts.done.sum()} plants like {structure.name} under the plan of "
+                  f"{args.like} ({data.amplitudes.size} experiments); {ts.usable().sum()} with every experiment at "
+                  "steady state", {"written": [args.output], "structure": structure.name, "plants": int(ts.done.sum()),
+                                   "usable": int(ts.usable().sum()), "experiments": int(data.amplitudes.size)})
 
 
 def cmd_train(args) -> None:
@@ -31,9 +34,12 @@ def cmd_train(args) -> None:
     with ProgressBar(args, "epoch") as bar:
         net, rows = train_from_file(args.dataset, args.output, hidden=args.hidden, seed=args.seed,
                                     run=run_options(args, bar))
-    print(f"wrote {args.output}: {net.inputs}-{net.hidden}-{net.outputs} network trained on {rows} plants "
-          f"({net.optimizer}, {len(net.validation_loss)} epochs); validation RMS error {net.validation_rmse:.3g} "
-          "(normalised units)")
+    print_written(args, f"wrote {args.output}: {net.inputs}-{net.hidden}-{net.outputs} network trained on {rows} "
+                  f"plants ({net.optimizer}, {len(net.validation_loss)} epochs); validation RMS error "
+                  f"{net.validation_rmse:.3g} (normalised units)",
+                  {"written": [args.output], "layers": [net.inputs, net.hidden, net.outputs], "plants": rows,
+                   "optimizer": net.optimizer, "epochs": len(net.validation_loss),
+                   "validation_rmse": float(net.validation_rmse)})
 
 
 def identify_options(args):
@@ -90,17 +96,25 @@ def cmd_compare(args) -> None:
 
     from ..baselines.compare import compare_files, comparison_json, comparison_markdown
 
-    results, truth = compare_files(args.data, args.structure, args.ann, args.truth,
-                                   args.methods.split(",") if args.methods else None, args.seed, args.output,
-                                   command=args.command_line, overwrite=args.force,
-                                   announce=None if args.json else
-                                   lambda method: print(f"running {method} ...", file=sys.stderr))
+    with ProgressBar(args, "method") as bar:
+        results, truth = compare_files(args.data, args.structure, args.ann, args.truth,
+                                       args.methods.split(",") if args.methods else None, args.seed, args.output,
+                                       command=args.command_line, overwrite=args.force, progress=bar.update,
+                                       announce=_announce(args, bar))
     if args.json:
         print(json.dumps(comparison_json(results, truth), allow_nan=True))
         return
     print(comparison_markdown(results, truth), end="")
     if args.output:
         print(f"wrote {args.output}")
+
+
+def _announce(args, bar):
+    """compare's "running METHOD ...": the bar's label when there is a bar, else a line on stderr (none with
+    --json)."""
+    if bar.shown:
+        return lambda method: bar.label(f"compare: {method}")
+    return None if args.json else lambda method: print(f"running {method} ...", file=sys.stderr)
 
 
 def register(sub) -> None:
@@ -122,6 +136,7 @@ def _register_dataset_train(sub) -> None:
                                                        "machine)")
     p.add_argument("--resume", action="store_true", help="complete an interrupted run of the same command")
     add_progress_option(p)
+    add_json_option(p)
     p.add_argument("-o", "--output", required=True, help="training set to write (HDF5)")
     p.set_defaults(func=cmd_dataset)
 
@@ -130,6 +145,7 @@ def _register_dataset_train(sub) -> None:
     p.add_argument("--hidden", type=int, default=20, help="hidden neurons (default 20, the paper's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the validation split and initial weights (default 0)")
     add_progress_option(p)
+    add_json_option(p)
     p.add_argument("-o", "--output", required=True, help="network file to write (HDF5)")
     p.set_defaults(func=cmd_train)
 
@@ -170,7 +186,8 @@ def _register_identify(sub) -> None:
                                                "this process)")
     p.add_argument("--resume", action="store_true", help="many data files: keep the results already in DIR from the "
                                                          "same data and settings, identify the others")
-    p.set_defaults(func=cmd_identify, quick_exit=True, output_folders=("output_dir",))
+    # --resume continues the results in --output-dir, never an -o file: an existing -o is advised --force only
+    p.set_defaults(func=cmd_identify, quick_exit=True, output_folders=("output_dir",), continues_outputs=None)
 
 
 def _register_compare(sub) -> None:
@@ -188,5 +205,6 @@ def _register_compare(sub) -> None:
                                      "(default: all that the inputs allow)")
     p.add_argument("--seed", type=int, default=0, help="seed of every method (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by method")
+    add_progress_option(p)
     p.add_argument("-o", "--output", help="write the table (.md) or every result (.h5, for `servofmu report`)")
     p.set_defaults(func=cmd_compare)

@@ -5,9 +5,15 @@ from pathlib import Path
 
 from ..errors import UserError
 from . import broadband
-from .common import DeprecatedAlias, ProgressBar, add_progress_option, float_list, run_options
+from .common import (OutputFile, ProgressBar, add_json_option, add_progress_option, float_list, print_written,
+                     run_options)
 
-__all__ = ["register", "cmd_measure", "cmd_import", "cmd_plot"]
+__all__ = ["register", "cmd_measure", "cmd_import", "cmd_plot", "MAX_STEPS", "INTERSAMPLE"]
+
+# The library's values (servofmu.measurement.excitation.MAX_STEPS, servofmu.model.signals.INTERSAMPLE), here as
+# literals so that `--help` loads no numpy (tests/test_cli_options.py checks that they agree).
+MAX_STEPS = 1e8
+INTERSAMPLE = ("zoh", "foh")
 
 
 def cmd_measure(args) -> None:
@@ -24,11 +30,18 @@ def cmd_measure(args) -> None:
     with ProgressBar(args, "experiment", scale=PROGRESS_SCALE) as bar:
         data = measure(args.fmu, args.data, amplitudes=args.amplitudes, frequencies=args.frequencies,
                        options=options, run=run_options(args, bar), max_steps=args.max_steps)
+    _print_measured(args, data)
+
+
+def _print_measured(args, data) -> None:
     unsettled = sum(not e.converged for e in data.experiments)
-    print(f"wrote {args.data}: {len(data.experiments)} experiments, amplitudes "
-          f"{', '.join(f'{m:g}' for m in data.plan.amplitudes)} N x frequencies "
-          f"{', '.join(f'{f:g}' for f in data.plan.frequencies)} Hz"
-          + (f"; {unsettled} without steady state (flagged)" if unsettled else "; all reached steady state"))
+    print_written(args, f"wrote {args.data}: {len(data.experiments)} experiments, amplitudes "
+                  f"{', '.join(f'{m:g}' for m in data.plan.amplitudes)} N x frequencies "
+                  f"{', '.join(f'{f:g}' for f in data.plan.frequencies)} Hz"
+                  + (f"; {unsettled} without steady state (flagged)" if unsettled else "; all reached steady state"),
+                  {"written": [args.data], "kind": "stepped-sine", "experiments": len(data.experiments),
+                   "amplitudes_N": [float(m) for m in data.plan.amplitudes],
+                   "frequencies_Hz": [float(f) for f in data.plan.frequencies], "without_steady_state": unsettled})
 
 
 def record_line(r) -> str:
@@ -59,12 +72,16 @@ def cmd_import(args) -> None:
     if args.excitation is not None:
         return broadband.cmd_import_broadband(args)
     loop = LoopChannels(args.reference, args.disturbance, args.input_scale, args.disturbance_scale)
-    data = import_records(args.files, args.data, time=args.time, input=args.input, output_column=args.output_variable,
-                          kind=args.kind, cutoff=args.cutoff, frequency=args.frequency, append=args.append,
-                          intersample=args.intersample, run=run_options(args), loop=loop)
-    for r in data.records[-len(args.files):]:
-        print(record_line(r))
-    print(f"wrote {args.data}: {len(data.records)} records")
+    with ProgressBar(args, "file") as bar:
+        data = import_records(args.files, args.data, time=args.time, input=args.input,
+                              output_column=args.output_variable, kind=args.kind, cutoff=args.cutoff,
+                              frequency=args.frequency, append=args.append, intersample=args.intersample,
+                              run=run_options(args, bar), loop=loop)
+    new = data.records[-len(args.files):]
+    print_written(args, "\n".join([*map(record_line, new), f"wrote {args.data}: {len(data.records)} records"]),
+                  {"written": [args.data], "kind": "records", "records": len(data.records),
+                   "imported": [{"source": str(r.source), "samples": len(r.series.time),
+                                 "sample_rate_Hz": float(r.sample_rate), "kind": r.kind} for r in new]})
 
 
 def cmd_plot(args) -> None:
@@ -78,7 +95,7 @@ def cmd_plot(args) -> None:
         return _plot_broadband(args, what)
     draw = bode_figure if what == "bode" else time_series_figure
     out = draw(data, args.output or Path(args.data).with_suffix(".png"), overwrite=args.force)
-    print(f"wrote {out}")
+    print_written(args, f"wrote {out}", {"written": [out], "figure": what, "data": args.data})
 
 
 def _plot_broadband(args, what: str) -> None:
@@ -92,20 +109,24 @@ def _plot_broadband(args, what: str) -> None:
     _, levels = frf_of_file(args.data)
     out = bla_figure(levels, args.output or Path(args.data).with_suffix(".png"),
                      f"{Path(args.data).name}: BLA, ±2σ", overwrite=args.force)
-    print(f"wrote {out}")
+    print_written(args, f"wrote {out}", {"written": [out], "figure": "bode", "data": args.data,
+                                          "levels": len(levels)})
 
 
 def _add_output_variable(p, what: str, required_text: str) -> None:
     p.add_argument("--output-variable", metavar="NAME", help=f"{what}{required_text}")
-    p.add_argument("--output", dest="output_variable", action=DeprecatedAlias, alias_of="--output-variable",
-                   metavar="NAME", help="deprecated spelling of --output-variable")
+
+
+def _add_data_output(p) -> None:
+    """-o/--output DATA.h5; ``--output NAME`` without a data file's suffix is refused, pointing to
+    --output-variable (its meaning before)."""
+    p.add_argument("-o", "--output", dest="data", metavar="DATA.h5", required=True, action=OutputFile,
+                   help="data file to write (--output NAME without .h5 is refused: the output variable is "
+                        "--output-variable)")
 
 
 def register(sub) -> None:
     """Add the subcommands measure, import and plot to the subparsers ``sub``."""
-    from ..measurement.excitation import MAX_STEPS
-    from ..model.signals import INTERSAMPLE
-
     p = sub.add_parser("measure", help="stepped-sine measurement of an FMU into a data file (HDF5)")
     p.add_argument("fmu", role="input", help="Co-Simulation FMU with a real input and a real output")
     p.add_argument("--amplitudes", type=float_list, help="excitation amplitudes in N (default 2.0,0.6)")
@@ -129,7 +150,8 @@ def register(sub) -> None:
                    help="broadband instead of stepped sine: the plan's options below (docs/broadband.md)")
     broadband.add_plan_options(p, seed=False)
     add_progress_option(p)
-    p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
+    add_json_option(p)
+    _add_data_output(p)
     p.set_defaults(func=cmd_measure)
 
     p = sub.add_parser("import", help="import machine records (CSV or MAT) into a data file (HDF5)")
@@ -159,11 +181,14 @@ def register(sub) -> None:
     p.add_argument("--excitation", metavar="SIGNAL.csv", role="input",
                    help="the log is of this signal file (`servofmu excitation`): a broadband data file of its "
                         "periods, lines and levels, with the BLA (docs/broadband.md)")
-    p.add_argument("-o", dest="data", metavar="DATA.h5", required=True, help="data file to write")
+    add_progress_option(p)
+    add_json_option(p)
+    _add_data_output(p)
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("plot", help="Bode plot of a measurement, time series of records")
     p.add_argument("data", metavar="DATA.h5", role="input", help="data file from `servofmu measure` or `import`")
     p.add_argument("--what", choices=("bode", "time"), help="default: bode for measurements, time for records")
-    p.add_argument("-o", dest="output", metavar="FIGURE.png", help="figure to write (default DATA.png)")
+    add_json_option(p)
+    p.add_argument("-o", "--output", metavar="FIGURE.png", help="figure to write (default DATA.png)")
     p.set_defaults(func=cmd_plot)

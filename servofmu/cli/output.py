@@ -1,6 +1,8 @@
 """`servofmu validate`, `report` and `export`: an identified model checked, shown and handed to other tools."""
 from __future__ import annotations
 
+from .common import ProgressBar, add_json_option, add_progress_option, print_written
+
 __all__ = ["register", "cmd_validate", "cmd_report", "cmd_export"]
 
 
@@ -11,8 +13,10 @@ def cmd_validate(args) -> None:
     from ..output.validate import validation_json, validation_text
     from ..output.validation_report import validate_files
 
-    v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
-                       overwrite=args.force, **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+    with ProgressBar(args, "step") as bar:  # two steps: the model simulated on the data, the page written
+        v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
+                           overwrite=args.force, progress=bar.update,
+                           **({} if args.min_fit is None else {"min_fit": args.min_fit}))
     if args.json:
         print(json.dumps(validation_json(v), allow_nan=False))
     else:
@@ -29,7 +33,8 @@ def cmd_report(args) -> None:
 
     path = make_report(args.source, args.output, data=args.data, truth=args.truth, validate=args.validate,
                        overwrite=args.force)
-    print(f"wrote {path} (self-contained HTML: tables and figures)")
+    print_written(args, f"wrote {path} (self-contained HTML: tables and figures)",
+                  {"written": [path], "source": args.source, "bytes": path.stat().st_size})
 
 
 EXPORTED = {"fmu": "FMI {v}.0 FMU, Model Exchange + Co-Simulation, provenance in its description, annotations and "
@@ -44,7 +49,9 @@ def cmd_export(args) -> None:
 
     path, fmt = export_result(args.result, args.output, fmt=args.format, fmi_version=args.fmi_version,
                               name=args.name, command=args.command_line, overwrite=args.force)
-    print(f"wrote {path} ({EXPORTED[fmt].format(v=args.fmi_version or 3)})")
+    print_written(args, f"wrote {path} ({EXPORTED[fmt].format(v=args.fmi_version or 3)})",
+                  {"written": [path], "format": fmt, "result": args.result,
+                   **({"fmi_version": args.fmi_version or 3} if fmt == "fmu" else {})})
 
 
 def register(sub) -> None:
@@ -63,7 +70,8 @@ def register(sub) -> None:
                    help="the fit (%%) every record and experiment must reach (default 80, "
                         "servofmu.output.validate.MIN_FIT; docs/validation.md); exit status 1 when the model fails")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("-o", dest="output", metavar="FILE.html|FILE.png", help="write a page or a figure")
+    add_progress_option(p)
+    p.add_argument("-o", "--output", metavar="FILE.html|FILE.png", help="write a page or a figure")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("report", help="one self-contained HTML page of an identification: tables and figures")
@@ -75,7 +83,8 @@ def register(sub) -> None:
                                                     "drawn in the friction figure, relative errors in the table")
     p.add_argument("--validate", metavar="DATA.h5", role="input", help="add the validation on another data file "
                    "(fit %%, residual tests; see `servofmu validate`)")
-    p.add_argument("-o", dest="output", metavar="REPORT.html", required=True, help="HTML file to write")
+    add_json_option(p)
+    p.add_argument("-o", "--output", metavar="REPORT.html", required=True, help="HTML file to write")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("export", help="export an identified model: FMU, python-control, MATLAB, JSON, plant TOML")
@@ -83,5 +92,6 @@ def register(sub) -> None:
     p.add_argument("--format", choices=FORMATS, help=f"default: from the suffix of -o ({', '.join(SUFFIX_FORMATS)})")
     p.add_argument("--fmi-version", type=int, choices=(2, 3), help="FMI version of an FMU (default 3)")
     p.add_argument("--name", help="model name in the export (default: the plant's name + _identified)")
-    p.add_argument("-o", dest="output", metavar="FILE", required=True, help="file to write")
+    add_json_option(p)
+    p.add_argument("-o", "--output", metavar="FILE", required=True, help="file to write")
     p.set_defaults(func=cmd_export)

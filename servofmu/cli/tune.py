@@ -1,7 +1,12 @@
 """`servofmu tune`: the drive's gains for an identified axis (servofmu.tuning, the page in output.tune_report)."""
 from __future__ import annotations
 
-__all__ = ["register", "cmd_tune"]
+__all__ = ["register", "cmd_tune", "DEFAULT_STROKE", "DEFAULT_SPEED", "METHODS"]
+
+# The library's values (servofmu.output.tune_report.DEFAULT_STROKE and DEFAULT_SPEED, servofmu.tuning.run.METHODS),
+# here as literals so that `--help` loads neither numpy nor h5py (tests/test_cli_options.py checks that they agree).
+DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15
+METHODS = ("pso", "rule")
 
 
 def cmd_tune(args) -> None:
@@ -26,8 +31,6 @@ def cmd_tune(args) -> None:
 
 def register(sub) -> None:
     """Add the subcommand tune to the subparsers ``sub``."""
-    from ..output.tune_report import DEFAULT_SPEED, DEFAULT_STROKE
-    from ..tuning.run import METHODS
     from .common import add_progress_option, add_work_limit_option
 
     p = sub.add_parser("tune", help="tune a drive's gains for an identified axis (particle swarm, robustness bound)")
@@ -56,7 +59,7 @@ def register(sub) -> None:
                                                "values (without it such a result is refused)")
     add_work_limit_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("-o", dest="output", metavar="TUNED.toml", required=True, help="controller file to write")
+    p.add_argument("-o", "--output", metavar="TUNED.toml", required=True, help="controller file to write")
     p.add_argument("--report", metavar="TUNE.html", role="output", help="HTML page of the tuning to write")
     add_progress_option(p)
     p.set_defaults(func=cmd_tune)

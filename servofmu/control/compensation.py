@@ -68,18 +68,26 @@ def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine:
 
 
 def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None = None,
-                         engine: str = "libcosim") -> list[TrackingRun]:
-    """Runs without friction feed-forward, with the identified friction, and (given) with the true friction."""
+                         engine: str = "libcosim", progress=None) -> list[TrackingRun]:
+    """Runs without friction feed-forward, with the identified friction, and (given) with the true friction;
+    ``progress(done, total)`` (runtime.Progress) as the runs finish."""
     with temporary_folder("compensate") as tmp:
         system = read_system(ssp, tmp)
     missing = [p.name for p in PARAMETERS if p.name not in system.controller]
     if missing:
         raise UserError(f"{ssp}: the controller's parameter set has no {missing[0]!r}")
     base = ControllerSpec("controller", tuple(system.controller[p.name] for p in PARAMETERS), str(ssp))
-    runs = [run_variant(ssp, base.with_values(friction_feedforward=0.0), "no compensation", engine),
-            run_variant(ssp, friction_feedforward(base, identified), "identified friction", engine)]
+    variants = [(base.with_values(friction_feedforward=0.0), "no compensation"),
+                (friction_feedforward(base, identified), "identified friction")]
     if truth is not None:
-        runs.append(run_variant(ssp, friction_feedforward(base, truth), "true friction", engine))
+        variants.append((friction_feedforward(base, truth), "true friction"))
+    runs = []
+    for spec, label in variants:
+        if progress is not None:
+            progress(len(runs), len(variants))
+        runs.append(run_variant(ssp, spec, label, engine))
+    if progress is not None:
+        progress(len(runs), len(variants))
     return runs
 
 

@@ -27,13 +27,14 @@ import numpy as np
 from ..errors import ServofmuWarning, UserError
 from ..fileio import claim_output, file_sha256, output_mode
 from ..measurement.datafile import DataFile, Record, Series, read_data_file, write_records
-from ..runtime import RunOptions, temporary_folder, utc_now
+from ..runtime import Progress, RunOptions, temporary_folder, utc_now
 from ..version import __version__
 from .system import DISTURBANCE, read_system
 
 __all__ = ["ENGINES", "CosimResult", "cosimulate", "write_cosim_records"]
 
 MAX_STEPS = 10_000_000  # communication steps of one run: about 3 h on libcosim at the demo axis's pace
+PROGRESS_EVERY = 1000  # libcosim steps between progress reports (a report costs a bar's refresh)
 ENGINES = ("libcosim", "fmpy")
 # (component, variable): what is recorded
 SIGNALS = {"reference": ("reference", "position_reference"), "force": ("controller", "force"),
@@ -73,7 +74,7 @@ def _steps(stop_time: float, step: float) -> int:
     return n
 
 
-def _run_libcosim(folder: Path, ssp: Path, n: int, step: float, signals: dict) -> dict:
+def _run_libcosim(folder: Path, ssp: Path, n: int, step: float, signals: dict, progress=None) -> dict:
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
@@ -97,6 +98,8 @@ def _run_libcosim(folder: Path, ssp: Path, n: int, step: float, signals: dict) -
             raise UserError(f"{ssp}: libcosim failed at step {k} (t = {k * step:g} s)")
         for name, (slave, vr) in refs.items():
             out[name][k] = observer.last_real_values(slave, [vr])[0]
+        if progress is not None and (k % PROGRESS_EVERY == 0 or k == n):
+            progress(k, n)
     return out
 
 
@@ -121,7 +124,8 @@ def _run_fmpy(folder: Path, ssp: Path, n: int, step: float, parameters: dict, si
     return out
 
 
-def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "libcosim") -> CosimResult:
+def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "libcosim",
+               progress: Progress | None = None) -> CosimResult:
     """Run an axis archive on a co-simulation engine.
 
     Parameters
@@ -134,6 +138,8 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
         libcosim through libcosimpy, or FMPy's SSP runner.  Where libcosimpy is not installed (it has wheels for
         Linux x86_64 and Windows only), "libcosim" runs on FMPy with a ServofmuWarning; ``CosimResult.engine``
         names the engine that ran.
+    progress : Progress, optional
+        Called with (steps done, steps): every PROGRESS_EVERY steps on libcosim, at the end on FMPy.
 
     Returns
     -------
@@ -158,10 +164,14 @@ def cosimulate(ssp: str | Path, stop_time: float | None = None, engine: str = "l
         n = _steps(stop, system.step_size)
         try:
             signals = _signals(system.components)
+            if progress is not None:
+                progress(0, n)
             if engine == "libcosim":
-                out = _run_libcosim(Path(tmp), ssp, n, system.step_size, signals)
-            else:
+                out = _run_libcosim(Path(tmp), ssp, n, system.step_size, signals, progress)
+            else:  # FMPy's runner has no hook: done when it returns
                 out = _run_fmpy(Path(tmp), ssp, n, system.step_size, system.controller, signals)
+                if progress is not None:
+                    progress(n, n)
         except UserError:
             raise
         except Exception as exc:  # an engine's own error: the first line names it

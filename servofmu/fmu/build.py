@@ -104,6 +104,9 @@ def build_fmu(plant: Plant, output: str | Path, fmi_version: int = 3, provenance
     >>> build_fmu(load_plant("g1"), "g1.fmu")  # doctest: +SKIP
     PosixPath('g1.fmu')
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(build_fmu, locals())  # a wrong type: UserError naming it
     model = build_model(plant)
 
     def write_sources(src: Path) -> str:

@@ -246,6 +246,9 @@ def load_ann(path: str | Path) -> AnnModel:
     UserError
         For a missing, foreign, newer or damaged file.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(load_ann, locals())  # a wrong type: UserError naming it
     net, layout = load_network(path)
     return AnnModel(net, layout, str(path))
 

@@ -194,6 +194,9 @@ def sine_data(data: DataFile) -> SineData:
     UserError
         When no experiment settled, fewer than two magnitudes remain, or the stored harmonics are not finite.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(sine_data, locals())  # a wrong type: UserError naming it
     exps = [e for e in data.experiments if e.converged]
     if not exps:
         raise UserError(f"{data.path}: no stepped-sine experiment with a steady state to identify from")

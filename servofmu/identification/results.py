@@ -298,6 +298,9 @@ def write_result(path: str | Path, result: Result, overwrite: bool = False) -> P
     UserError
         When the file cannot be written, or exists (without ``overwrite``).
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(write_result, locals())  # a wrong type: UserError naming it
     def fill(f):
         f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "package_version": __version__})
         _fill(f, result)
@@ -385,6 +388,9 @@ def read_result(path: str | Path) -> Result:
     UserError
         For a missing, foreign, newer or damaged file, or a comparison file of several methods.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(read_result, locals())  # a wrong type: UserError naming it
     results, selection = _results_and_selection(path)
     if selection:  # (even of one fitted candidate: its fit may be on a share of the records, not the chosen one)
         chosen = Path(path).with_name(f"{Path(path).stem}-result.h5")

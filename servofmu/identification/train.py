@@ -43,6 +43,9 @@ def train_from_file(training_set: str | Path, output: str | Path, hidden: int = 
         For a file that is not a training set, or one with fewer than 10 usable plants; an existing ``output``
         (without ``run.overwrite``), or ``output`` the training set itself.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(train_from_file, locals())  # a wrong type: UserError naming it
     run = run or RunOptions()
     output = claim_output(output, output_mode(run.overwrite), inputs=(training_set,))
     ts = load_training_set(training_set)

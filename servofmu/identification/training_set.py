@@ -161,6 +161,9 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
         ``run.resume`` or ``run.overwrite``), ``output`` the data file itself, or a ``resume`` of a file made with
         other arguments.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(make_training_set, locals())  # a wrong type: UserError naming it
     check_identifiable(structure, "plant")
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)

@@ -418,6 +418,9 @@ def read_data_file(path: str | Path) -> DataFile:
     >>> data.kind, len(data.experiments)                      # doctest: +SKIP
     ('measurement', 6)
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(read_data_file, locals())  # a wrong type: UserError naming it
     path = Path(path)
     data, sha256 = read_hdf5(path, "data file", FORMAT, READ_VERSION,
                              lambda f, version: _read_data(path, f, version), with_sha256=True)

@@ -431,6 +431,9 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
         the FMU itself as the output, work beyond
         the bounds of :func:`check_work`, or a failing simulation.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(measure, locals())  # a wrong type: UserError naming it
     options = (options or MeasureOptions()).validate()
     if options.noise_snr_db is not None and options.seed is None:
         options = replace(options, seed=0)  # recorded in the provenance like a given seed

@@ -351,7 +351,8 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
         How the input behaves between samples: held (a digital drive's command; the default) or linear.  Every
         replay of the record (identify, validate) applies it.
     run : RunOptions, optional
-        ``overwrite``: replace an existing ``output``; ``command``: the command line, for provenance.
+        ``overwrite``: replace an existing ``output``; ``command``: the command line, for provenance;
+        ``progress``: called with the files read.
     loop : LoopChannels, optional
         A drive's log: its reference and injected-disturbance columns and the force constants of the command and
         the disturbance; records with a reference are closed-loop records (``identify --closed-loop``).
@@ -369,13 +370,19 @@ def import_records(paths: Sequence[str | Path], output: str | Path, time: str, i
         number, an existing output (without ``append`` or ``run.overwrite``), an output that is one of ``paths``, a
         record whose samples are those of another record given or already in the output (one measurement twice).
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(import_records, locals())  # a wrong type: UserError naming it
     run, loop = run or RunOptions(), loop or LoopChannels()
     loop.check()
     output = claim_output(output, output_mode(run.overwrite, append), inputs=paths, can_continue="append")
     existing = file_items(read_data_file(output), f"{output} (--append)") if append and output.exists() else []
-    records = [load_record(p, time, input, output_column, kind, cutoff, frequency, index=len(existing) + i,
-                           intersample=intersample, loop=loop)
-               for i, p in enumerate(paths)]
+    records = []
+    for i, p in enumerate(paths):  # progress: files read
+        run.report(i, len(paths))
+        records.append(load_record(p, time, input, output_column, kind, cutoff, frequency, index=len(existing) + i,
+                                   intersample=intersample, loop=loop))
+    run.report(len(paths), len(paths))
     repeat = first_repeat(existing + [(f"{p}", series_digest(r.series)) for p, r in zip(paths, records)],
                           start=len(existing))
     if repeat is not None:

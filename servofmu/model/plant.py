@@ -505,6 +505,9 @@ def load_plant(plant: str | Path) -> Plant:
     >>> g1.poles, g1.friction.fc_pos
     (((-10+0j),), 0.5)
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(load_plant, locals())  # a wrong type: UserError naming it
     path = resolve_plant_path(plant)
     try:
         data = tomllib.loads(checked_text(path, path.read_text()))

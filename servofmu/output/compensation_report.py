@@ -103,14 +103,14 @@ def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant |
 
 def compensate_files(result_path: str | Path, ssp: str | Path, truth: str | Path | None = None,
                      output: str | Path | None = None, engine: str = "libcosim",
-                     overwrite: bool = False) -> list[TrackingRun]:
+                     overwrite: bool = False, progress=None) -> list[TrackingRun]:
     """Run the comparison for a result file and an axis archive; write the HTML page ``output`` if given (an
-    existing one only with ``overwrite``)."""
+    existing one only with ``overwrite``); ``progress(done, total)`` as the co-simulated runs finish."""
     if output is not None:
         output = claim_output(output, output_mode(overwrite), inputs=(result_path, ssp))
     identified = read_result(result_path).plant
     true_plant = load_plant(truth) if truth is not None else None
-    runs = compare_compensation(ssp, identified, true_plant, engine=engine)
+    runs = compare_compensation(ssp, identified, true_plant, engine=engine, progress=progress)
     if output is not None:
         atomic_write(output, compensation_html(runs, identified, true_plant, Path(ssp).name))
     return runs

@@ -23,9 +23,9 @@ from ..identification.prior import identified_mask
 from ..identification.results import paper_rows, result_from_estimator, write_result
 from ..identification.train import train_from_file
 from ..identification.training_set import make_training_set
-from ..measurement.measure import measure
+from ..measurement.measure import PROGRESS_SCALE, measure
 from ..measurement.records import LoopChannels, import_records
-from ..runtime import RunOptions
+from ..runtime import Progress, RunOptions
 from ..model.plant import load_plant
 from .compensation_report import compensate_files, compensation_text
 from ..claims import refuse_package_data
@@ -50,12 +50,14 @@ DEMO_PLANS = {"g1": ((2.0, 0.6), (0.5, 1.0, 2.0, 5.0, 10.0, 20.0)),
 DEMO_SAMPLES = 3000  # training-set size of the demo (`servofmu dataset --samples`)
 
 
-def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPLES, overwrite: bool = False) -> dict:
+def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPLES, overwrite: bool = False,
+             stage: Callable[..., Progress | None] | None = None) -> dict:
     """The whole path for g1 and g2: build → measure → dataset → train → identify → report → export → re-measure.
 
     ``out`` is the demo's folder: a folder that exists and is not empty is refused unless ``overwrite`` (the demo's
     files in it are then replaced, all together when the demo ends: a demo stopped or failing before leaves the
-    folder as it was).  ``report`` receives one line (or table) of progress at a time.  Returns per
+    folder as it was).  ``report`` receives one line (or table) of progress at a time; ``stage(label, unit,
+    scale)``, if given, the Progress callback of each long step (measure, training set, training).  Returns per
     plant the identification result.
     """
     out = Path(out)
@@ -64,10 +66,11 @@ def run_demo(out: Path, report: Callable[[str], None], samples: int = DEMO_SAMPL
     refuse_package_data(out)
     with staged_folder(out) as work:  # all of the demo's files, or none: a stopped demo leaves the old ones
         return _demo(work, lambda line: report(line.replace(str(work), str(out))), samples,
-                     f"servofmu demo --out {out}", out)
+                     f"servofmu demo -o {out}", out, stage or (lambda *_: None))
 
 
-def _demo(out: Path, report: Callable[[str], None], samples: int, command: str, final: Path) -> dict:
+def _demo(out: Path, report: Callable[[str], None], samples: int, command: str, final: Path,
+          stage: Callable[..., Progress | None]) -> dict:
     """:func:`run_demo` into the folder ``out`` (its staging folder); the results name their data in ``final``,
     where it will be."""
     results = {}
@@ -78,7 +81,8 @@ def _demo(out: Path, report: Callable[[str], None], samples: int, command: str, 
         report(f"built {fmu}")
         data_file = out / f"{name}.h5"
         data = measure(fmu, data_file, amplitudes=amplitudes, frequencies=frequencies,
-                       run=RunOptions(command=command))
+                       run=RunOptions(command=command, progress=stage(f"{name}: measure", "experiment",
+                                                                      PROGRESS_SCALE)))
         unsettled = sum(not e.converged for e in data.experiments)
         report(f"measured {data_file}: {len(data.experiments)} experiments, magnitudes "
                f"{', '.join(map(str, amplitudes))} N at {', '.join(f'{f:g}' for f in frequencies)} Hz"
@@ -91,9 +95,10 @@ def _demo(out: Path, report: Callable[[str], None], samples: int, command: str, 
 
         sines = sine_data(data)
         t0 = time.perf_counter()
-        make_training_set(plant, sines, samples, out / f"{name}-ds.h5", seed=0, run=RunOptions(command=command))
+        make_training_set(plant, sines, samples, out / f"{name}-ds.h5", seed=0,
+                          run=RunOptions(command=command, progress=stage(f"{name}: training set", "plant")))
         net, rows = train_from_file(out / f"{name}-ds.h5", out / f"{name}-ann.h5", seed=0,
-                                    run=RunOptions(overwrite=True))
+                                    run=RunOptions(overwrite=True, progress=stage(f"{name}: train", "epoch")))
         report(f"trained {out / f'{name}-ann.h5'} on {rows} simulated plants ({time.perf_counter() - t0:.1f} s)")
         ann = AnnModel(*load_network(out / f"{name}-ann.h5"), source=str(out / f"{name}-ann.h5"))
         est = PSOANNIdentifier(plant, ann=ann, seed=0).fit(sines)

@@ -302,6 +302,9 @@ def export_result(result_file: str | Path, output: str | Path, fmt: str | None =
     -----
     Everything is checked before anything is written; a failure leaves ``output`` as it was.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(export_result, locals())  # a wrong type: UserError naming it
     fmt = format_of(output, fmt)
     if fmi_version is not None and fmt != "fmu":
         raise UserError(f"fmi_version applies to FMU export only, not to format {fmt}")

@@ -363,11 +363,12 @@ def _correlation_pair(ax_auto, ax_cross, tests: list[tuple[int, str, object]]) -
         ax_auto.bar(lags[1:] + shift, r.autocorrelation[1:], width=width, color=color, label=label)
         ax_cross.bar(r.cross_lags + shift, r.cross_correlation, width=width, color=color)
     r = tests[0][2]
+    exact = all(t.exact for _, _, t in tests)  # noise-free: the correlations are the simulation's rounding
     for a, bound, title in ((ax_auto, r.z * r.auto_sigma, "autocorrelation of e"),
                             (ax_cross, r.z * r.cross_sigma, "cross-correlation of e and u")):
         a.axhline(bound, color="r", ls="--", lw=1)
         a.axhline(-bound, color="r", ls="--", lw=1)
-        a.set_title(title, fontsize=9)
+        a.set_title(title + (" (noise-free: tests do not apply)" if exact else ""), fontsize=9)
         a.set_xlabel("lag [samples]")
         a.grid(True, alpha=0.4)
     if len(tests) > 1:

@@ -276,8 +276,9 @@ def records_table(entries: Sequence[Entry]) -> str:
         row = [r.name, r.output, r.hold, str(r.y.size)]
         for e in entries:
             check = e.records.records[k]
-            verdict = "passed" if check.passed else "failed"
-            row += [f"{number(check.fit, '.6f')} ({verdict})"] if several else [number(check.fit, ".6f"), verdict]
+            tests = ("n/a (noise-free)" if not check.residuals_apply else
+                     "passed" if check.residuals_passed else "failed")
+            row += [f"{number(check.fit, '.6f')} ({tests})"] if several else [number(check.fit, ".6f"), tests]
         rows.append(row)
     return table("records", head, rows, numeric_from=3)
 

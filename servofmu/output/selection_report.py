@@ -141,6 +141,9 @@ def select_with_report(data_files: Sequence[str | Path], validation_file: str | 
     Selection
         The ranked candidates and the outputs written.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(select_with_report, locals())  # a wrong type: UserError naming it
     run = run or RunOptions()
     outputs = claim_outputs({**selection_outputs(output, plant_output, result_output), "report": report},
                             output_mode(run.overwrite), inputs=(*data_files, validation_file,

@@ -14,7 +14,8 @@ exact sine from rest through the stored window).  Per record or experiment:
   probability however smooth the input; MATLAB draws the same bounds per lag (z = 2.58), which a right model
   leaves at some lag of 25 one time in five.  The per-lag count is reported as well.  Residuals below
   ``EXACT`` times the spread of the signal are the simulation's own error (noise-free data): there is no noise
-  to test, and the tests count as passed;
+  to test, the tests do not apply (they do not fail the verdict, and every page — text, JSON, HTML — says that
+  they do not apply rather than "white: yes");
 - for stepped-sine experiments whose file holds noisy signals, the same residual tests against the sine
   excitation (a right model leaves the noise: white, independent of the sine); noise-free windows have no noise
   to test.
@@ -46,7 +47,7 @@ from ..measurement.frf import harmonics
 from ..simulation.batch import BatchSimulator
 
 __all__ = ["ResidualTest", "RecordValidation", "ExperimentValidation", "Validation", "residual_test", "validate",
-           "validation_json", "validation_text", "own_data_warning", "LAGS", "LEVEL", "EXACT",
+           "validation_json", "validation_text", "own_data_warning", "residual_tests_phrase", "LAGS", "LEVEL", "EXACT",
            "MIN_FIT"]
 
 # Minimum fit (%) of every record and experiment.  A perfect model fits noisy data by 100·(1 − 10^(−SNR/20)):
@@ -71,6 +72,12 @@ class _Verdict:
     def passed(self) -> bool:
         """The verdict: the fit reaches ``min_fit`` and the residual tests pass."""
         return self.fit_passed and self.residuals_passed
+
+    @property
+    def residuals_apply(self) -> bool:
+        """Whether the residual tests apply: there is noise to test (the residuals are not at the simulation's
+        precision, ``ResidualTest.exact``; a stepped-sine window is noisy)."""
+        return self.residuals is not None and not self.residuals.exact
 
 
 @dataclass(frozen=True)
@@ -156,6 +163,13 @@ class Validation:
                                 for r in self.records[:8])
         return Shown(type(self).__name__, head, figures, table, tuple(self.failures()[:5]) + (
             ("the data the model was identified from",) if self.own_data else ()))
+
+    @property
+    def noise_free(self) -> tuple[int, int]:
+        """(records and experiments on which the residual tests do not apply: noise-free, the residuals at the
+        simulation's precision; all records and experiments)."""
+        items = (*self.records, *self.experiments)
+        return sum(not item.residuals_apply for item in items), len(items)
 
     def failures(self) -> list[str]:
         """One short line per record or experiment that fails, saying why."""
@@ -329,7 +343,10 @@ def _test_json(r: ResidualTest | None) -> dict | None:
     if r is None:
         return None
     auto_out, cross_out = r.outside_per_lag()
-    return {"exact": r.exact, "white": r.white, "independent_of_input": r.independent, "passed": r.passed,
+    if r.exact:  # noise-free: nothing to test, the correlations are the simulation's rounding
+        return {"exact": True, "applies": False, "white": None, "independent_of_input": None, "passed": None}
+    return {"exact": r.exact, "applies": True, "white": r.white, "independent_of_input": r.independent,
+            "passed": r.passed,
             "max_autocorrelation_over_bound": float(np.max(np.abs(r.autocorrelation[1:])) / (r.z * r.auto_sigma)),
             "max_cross_correlation_over_bound": float(np.max(np.abs(r.cross_correlation)) / (r.z * r.cross_sigma)),
             "lags_outside_per_lag_bounds": {"autocorrelation": auto_out, "cross_correlation": cross_out},
@@ -354,7 +371,9 @@ def validation_json(v: Validation) -> dict:
     ``warnings``, and per record and experiment the fit, the residual test and the verdict."""
     warning = own_data_warning(v)
     out = {"method": v.result.method, "structure": v.result.structure.name, "data_file": str(v.data_file.path),
-           "passed": v.passed, "min_fit_percent": v.min_fit, "failures": v.failures(), "own_data": v.own_data,
+           "passed": v.passed, "verdict": _verdict_line(v).removeprefix("verdict: "),
+           "residual_tests_apply": v.noise_free[0] < v.noise_free[1], "min_fit_percent": v.min_fit,
+           "failures": v.failures(), "own_data": v.own_data,
            "warnings": [warning] if warning else [],
            "records": [{"name": r.name, "output": r.output, "intersample": r.hold, "samples": int(r.y.size),
                         "fit_percent": r.fit, "fit_passed": r.fit_passed, "closed_loop": r.closed_loop,
@@ -369,12 +388,21 @@ def validation_json(v: Validation) -> dict:
 def _verdict_line(v: Validation) -> str:
     """The verdict in one line."""
     if v.passed:
-        return (f"verdict: passed (every fit ≥ {v.min_fit:g} %, the residual tests that apply within their joint "
-                "99 % bounds)")
+        return f"verdict: passed (every fit ≥ {v.min_fit:g} %, {residual_tests_phrase(v)})"
     failures = v.failures()
     more = f"; and {len(failures) - 3} more" if len(failures) > 3 else ""
     return f"verdict: FAILED ({len(failures)} of {len(v.records) + len(v.experiments)}: " \
            + "; ".join(failures[:3]) + more + ")"
+
+
+def residual_tests_phrase(v: Validation) -> str:
+    """What the residual tests say, for the verdict: within their bounds, or that they do not apply (noise-free
+    data: the residuals are at the simulation's precision, below EXACT times the signal's spread)."""
+    free, n = v.noise_free
+    if free == n:
+        return "the residual tests do not apply: the data is noise-free (residuals at the simulation's precision)"
+    within = "the residual tests that apply within their joint 99 % bounds"
+    return within if free == 0 else f"{within}; they do not apply to {free} of {n} (noise-free)"
 
 
 def validation_text(v: Validation) -> str:
@@ -387,8 +415,11 @@ def validation_text(v: Validation) -> str:
                      f"{'verdict':>9}")
         for r in v.records:
             white = ("yes" if r.residuals.white else "no") if r.closed_loop else yes(r.residuals.white)
+            independent = yes(r.residuals.independent)
+            if not r.residuals_apply:  # noise-free: nothing to test
+                white = independent = "n/a"
             lines.append(f"{r.name:<24}{r.output:>10}{r.y.size:>9}{r.fit:>12.4f}"
-                         f"{white:>7}{yes(r.residuals.independent):>8}{'passed' if r.passed else 'FAILED':>9}")
+                         f"{white:>7}{independent:>8}{'passed' if r.passed else 'FAILED':>9}")
         loop = any(r.closed_loop for r in v.records)
         lines.append("residual tests: " + ("cross-correlation with the reference (lags -25..25; in a closed loop "
                                            "the residuals are not white)" if loop else
@@ -398,7 +429,7 @@ def validation_text(v: Validation) -> str:
         lines.append(f"{'experiment':<12}{'amplitude N':>12}{'frequency Hz':>14}{'fit %':>12}{'|dH|/|H|':>12}"
                      f"{'resid.':>8}{'verdict':>9}")
         for e in v.experiments:
-            tested = "-" if e.residuals is None else ("ok" if e.residuals.passed else "NO")
+            tested = "n/a" if not e.residuals_apply else ("ok" if e.residuals.passed else "NO")
             lines.append(f"{e.index:<12}{e.amplitude:>12g}{e.frequency:>14g}{e.fit:>12.4f}{e.H_error:>12.3e}"
                          f"{tested:>8}{'passed' if e.passed else 'FAILED':>9}"
                          + ("" if e.converged else "  (no steady state)"))

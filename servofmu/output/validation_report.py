@@ -12,7 +12,7 @@ from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
 from .figures import item_title, item_unit, residual_tests, validation_items, validation_overlay
 from .plots import MAX_PANELS, figure_axes
-from .validate import MIN_FIT, Validation, own_data_warning, validate
+from .validate import MIN_FIT, Validation, own_data_warning, residual_tests_phrase, validate
 
 __all__ = ["validate_files", "validation_html", "validation_figure", "residual_figure", "plot_validation",
            "plot_residuals"]
@@ -85,7 +85,7 @@ def validation_html(v: Validation) -> list[str]:
     verdict = "passed" if v.passed else "failed"
     parts = [f'<p id="verdict" class="verdict {verdict}"><strong>Verdict: {verdict}.</strong> Every record and '
              f"experiment must fit at least {escape(format(v.min_fit, 'g'))} % and pass the residual tests that "
-             "apply (docs/validation.md).</p>"]
+             f"apply (docs/validation.md){'; ' + escape(residual_tests_phrase(v)) if v.noise_free[0] else ''}.</p>"]
     if not v.passed:
         parts.append('<ul id="failures">' + "".join(f"<li>{escape(f)}</li>" for f in v.failures()) + "</ul>")
     warning = own_data_warning(v)
@@ -96,9 +96,10 @@ def validation_html(v: Validation) -> list[str]:
         for r in v.records:
             t = r.residuals
             auto_out, cross_out = t.outside_per_lag()
-            rows.append([r.name, r.output, r.hold, str(r.y.size), number(r.fit, ".4f"),
-                         "—" if r.closed_loop else ("yes" if t.white else "no"), "yes" if t.independent else "no",
-                         f"{auto_out} / {cross_out}", "passed" if r.passed else "failed"])
+            tests = ["—" if r.closed_loop else ("yes" if t.white else "no"), "yes" if t.independent else "no",
+                     f"{auto_out} / {cross_out}"] if r.residuals_apply else ["n/a (noise-free)"] * 3
+            rows.append([r.name, r.output, r.hold, str(r.y.size), number(r.fit, ".4f"), *tests,
+                         "passed" if r.passed else "failed"])
         parts += [table("validation-records", ["record", "output", "input", "samples", "fit %", "e white",
                                                "e independent of u", "lags outside per-lag 99 % bounds",
                                                "verdict"], rows, numeric_from=3),
@@ -110,7 +111,7 @@ def validation_html(v: Validation) -> list[str]:
     if v.experiments:
         rows = [[str(e.index), number(e.amplitude, "g"), number(e.frequency, "g"), number(e.fit, ".4f"),
                  number(e.H_error, ".3e"),
-                 "—" if e.residuals is None else ("passed" if e.residuals.passed else "failed"),
+                 "n/a (noise-free)" if not e.residuals_apply else ("passed" if e.residuals.passed else "failed"),
                  "passed" if e.passed else "failed"] for e in v.experiments]
         parts += [table("validation-experiments", ["experiment", "amplitude [N]", "frequency [Hz]", "fit %",
                                                    "|H_model − H|/|H|", "residual tests", "verdict"], rows,
@@ -129,10 +130,13 @@ def validation_html(v: Validation) -> list[str]:
 
 def validate_files(result_path: str | Path, data_path: str | Path, output: str | Path | None = None,
                    skip: float = 0.0, controller: str | Path | None = None, min_fit: float = MIN_FIT,
-                   overwrite: bool = False) -> Validation:
+                   overwrite: bool = False, progress=None) -> Validation:
     """Validate a result file on a data file (closed-loop records with the controller file ``controller``) with
     the minimum fit ``min_fit`` (%); write ``output`` (.html page or .png figure) if given (an existing one only
-    with ``overwrite``)."""
+    with ``overwrite``).  ``progress(done, total)`` (runtime.Progress) counts the two steps: the model simulated
+    on the data, the output written."""
+    steps = 1 if output is None else 2
+    report = progress or (lambda done, total: None)
     if output is not None:
         output = claim_output(output, output_mode(overwrite), inputs=(result_path, data_path, controller))
         if output.suffix.lower() not in (".html", ".png"):
@@ -141,7 +145,9 @@ def validate_files(result_path: str | Path, data_path: str | Path, output: str |
     if controller is not None:
         from ..model.controller import load_controller
         law = load_controller(controller)
+    report(0, steps)
     v = validate(read_result(result_path), read_data_file(data_path), skip, law, min_fit=min_fit)
+    report(1, steps)
     if output is None:
         return v
     if output.suffix.lower() == ".png":
@@ -155,4 +161,5 @@ def validate_files(result_path: str | Path, data_path: str | Path, output: str |
                  "experiments.</p>", *validation_html(v),
                  f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
         atomic_write(output, page(title, parts))
+    report(2, steps)
     return v

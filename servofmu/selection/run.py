@@ -107,6 +107,9 @@ def select_files(data_files: Sequence[str | Path], validation_file: str | Path, 
         file of other signals or another plant) or an existing output without ``run.overwrite``; nothing is
         written then.  A candidate whose fit fails is ranked last, with its reason; the others go on.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(select_files, locals())  # a wrong type: UserError naming it
     options, run = options or SelectOptions(), run or RunOptions()
     paths = [x for x in (*data_files, validation_file, options.closed_loop) if isinstance(x, (str, Path))]
     outputs = {} if output is None else selection_outputs(output, plant_output, result_output)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, check_optional_real, check_positive
 from ..fileio import write_failures
 from ..runtime import check_memory, temporary_folder
 
@@ -136,8 +136,13 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
     UserError
         For a file that is not an FMU, unknown variables, bad options or a failing simulation.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(simulate, locals())  # a wrong type: UserError naming it
     from fmpy import extract, simulate_fmu
 
+    _check_arguments(fmu, stop_time, amplitude, frequency, input_signal, output_interval, relative_tolerance,
+                     outputs, start_values)
     info = fmu if isinstance(fmu, FmuInfo) else read_fmu(fmu)
     if interface not in ("me", "cs"):
         raise UserError(f"interface must be me or cs, not {interface!r}")
@@ -177,6 +182,29 @@ def simulate(fmu: str | Path | FmuInfo, stop_time: float, interface: str = "me",
         except Exception as exc:  # a failing FMU: report it, not our stack
             raise UserError(f"{info.path}: simulation failed: "
                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from exc
+
+
+def _check_arguments(fmu, stop_time, amplitude, frequency, input_signal, output_interval, relative_tolerance,
+                     outputs, start_values) -> None:
+    """:func:`simulate`'s arguments of a wrong type or value refused by name (FMPy would fail deep inside)."""
+    if not isinstance(fmu, (str, Path, FmuInfo)):
+        raise UserError(f"fmu must be a file name, a Path or an FmuInfo, not {type(fmu).__name__}")
+    check_positive("stop_time", stop_time)
+    check_optional_real("amplitude", amplitude)
+    for name, value in (("frequency", frequency), ("output_interval", output_interval),
+                        ("relative_tolerance", relative_tolerance)):
+        if value is not None:
+            check_positive(name, value)
+    if input_signal is not None and not (isinstance(input_signal, np.ndarray) and input_signal.dtype.names
+                                         and "time" in input_signal.dtype.names and input_signal.ndim == 1):
+        raise UserError("input_signal must be an FMPy input table: a structured numpy array with a field time and "
+                        "one per input (servofmu.simulation.fmpy_runs.read_input_csv, hold_table), not "
+                        + (f"an array of shape {input_signal.shape}" if isinstance(input_signal, np.ndarray)
+                           else type(input_signal).__name__))
+    if outputs is not None and (isinstance(outputs, str) or not all(isinstance(n, str) for n in outputs)):
+        raise UserError(f"outputs must be a list of variable names, not {outputs!r}")
+    if start_values is not None and not (isinstance(start_values, dict) and all(isinstance(k, str) for k in start_values)):
+        raise UserError(f"start_values must be a dict of variable name to value, not {type(start_values).__name__}")
 
 
 def hold_table(time: np.ndarray, u: np.ndarray, hold: str, name: str = "u") -> np.ndarray:

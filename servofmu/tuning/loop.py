@@ -228,6 +228,9 @@ def analyse_loop(plant: Plant, controller: ControllerSpec, points: int = 3000) -
         crossover, stability and L on the grid; the loop is the discrete L(z) of servofmu.tuning.loop's
         docstring, broken at the force.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(analyse_loop, locals())  # a wrong type: UserError naming it
     loop = discrete_loop(plant, controller)
     omega = frequency_grid(controller.sample_time, points)
     response = loop.response(omega)

@@ -202,6 +202,9 @@ def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: T
     UserError
         For a result of another axis, a task infeasible at the output limit, or a bound nothing meets.
     """
+    from ..api_checks import check_arguments
+
+    check_arguments(tune_axis, locals())  # a wrong type: UserError naming it
     if method not in METHODS:
         raise UserError(f"--method must be one of {', '.join(METHODS)}, not {method!r}")
     started = clock.perf_counter()

@@ -176,7 +176,7 @@ def run_servofmu(argv, cwd: Path, tmpdir: Path, preexec_fn=None, **kwargs) -> su
 # ---------------------------------------------------------------------------
 # Checks
 # ---------------------------------------------------------------------------
-_BAR = re.compile(r"^\s*\d+%\|")
+_BAR = re.compile(r"^(?:[^|\r\n]*: )?\s*\d+%\|")  # a bar, after its label ("measure: ")
 _PROGRESS = re.compile(r"^running \S+ \.\.\.$")  # compare's progress: one line per method
 
 

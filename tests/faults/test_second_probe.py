@@ -394,7 +394,8 @@ def test_p04_a_record_whose_input_is_zero_throughout_is_refused(inputs, tmp_path
     t = np.arange(0, 2, 1e-3)
     np.savetxt(tmp_path / "rest.csv", np.column_stack([t, 0 * t, 0 * t]), delimiter=",", header="time,u,v",
                comments="")
-    rc, err = run_here(["import", "rest.csv", "--time", "time", "--input", "u", "--output", "v", "-o", "rest.h5"],
+    rc, err = run_here(["import", "rest.csv", "--time", "time", "--input", "u", "--output-variable", "v", "-o",
+                        "rest.h5"],
                        tmp_path)
     assert rc == 0, err
     rc, err = run_here(["identify", "rest.h5", "--structure", "g1", "-o", "r.h5"], tmp_path)
@@ -442,9 +443,9 @@ def test_p05_a_csv_value_beyond_range_is_named_and_the_file_appended_to_survives
     lines[7] = lines[7].split(",")[0] + ",1e300," + lines[7].split(",")[2]
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
     mode = "--force" if force else "--append"
-    rc, err = run_here(["import", "bad.csv", "--time", "time", "--input", "u", "--output", "v", mode, "-o", "good.h5"],
+    rc, err = run_here(["import", "bad.csv", "--time", "time", "--input", "u", "--output-variable", "v", mode, "-o",
+                        "good.h5"],
                        tmp_path)
-    err = "\n".join(line for line in err.splitlines() if "deprecated" not in line)  # (the spelling both revisions read)
     assert_one_line(err, rc, 2, "bad.csv", "line 8", "column 'u'", "1e+300")
     assert good.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "good.h5"]

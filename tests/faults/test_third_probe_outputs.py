@@ -200,7 +200,7 @@ def test_t5_a_stopped_demo_leaves_its_old_folder(tmp_path):
     old = {"g1.fmu": PREVIOUS, "g1.h5": PREVIOUS, "notes.txt": b"mine\n"}
     for name, data in old.items():
         (work / "D" / name).write_bytes(data)
-    proc = run_servofmu(["demo", "--out", "D", "--force"], work, temp)
+    proc = run_servofmu(["demo", "-o", "D", "--force"], work, temp)
     deadline = time.monotonic() + 600
     while proc.poll() is None and time.monotonic() < deadline:
         staging = [p for p in work.iterdir() if p.name.endswith(".part")]
