@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..display import Shown, figure, shown_html, shown_repr
+from ..api_checks import check_arguments
 from ..errors import UserError
 from ..runtime import optional_import
 from ..model.controller import ControllerSpec
@@ -95,6 +96,7 @@ def control_loops(axis: object, controller: ControllerSpec | None = None) -> Con
     UserError
         Without python-control (``pip install servofmu[control]``), or for an axis a force does not accelerate.
     """
+    check_arguments(control_loops, locals())
     control = optional_import("control", "control_loops", "control", package="python-control")
     if hasattr(axis, "runs") and hasattr(axis, "result"):  # a Tuning
         controller = axis.controller if controller is None else controller

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from ..display import escape, figure, short_repr
+from ..api_checks import check_arguments
 from ..errors import UserError
 from ..identification.results import Result
 from ..measurement.datafile import DataFile, read_data_file
@@ -79,6 +80,7 @@ def identify(data: DataLike, structure: Plant | str | Path, *, controller: Drive
     Result
         The identified plant, its 95 % intervals, its fit and provenance.
     """
+    check_arguments(identify, locals())
     from ..identification.run import IdentifyOptions, identify_to_file
 
     options = IdentifyOptions(method=method, seed=seed, polish=polish, iterations=iterations, skip=skip,
@@ -110,6 +112,7 @@ def select(data: DataLike | list, validation: DataLike, *, controller: DriveLike
     Selection
         The candidates in rank order; ``chosen.result`` is the chosen structure's identification.
     """
+    check_arguments(select, locals())
     from dataclasses import replace
 
     from ..selection.run import select_files
@@ -225,6 +228,7 @@ def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike
         One Validation per model; ``table()`` has a column per model (mean fit %, verdicts, parameters with
         their 95 % intervals) and the notebook shows it as one table.
     """
+    check_arguments(compare_models, locals())
     if isinstance(results, Result):
         results = [results]
     labelled = dict(results) if isinstance(results, dict) else _labels(list(results))
@@ -273,6 +277,7 @@ def tune(result: Result, controller: DriveLike, *, stroke: float | None = None, 
     Tuning
         Every controller's run (given, rule, tuned); ``controller`` is the one chosen.
     """
+    check_arguments(tune, locals())
     from ..output.tune_report import load_task
     from ..tuning.run import tune_axis
     from ..tuning.search import TuneOptions  # noqa: F811  (at run time: the one for the default)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..api_checks import check_arguments
 from ..errors import UserError
 from ..identification.results import Result
 from ..measurement.datafile import DataFile, read_data_file
@@ -152,6 +153,7 @@ def bode(results_or_plants: Models, data: DataLike | None = None, bands: bool = 
     (z = 1.96 for 95 %) in dB and degrees (servofmu.output.bode_band).  It is the band of the linear part
     over the identified parameters; friction parameters do not enter G.
     """
+    check_arguments(bode, locals())
     models = labelled(results_or_plants, labels)
     data_file = _data_file(data)
     plants = [_plant(m) for _, m in models]
@@ -226,6 +228,7 @@ def friction_curve(results: Models, ax: AxesLike = None, labels: Sequence[str] |
     F(v) comes from the model's own friction expression (servofmu.model.friction.steady_friction); the viscous
     friction a first-order G holds in its pole is not in it.
     """
+    check_arguments(friction_curve, locals())
     models = labelled(results, labels)
     plants = [_plant(m) for _, m in models]
     if v_max is None:
@@ -335,6 +338,7 @@ def validation_overlay(validations: Models, data: DataLike | None = None, ax: Ax
     -------
     matplotlib.figure.Figure
     """
+    check_arguments(validation_overlay, locals())
     vals = _validations(validations, data, labels, skip, controller)
     rows = _rows(vals, which, max_panels)
     fig, axes = figure_axes(ax, len(rows), (9, 2.8 * len(rows)))
@@ -403,6 +407,7 @@ def residual_tests(validations: Models, data: DataLike | None = None, ax: AxesLi
     the joint (Bonferroni) 99 % quantile over the lags (servofmu.identification.residuals); bars outside them
     fail the test.  A noise-free experiment has no residual test and gets a note instead.
     """
+    check_arguments(residual_tests, locals())
     vals = _validations(validations, data, labels, skip, controller)
     rows = _rows(vals, which, max_panels)
     fig, axes = figure_axes(ax, 2 * len(rows), (9, 2.6 * len(rows)), nrows=len(rows), ncols=2)

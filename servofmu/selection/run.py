@@ -16,7 +16,7 @@ from ..fileio import all_or_none, claim_outputs, file_sha256, holds_outputs, out
 from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
-from ..measurement.datafile import data_name
+from ..measurement.datafile import DataFile, data_name
 from ..model.laws.registry import get_law
 from ..runtime import RunOptions, available_cores, check_work, utc_now
 from ..simulation.parallel import Workers
@@ -73,7 +73,8 @@ def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]
 
 
 @holds_outputs
-def select_files(data_files: Sequence[str | Path], validation_file: str | Path, output: str | Path,
+def select_files(data_files: Sequence[str | Path | DataFile], validation_file: str | Path | DataFile,
+                 output: str | Path | None,
                  options: SelectOptions | None = None, run: RunOptions | None = None,
                  plant_output: str | Path | None = None, result_output: str | Path | None = None) -> Selection:
     """Fit every candidate structure to ``data_files``, rank them on ``validation_file`` and write the outputs.
