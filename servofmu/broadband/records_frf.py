@@ -1,7 +1,8 @@
 """The frequency response of records that are not a broadband measurement (`servofmu frf RECORDS.h5`): per record
 the direct estimate S_uy/S_uu (H1, Welch) and, for a drive's log with its reference (``--closed-loop``), the
 estimate from the reference S_ry/S_ru (servofmu.broadband.bla.closed_loop_estimate), which the loop's noise does
-not bias (docs/broadband.md, "Closed loop")."""
+not bias (docs/broadband.md, "Closed loop"); beside them the local polynomial method's estimate on the record's
+every DFT line, its transient removed (servofmu.broadband.lpm; from the reference with ``--closed-loop``)."""
 from __future__ import annotations
 
 import math
@@ -14,6 +15,7 @@ from ..errors import UserError
 from ..display import Shown, figure, shown_html, shown_repr
 from ..measurement.datafile import DataFile, as_data_file, data_name
 from .bla import ClosedLoopEstimate, H1Estimate, closed_loop_estimate, h1_estimate
+from .lpm import LpmEstimate, default_half_width, lpm_estimate
 
 __all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", "SEGMENTS"]
 
@@ -25,13 +27,16 @@ SEGMENTS = 32
 
 @dataclass(frozen=True)
 class RecordFrf:
-    """One record's estimates: ``direct`` (H1 of u → v) and ``closed_loop`` (from the reference; None without)."""
+    """One record's estimates: ``direct`` (H1 of u → v), ``closed_loop`` (from the reference; None without) and
+    ``lpm`` (the local polynomial method's, open loop, or from the reference with ``closed_loop``; None for a record
+    too short for its window)."""
 
     name: str
     samples: int
     rate: float
     direct: H1Estimate
     closed_loop: ClosedLoopEstimate | None
+    lpm: LpmEstimate | None = None
 
     __repr__, _repr_html_ = shown_repr, shown_html
 
@@ -42,8 +47,10 @@ class RecordFrf:
                    figure("median coherence", float(np.median(d.coherence)))]
         if self.closed_loop is not None:
             figures.append(figure("direct vs from the reference", self.direct_deviation()))
-        return Shown("RecordFrf", f"{self.name!r}: {'H1 and from the reference' if self.closed_loop else 'H1'}",
-                     tuple(figures))
+        if self.lpm is not None and self.lpm.frequencies.size:
+            figures.append(figure("LPM median σ/|G|", float(np.median(self.lpm.std / np.abs(self.lpm.G)))))
+        head = "H1 and from the reference" if self.closed_loop else "H1"
+        return Shown("RecordFrf", f"{self.name!r}: {head}{', LPM' if self.lpm is not None else ''}", tuple(figures))
 
     def direct_deviation(self) -> float:
         """Median |G_direct/G_reference − 1| over the lines where γ²_ru ≥ TRUSTED_COHERENCE (NaN without)."""
@@ -58,10 +65,11 @@ class RecordFrf:
         return float(np.median(np.abs(direct[good] / cl.G[good] - 1)))
 
 
-def records_frf(path: str | Path | DataFile, closed_loop: bool = False, segment: int | None = None
-                ) -> tuple[DataFile, list[RecordFrf]]:
+def records_frf(path: str | Path | DataFile, closed_loop: bool = False, segment: int | None = None,
+                lpm_order: int = 2) -> tuple[DataFile, list[RecordFrf]]:
     """The estimates of every record of a records file (or a DataFile held in memory); with ``closed_loop`` every
-    record must have a reference (a UserError names the first without)."""
+    record must have a reference (a UserError names the first without).  The LPM's polynomials have the degree
+    ``lpm_order`` (its window the default of servofmu.broadband.lpm.default_half_width)."""
     data, path = as_data_file(path), data_name(path)
     if data.kind != "records" or not data.records:
         raise UserError(f"{path}: is a {data.kind} file without records; frf takes broadband data or records")
@@ -77,7 +85,10 @@ def records_frf(path: str | Path | DataFile, closed_loop: bool = False, segment:
         band = (rate / seg, rate / 2)
         direct = h1_estimate(s.u, s.v, rate, seg, band)
         cl = closed_loop_estimate(s.reference, s.u, s.v, rate, seg, band) if closed_loop else None
-        out.append(RecordFrf(rec.name, n, rate, direct, cl))
+        lpm = None
+        if n >= 4 * default_half_width(lpm_order) + 8:  # the window fits into the record's lines, DC left out
+            lpm = lpm_estimate(s.u, s.v, rate, lpm_order, reference=s.reference if closed_loop else None)
+        out.append(RecordFrf(rec.name, n, rate, direct, cl, lpm))
     return data, out
 
 
@@ -102,5 +113,13 @@ def records_frf_json(data: DataFile, estimates: list[RecordFrf]) -> dict:
                                     "coherence_ru": c.coherence_ru.tolist(), "coherence_ry": c.coherence_ry.tolist(),
                                     "segments": c.segments,
                                     "direct_deviation": dev if math.isfinite(dev) else None}
+        entry["lpm"] = None if e.lpm is None else _lpm_json(e.lpm)
         doc["records"].append(entry)
     return doc
+
+
+def _lpm_json(e: LpmEstimate) -> dict:
+    """The LPM's part of a record's ``--json`` entry."""
+    return {"frequency": e.frequencies.tolist(), "re": e.G.real.tolist(), "im": e.G.imag.tolist(), "std": _std(e.var),
+            "noise_std": _std(e.noise_var), "dof": e.dof, "band_factor": e.band_factor(), "order": e.order,
+            "half_width": e.half_width, "closed_loop": e.closed_loop}

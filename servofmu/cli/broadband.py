@@ -103,7 +103,7 @@ def _frf_of_records(args, suffix) -> None:
     data, estimates = records_frf(args.data, args.closed_loop)
     if suffix is not None:
         from ..output.bla_plots import records_frf_figure
-        records_frf_figure(estimates, args.output, f"{Path(args.data).name}: frequency response, ±2σ",
+        records_frf_figure(estimates, args.output, f"{Path(args.data).name}: frequency response, bands shaded",
                            overwrite=args.force)
     if args.json:
         print(json.dumps(records_frf_json(data, estimates)))

@@ -65,17 +65,18 @@ def _label(ax_mag, ax_ph, name: str, unit: str, title: str) -> None:
     ax_mag.set_title(title)
 
 
-def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker):
+def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker, factor=2.0, lw=1.0):
+    """G (magnitude and wrapped phase) and its band ±factor·std, shaded."""
     mag = np.abs(G)
-    ax_mag.semilogx(f, _db(G), marker, color=color, ms=3, lw=1, label=label)
+    ax_mag.semilogx(f, _db(G), marker, color=color, ms=3, lw=lw, label=label)
     ok = np.isfinite(std)
     if ok.any():
-        ax_mag.fill_between(f[ok], _db(np.maximum(mag - 2 * std, mag * 1e-3)[ok]), _db((mag + 2 * std)[ok]),
-                            color=color, alpha=0.2, lw=0)
+        ax_mag.fill_between(f[ok], _db(np.maximum(mag - factor * std, mag * 1e-3)[ok]),
+                            _db((mag + factor * std)[ok]), color=color, alpha=0.2, lw=0)
     phase = np.degrees(np.angle(G))  # wrapped: noisy lines would carry an unwrapped phase off by turns
-    ax_ph.semilogx(f, phase, marker, color=color, ms=3, lw=1)
+    ax_ph.semilogx(f, phase, marker, color=color, ms=3, lw=lw)
     if ok.any():
-        half = np.degrees(np.arcsin(np.clip(2 * std / mag, 0, 1)))
+        half = np.degrees(np.arcsin(np.clip(factor * std / mag, 0, 1)))
         ax_ph.fill_between(f[ok], (phase - half)[ok], (phase + half)[ok], color=color, alpha=0.2, lw=0)
 
 
@@ -87,12 +88,19 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
 
 def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None):
     """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the reference
-    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band.
+    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band, and the local polynomial method's estimate with
+    its 95 % band ±k·σ (k = √F⁻¹(0.95; 2, 2·dof), LpmEstimate.band_factor: σ comes from dof residuals).
 
     ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
     """
     fig, (ax_mag, ax_ph) = figure_axes(ax, 2, (8, 7), sharex=True)
     for k, e in enumerate(estimates):
+        if e.lpm is not None:  # first: every DFT line, beneath the Welch estimates' coarser grid
+            m = e.lpm
+            how = "from the reference" if m.closed_loop else "u → v"
+            _with_band(ax_mag, ax_ph, m.frequencies, m.G, m.std, "0.45",
+                       f"{e.name}: LPM {how} (R = {m.order}, {2 * m.half_width + 1} lines), ±{m.band_factor():.2f}σ",
+                       "-", m.band_factor(), 0.6)
         d = e.direct
         _with_band(ax_mag, ax_ph, d.frequencies, d.G, np.sqrt(d.var), f"C{2 * k}", f"{e.name}: direct S_uy/S_uu",
                    "-")
@@ -103,5 +111,5 @@ def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None
             good = c.coherence_ru >= 0.9
             ax_mag.semilogx(c.frequencies[good], _db(c.G[good]), ".", color=f"C{2 * k + 1}", ms=4,
                             label=f"{e.name}: γ²_ru ≥ 0.9")
-    _label(ax_mag, ax_ph, "G", unit, title or "frequency response of records, ±2σ (shaded)")
+    _label(ax_mag, ax_ph, "G", unit, title or "frequency response of records, bands shaded")
     return fig
