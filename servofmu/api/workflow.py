@@ -132,18 +132,11 @@ class ModelComparison:
     validations: dict[str, Validation]
 
     def table(self) -> dict[str, dict[str, object]]:
-        """Row -> model label -> value: the mean fit (%), the verdicts of the fit and of the residual tests, and
-        each identified parameter as "value [low, high]" (its 95 % interval)."""
-        rows: dict[str, dict[str, object]] = {}
-        for label, v in self.validations.items():
-            items = (*v.records, *v.experiments)
-            fits = [i.fit for i in items if math.isfinite(i.fit)]
-            rows.setdefault("fit % (mean)", {})[label] = sum(fits) / len(fits) if fits else math.nan
-            rows.setdefault("fit passed", {})[label] = all(i.fit_passed for i in items)
-            rows.setdefault("residual tests passed", {})[label] = all(i.residuals_passed for i in items)
-            for name, value, (low, high) in _parameters(v.result):
-                rows.setdefault(name, {})[label] = f"{value:.6g} [{low:.6g}, {high:.6g}]"
-        return rows
+        """Row -> model label -> value: the mean and worst fit (%), the verdict, the residual tests, and each
+        identified parameter as "value [low, high]" (its 95 % interval): servofmu.output.model_comparison."""
+        from ..output.model_comparison import comparison_rows
+
+        return comparison_rows(list(self.validations.items()))
 
     def __repr__(self) -> str:
         fits = self.table()["fit % (mean)"]
@@ -201,12 +194,6 @@ def _cell(value) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
-def _parameters(result: Result):
-    """(name, value, 95 % interval) of every identified parameter."""
-    for name, value, interval in zip(result.names, result.theta, result.intervals):
-        yield name, float(value), (float(interval[0]), float(interval[1]))
-
-
 def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike, *, controller: DriveLike = None,
                    skip: float = 0.0, min_fit: float | None = None) -> ModelComparison:
     """Validate several identified models on the same data (``servofmu validate`` for each).
@@ -231,7 +218,14 @@ def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike
     check_arguments(compare_models, locals())
     if isinstance(results, Result):
         results = [results]
-    labelled = dict(results) if isinstance(results, dict) else _labels(list(results))
+    if isinstance(results, dict):
+        labelled = dict(results)
+    else:
+        from ..output.model_comparison import unique_labels
+
+        results = list(results)
+        labelled = dict(zip(unique_labels([getattr(r, "plant", None) and r.plant.name or "model" for r in results]),
+                            results))
     if not labelled:
         raise UserError("results: give at least one Result")
     for label, r in labelled.items():
@@ -241,17 +235,6 @@ def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike
     ds, ctrl = as_data(data), _controller(controller)
     extra = {} if min_fit is None else {"min_fit": min_fit}
     return ModelComparison({label: validate(r, ds, skip, ctrl, **extra) for label, r in labelled.items()})
-
-
-def _labels(results: list[Result]) -> dict[str, Result]:
-    out: dict[str, Result] = {}
-    for r in results:
-        base = getattr(r.plant, "name", "model") or "model"
-        label, n = base, 2
-        while label in out:
-            label, n = f"{base} ({n})", n + 1
-        out[label] = r
-    return out
 
 
 def tune(result: Result, controller: DriveLike, *, stroke: float | None = None, speed: float | None = None,

@@ -7,14 +7,17 @@ __all__ = ["register", "cmd_validate", "cmd_report", "cmd_export"]
 
 
 def cmd_validate(args) -> None:
-    """Simulate a result on other data: fit % and residual tests; exit status 1 when the verdict is "failed"."""
+    """Simulate one result (or several, side by side) on other data: fit % and residual tests; exit status 1 when
+    a model's verdict is "failed"."""
     import json
 
+    if len(args.result) > 1:
+        return _validate_several(args)
     from ..output.validate import validation_json, validation_text
     from ..output.validation_report import validate_files
 
     with ProgressBar(args, "step") as bar:  # two steps: the model simulated on the data, the page written
-        v = validate_files(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
+        v = validate_files(args.result[0], args.data, args.output, skip=args.skip, controller=args.closed_loop,
                            overwrite=args.force, progress=bar.update,
                            **({} if args.min_fit is None else {"min_fit": args.min_fit}))
     if args.json:
@@ -25,6 +28,26 @@ def cmd_validate(args) -> None:
             print(f"wrote {args.output}")
     if not v.passed:
         raise SystemExit(1)  # the model failed: not a user error (2), the files are written
+
+
+def _validate_several(args) -> None:
+    """Several results on the same data: one table with a column per model, the page's figures overlaid."""
+    import json
+
+    from ..output.model_comparison import comparison_json, comparison_text, validate_several
+
+    with ProgressBar(args, "step") as bar:  # a step per model, and the page
+        pairs = validate_several(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
+                                 overwrite=args.force, progress=bar.update,
+                                 **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+    if args.json:
+        print(json.dumps(comparison_json(pairs), allow_nan=False))
+    else:
+        print(comparison_text(pairs))
+        if args.output:
+            print(f"wrote {args.output}")
+    if not all(v.passed for _, v in pairs):
+        raise SystemExit(1)  # a model failed: not a user error (2), the files are written
 
 
 def cmd_report(args) -> None:
@@ -58,8 +81,9 @@ def register(sub) -> None:
     """Add the subcommands validate, report and export to the subparsers ``sub``."""
     from ..output.formats import FORMATS, SUFFIX_FORMATS
 
-    p = sub.add_parser("validate", help="simulate an identified model on other data: fit %% and residual tests")
-    p.add_argument("result", metavar="RESULT.h5", role="input", help="result file from `servofmu identify`")
+    p = sub.add_parser("validate", help="simulate identified models on other data: fit %% and residual tests")
+    p.add_argument("result", metavar="RESULT.h5", nargs="+", role="input",
+                   help="result file from `servofmu identify`; several: validated side by side, one column each")
     p.add_argument("data", metavar="DATA.h5", role="input",
                    help="data file (records or a measurement) it was not fitted to")
     p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
