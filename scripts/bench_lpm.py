@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy import signal
 
 from servofmu.broadband.bla import h1_estimate
 from servofmu.broadband.lpm import lpm_estimate
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from test_closed_loop_frf import loop_log  # noqa: E402  (the test's velocity loop)
 
 RATE, N, FN, ZETA = 1000.0, 4096, 20.0, 0.3
 W = 2 * np.pi * FN
@@ -44,18 +48,6 @@ def record(seed, sigma):
     rng = np.random.default_rng(seed)
     u = rng.standard_normal(N + 1000)
     return u[1000:], signal.lfilter(B, A, u)[1000:] + sigma * rng.standard_normal(N)
-
-
-def loop(seed, n=20000):
-    rng = np.random.default_rng(seed)
-    r = 0.2 * rng.standard_normal(n)
-    noise = signal.lfilter([1.0], [1.0, -0.9], 0.02 * rng.standard_normal(n))
-    x, u, y = 0.0, np.zeros(n), np.zeros(n)
-    for k in range(n):
-        y[k] = x + noise[k]
-        u[k] = 30.0 * (r[k] - y[k])
-        x = POLE * x + (1 - POLE) / 10 * u[k]
-    return r, u, y
 
 
 def main(seeds: int) -> None:
@@ -82,7 +74,7 @@ def main(seeds: int) -> None:
     print(f"noise-free, H1: relative error median {np.median(h1):.2g}")
     inside, low_in, cl_bias, d_bias = [], [], [], []
     for s in range(seeds):
-        r, u, y = loop(s)
+        r, u, y = loop_log(20000, s)  # the test's loop (tests/test_closed_loop_frf.py)
         cl, d = (lpm_estimate(u, y, RATE, band=(1.0, 200.0), reference=ref) for ref in (r, None))
         g = g_loop(cl.frequencies)
         ok = np.abs(cl.G - g) <= cl.band_factor() * cl.std

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from clitools import assert_one_line_error, run
 from scipy import signal
 
@@ -61,6 +62,13 @@ def test_frf_closed_loop_of_an_imported_log_and_its_refusal_without_a_reference(
     (rec,) = json.loads(proc.stdout)["records"]
     assert rec["closed_loop"]["direct_deviation"] > 0.1
     assert len(rec["closed_loop"]["re"]) == len(rec["closed_loop"]["coherence_ru"]) > 100
+    # the local polynomial method from the reference beside it: every DFT line but DC and Nyquist, one line and no
+    # averaging (σ/|G| ≈ 1–2 in this loop), but its 95 % band holds the plant
+    lpm = rec["lpm"]
+    assert lpm["closed_loop"] and lpm["dof"] == 3 and lpm["band_factor"] > 2
+    f, G = np.array(lpm["frequency"]), np.array(lpm["re"]) + 1j * np.array(lpm["im"])
+    assert f.size == r.size // 2 - 1 and f[0] == pytest.approx(RATE / r.size)
+    assert np.mean(np.abs(G - true_g(f)) <= lpm["band_factor"] * np.array(lpm["std"])) >= 0.9
     plain = tmp_path / "plain.h5"
     assert run("import", log, "--time", "t", "--input", "u", "--output-variable", "v", "-o", plain).returncode == 0
     proc = run("frf", plain, "--closed-loop", "-o", tmp_path / "f.png")

@@ -4,11 +4,9 @@ biased than H1 where the leakage matters, exact without noise up to its polynomi
 variance as it was made; in a loop, from the reference, G within its band where the direct estimate is biased."""
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
-from clitools import run
 from scipy import signal
 from test_closed_loop_frf import RATE as LOOP_RATE
 from test_closed_loop_frf import loop_log, true_g
@@ -126,23 +124,3 @@ def test_refusals():
     with pytest.raises(UserError, match="one length"):
         lpm_estimate(u, y[:-1], RATE)
     assert len(repr(lpm_estimate(u, y, RATE))) <= 300
-
-
-def test_frf_json_of_records_carries_the_lpm(tmp_path):
-    r, u, y = loop_log(n=8000)
-    log = tmp_path / "log.csv"
-    np.savetxt(log, np.column_stack([np.arange(r.size) / LOOP_RATE, u, y, r]), delimiter=",", header="t,u,v,r",
-               comments="")
-    data = tmp_path / "log.h5"
-    assert run("import", log, "--time", "t", "--input", "u", "--output-variable", "v", "--reference", "r",
-               "-o", data).returncode == 0
-    proc = run("frf", data, "--closed-loop", "--json")
-    assert proc.returncode == 0, proc.stderr
-    (rec,) = json.loads(proc.stdout)["records"]
-    lpm = rec["lpm"]
-    assert lpm["closed_loop"] and lpm["dof"] == 3 and lpm["band_factor"] > 2
-    f, G = np.array(lpm["frequency"]), np.array(lpm["re"]) + 1j * np.array(lpm["im"])
-    assert f.size == 3999 and f[0] == pytest.approx(LOOP_RATE / 8000)  # every DFT line but DC and Nyquist
-    # one line, no averaging: σ/|G| ≈ 1–2 in this loop, but the band holds the plant
-    inside = np.abs(G - true_g(f)) <= lpm["band_factor"] * np.array(lpm["std"])
-    assert inside.mean() >= 0.9

@@ -7,47 +7,37 @@ __all__ = ["register", "cmd_validate", "cmd_report", "cmd_export"]
 
 
 def cmd_validate(args) -> None:
-    """Simulate one result (or several, side by side) on other data: fit % and residual tests; exit status 1 when
-    a model's verdict is "failed"."""
+    """Simulate one result (or several, side by side: a column each) on other data: fit % and residual tests;
+    exit status 1 when a model's verdict is "failed"."""
     import json
 
+    run, as_json, as_text, passed = _validation(args)
+    with ProgressBar(args, "step") as bar:  # a step per model simulated on the data, and the page written
+        out = run(data_path=args.data, output=args.output, skip=args.skip, controller=args.closed_loop,
+                  overwrite=args.force, progress=bar.update,
+                  **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+    if args.json:
+        print(json.dumps(as_json(out), allow_nan=False))
+    else:
+        print(as_text(out))
+        if args.output:
+            print(f"wrote {args.output}")
+    if not passed(out):
+        raise SystemExit(1)  # a model failed: not a user error (2), the files are written
+
+
+def _validation(args):
+    """(run, to JSON, to text, passed) of one result's validation or of several results' side by side."""
     if len(args.result) > 1:
-        return _validate_several(args)
+        from ..output.model_comparison import comparison_json, comparison_text, validate_several
+
+        return (lambda **kw: validate_several(args.result, **kw), comparison_json, comparison_text,
+                lambda pairs: all(v.passed for _, v in pairs))
     from ..output.validate import validation_json, validation_text
     from ..output.validation_report import validate_files
 
-    with ProgressBar(args, "step") as bar:  # two steps: the model simulated on the data, the page written
-        v = validate_files(args.result[0], args.data, args.output, skip=args.skip, controller=args.closed_loop,
-                           overwrite=args.force, progress=bar.update,
-                           **({} if args.min_fit is None else {"min_fit": args.min_fit}))
-    if args.json:
-        print(json.dumps(validation_json(v), allow_nan=False))
-    else:
-        print(validation_text(v))
-        if args.output:
-            print(f"wrote {args.output}")
-    if not v.passed:
-        raise SystemExit(1)  # the model failed: not a user error (2), the files are written
-
-
-def _validate_several(args) -> None:
-    """Several results on the same data: one table with a column per model, the page's figures overlaid."""
-    import json
-
-    from ..output.model_comparison import comparison_json, comparison_text, validate_several
-
-    with ProgressBar(args, "step") as bar:  # a step per model, and the page
-        pairs = validate_several(args.result, args.data, args.output, skip=args.skip, controller=args.closed_loop,
-                                 overwrite=args.force, progress=bar.update,
-                                 **({} if args.min_fit is None else {"min_fit": args.min_fit}))
-    if args.json:
-        print(json.dumps(comparison_json(pairs), allow_nan=False))
-    else:
-        print(comparison_text(pairs))
-        if args.output:
-            print(f"wrote {args.output}")
-    if not all(v.passed for _, v in pairs):
-        raise SystemExit(1)  # a model failed: not a user error (2), the files are written
+    return (lambda **kw: validate_files(args.result[0], **kw), validation_json, validation_text,
+            lambda v: v.passed)
 
 
 def cmd_report(args) -> None:

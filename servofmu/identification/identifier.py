@@ -71,6 +71,7 @@ class _Fit:
 
 
 def check_method(method: str) -> None:
+    """A UserError naming the methods when ``method`` is not one of them."""
     if method not in METHODS:
         raise UserError(f"unknown method {method!r} (choose {', '.join(METHODS)})")
 

@@ -67,7 +67,7 @@ def test_2_an_fmu_without_binaries_leaves_no_file_and_a_rerun_works(inputs, tmp_
 
 
 # ---- 3. bounded work ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("frequency, fragment", [("1e9", "FMU steps"), ("1e-9", "more than max_time 60 s")])
+@pytest.mark.parametrize("frequency, fragment", [("1e9", "FMU steps"), ("1e-9", "more than --max-time 60 s")])
 def test_3_a_plan_beyond_the_bounds_is_refused_up_front_with_the_estimate(inputs, tmp_path, frequency, fragment):
     rc, err = run_here(["measure", inputs["g1_fmu"], "--amplitudes", "2", "--frequencies", frequency,
                         "--workers", "0", "-o", "out.h5"], tmp_path)
