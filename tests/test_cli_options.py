@@ -82,6 +82,9 @@ def test_the_literal_defaults_of_the_command_line_are_the_librarys():
 
     assert (measure.MAX_STEPS, measure.INTERSAMPLE) == (MAX_STEPS, INTERSAMPLE)
     assert (tune.DEFAULT_STROKE, tune.DEFAULT_SPEED, tune.METHODS) == (DEFAULT_STROKE, DEFAULT_SPEED, METHODS)
+    from servofmu.tuning.search import TuneOptions
+
+    assert tune.OPTION_DEFAULTS == {k: getattr(TuneOptions(), k) for k in tune.OPTION_DEFAULTS}
 
 
 def test_an_unrecognised_argument_is_reported_by_its_subcommand():

@@ -1,12 +1,14 @@
 """`servofmu tune`: the drive's gains for an identified axis (servofmu.tuning, the page in output.tune_report)."""
 from __future__ import annotations
 
-__all__ = ["register", "cmd_tune", "DEFAULT_STROKE", "DEFAULT_SPEED", "METHODS"]
+__all__ = ["register", "cmd_tune", "DEFAULT_STROKE", "DEFAULT_SPEED", "METHODS", "OPTION_DEFAULTS"]
 
-# The library's values (servofmu.output.tune_report.DEFAULT_STROKE and DEFAULT_SPEED, servofmu.tuning.run.METHODS),
-# here as literals so that `--help` loads neither numpy nor h5py (tests/test_cli_options.py checks that they agree).
+# The library's values (servofmu.output.tune_report.DEFAULT_STROKE and DEFAULT_SPEED, servofmu.tuning.run.METHODS,
+# servofmu.tuning.search.TuneOptions' defaults), here as literals so that `--help` loads neither numpy nor h5py
+# (tests/test_cli_options.py checks that they agree); the options left out reach the library as its defaults.
 DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15
 METHODS = ("pso", "rule")
+OPTION_DEFAULTS = {"max_sensitivity": 1.7, "seed": 0, "particles": 16, "iterations": 30}
 
 
 def cmd_tune(args) -> None:
@@ -14,14 +16,16 @@ def cmd_tune(args) -> None:
     import json
 
     from ..output.tune_report import tune_files, tune_json, tune_text
+    from ..tuning.search import TuneOptions
     from .common import ProgressBar
 
+    options = TuneOptions(**{k: getattr(args, k) for k in OPTION_DEFAULTS if getattr(args, k) is not None},
+                          keep=args.keep, work_limit=args.work_limit)
     with ProgressBar(args, "iteration") as bar:
         tuning = tune_files(args.result, args.controller, args.output, task=args.task, stroke=args.stroke,
-                            speed=args.speed, max_sensitivity=args.max_sensitivity, compensate=args.compensate,
-                            method=args.method, axis=args.axis, report=args.report, engine=args.engine,
-                            overwrite=args.force, progress=bar.update, seed=args.seed, particles=args.particles,
-                            iterations=args.iterations, keep=args.keep, work_limit=args.work_limit)
+                            speed=args.speed, options=options, compensate=args.compensate, method=args.method,
+                            axis=args.axis, report=args.report, engine=args.engine, overwrite=args.force,
+                            progress=bar.update)
     if args.json:
         print(json.dumps(tune_json(tuning), allow_nan=True))
         return
@@ -42,8 +46,8 @@ def register(sub) -> None:
     p.add_argument("--stroke", type=float, metavar="M",
                    help=f"or a reversing stroke of M metres (default {DEFAULT_STROKE:g})")
     p.add_argument("--speed", type=float, metavar="V", help=f"at a peak speed of V m/s (default {DEFAULT_SPEED:g})")
-    p.add_argument("--max-sensitivity", type=float, default=1.7, metavar="MS",
-                   help="bound on the sensitivity peak of the loop linearised about motion (default 1.7)")
+    p.add_argument("--max-sensitivity", type=float, metavar="MS", help="bound on the sensitivity peak of the loop "
+                   f"linearised about motion (default {OPTION_DEFAULTS['max_sensitivity']:g})")
     p.add_argument("--compensate", action="store_true", help="feed forward the identified friction")
     p.add_argument("--method", choices=METHODS, default="pso",
                    help="pso: the particle swarm (default); rule: the reference rule alone")
@@ -51,9 +55,10 @@ def register(sub) -> None:
                    help="check on this axis: co-simulate the given, rule and tuned gains on it (libcosim)")
     p.add_argument("--engine", choices=("libcosim", "fmpy"), default="libcosim",
                    help="co-simulation engine of the check (default libcosim)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the swarm and the uncertainty draws (default 0)")
-    p.add_argument("--particles", type=int, default=16, help="particles of the swarm (default 16)")
-    p.add_argument("--iterations", type=int, default=30, help="iterations of the swarm (default 30)")
+    p.add_argument("--seed", type=int, help=f"seed of the swarm and the uncertainty draws (default "
+                                           f"{OPTION_DEFAULTS['seed']})")
+    p.add_argument("--particles", type=int, help=f"particles of the swarm (default {OPTION_DEFAULTS['particles']})")
+    p.add_argument("--iterations", type=int, help=f"iterations of the swarm (default {OPTION_DEFAULTS['iterations']})")
     p.add_argument("--keep", type=lambda text: tuple(n.strip() for n in text.split(",") if n.strip()), default=(),
                    metavar="NAME[,NAME]", help="parameters the data left undetermined, taken at their identified "
                                                "values (without it such a result is refused)")

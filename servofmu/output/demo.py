@@ -34,6 +34,7 @@ from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
 from .report import make_report
+from ..tuning.search import TuneOptions
 from .tune_report import tune_files, tune_text
 from .validate import validate
 
@@ -235,8 +236,8 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     report(f"wrote {out / 'axis-compensation.html'}")
     # the drive's gains tuned on the identified model for the same stroke, checked on the axis (a short swarm)
     tuning = tune_files(out / "axis-result.h5", controller.source, out / "axis-tuned.toml", stroke=0.1,
-                        speed=0.05 * np.pi, axis=ssp, report=out / "axis-tune.html", overwrite=True, particles=10,
-                        iterations=10)
+                        speed=0.05 * np.pi, axis=ssp, report=out / "axis-tune.html", overwrite=True,
+                        options=TuneOptions(particles=10, iterations=10))
     report(tune_text(tuning))
     report(f"wrote {out / 'axis-tuned.toml'} and {out / 'axis-tune.html'}")
     return result

@@ -16,7 +16,7 @@ from ..errors import UserError
 from ..fileio import all_or_none, atomic_write, claim_outputs, output_mode
 from ..identification.results import read_result
 from ..model.controller import FILTERS, controller_toml, load_controller
-from ..runtime import WORK_LIMIT_HOURS, utc_now
+from ..runtime import utc_now
 from ..text_digest import with_digest
 from ..tuning.run import Tuning, tune_axis
 from ..tuning.search import TuneOptions
@@ -241,18 +241,16 @@ def tune_html(tuning: Tuning, result_source: str, controller_source: str) -> str
 
 
 def tune_files(result: str | Path, controller: str | Path, output: str | Path, task: str | Path | None = None,
-               stroke: float | None = None, speed: float | None = None, max_sensitivity: float = 1.7,
+               stroke: float | None = None, speed: float | None = None, options: TuneOptions | None = None,
                compensate: bool = False, method: str = "pso", axis: str | Path | None = None,
                report: str | Path | None = None, engine: str = "libcosim", overwrite: bool = False,
-               progress=None, seed: int = 0, particles: int = 16, iterations: int = 30,
-               keep: tuple[str, ...] = (), work_limit: float = WORK_LIMIT_HOURS) -> Tuning:
+               progress=None) -> Tuning:
     """Tune the controller file ``controller`` for the result file ``result`` and write the tuned controller file
-    ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``seed``, ``particles`` and
-    ``iterations``: the swarm's, ``keep``: the undetermined parameters taken at their identified values,
-    ``work_limit``: the hours the swarm may be estimated at (servofmu.tuning.search.TuneOptions).  Nothing is
-    written when the tuning fails."""
-    options = TuneOptions(max_sensitivity=max_sensitivity, seed=seed, particles=particles,
-                          iterations=iterations, keep=tuple(keep), work_limit=work_limit)  # refused before any work
+    ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``options``: the bound on
+    the sensitivity peak, the swarm's seed, particles and iterations, the undetermined parameters kept, the work
+    limit (servofmu.tuning.search.TuneOptions, checked before any work).  Nothing is written when the tuning
+    fails."""
+    options = options or TuneOptions()
     claimed = claim_outputs({"output": output, "report": report}, output_mode(overwrite),
                             inputs=(result, controller, task, axis))
     output, report = claimed["output"], claimed.get("report")
@@ -262,7 +260,7 @@ def tune_files(result: str | Path, controller: str | Path, output: str | Path, t
                        source=str(result))
     run = tuning.runs[tuning.chosen]
     note = (f"Tuned by servofmu tune ({tuning.method}) from {Path(controller).name} for {Path(result).name} on "
-            f"{tuning.task.label}, {utc_now()}:\nsensitivity peak {run.loop.ms:.3f} (bound {max_sensitivity:g}), "
+            f"{tuning.task.label}, {utc_now()}:\nsensitivity peak {run.loop.ms:.3f} (bound {options.max_sensitivity:g}), "
             f"gain margin {run.loop.summary()['gain_margin_db']:.2f} dB, phase margin {run.loop.phase_margin:.1f} "
             f"deg; RMS tracking error on the model {run.figures.rms_error:.4g} m "
             f"(given gains {tuning.runs['given'].figures.rms_error:.4g} m).")
