@@ -13,6 +13,13 @@ The public API, along the pipeline (docs/api.md)::
     sf.write_result("g1-result.h5", est.result())
     sf.export_result("g1-result.h5", "g1-identified.fmu")      # export
 
+In a notebook, the same pipeline on objects with no file written (docs/notebook.md)::
+
+    data = sf.Records.from_dataframe(log, time="t", input="force", output="x", reference="r", kind="position")
+    selection = sf.select(data.between(0, 10), data.between(10, None), controller=drive)
+    result = sf.identify(data, selection.chosen.result.structure, controller=drive)
+    sf.bode([result, selection.chosen.result]); sf.control_loops(sf.tune(result, drive))
+
 Names are loaded on first use, so that ``import servofmu`` stays cheap and each part loads only what it needs.
 """
 from __future__ import annotations
