@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import html
 import math
+import os
 from dataclasses import dataclass, fields
 from typing import Iterable, Sequence
 
-__all__ = ["Figure", "Shown", "shown_repr", "shown_html", "short_repr", "html_table", "figure", "parameter_figures",
+__all__ = ["json_safe", "Figure", "Shown", "shown_repr", "shown_html", "short_repr", "html_table", "figure", "parameter_figures",
            "option_figures", "options_shown", "options_repr", "options_html", "quantity", "number", "format_interval",
            "unit_text", "gain_db", "hz", "REPR_LIMIT", "escape"]
 
@@ -224,3 +225,19 @@ def options_repr(self) -> str:
 def options_html(self) -> str:
     """``_repr_html_`` of an options dataclass (:func:`options_shown`)."""
     return options_shown(self).html()
+
+
+def json_safe(obj):
+    """``obj`` as standard JSON takes it: every NaN or infinite number as None (JSON has no such values), tuples as
+    lists, keys as strings, paths as strings and numpy scalars as Python numbers."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if hasattr(obj, "item") and callable(obj.item) and not isinstance(obj, (str, bytes)):  # a numpy scalar
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

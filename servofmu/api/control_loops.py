@@ -19,7 +19,7 @@ from ..api_checks import check_arguments
 from ..errors import UserError
 from ..runtime import optional_import
 from ..model.controller import ControllerSpec
-from ..tuning.loop import analyse_loop, discrete_loop, velocity_estimate, zoh_position_plant
+from ..tuning.loop import axis_mass, discrete_loop, velocity_estimate, zoh_position_plant
 from .workflow import check_plant
 
 __all__ = ["ControlLoops", "control_loops"]
@@ -104,7 +104,7 @@ def control_loops(axis: object, controller: ControllerSpec | None = None) -> Con
     plant = check_plant(axis)
     if not isinstance(controller, ControllerSpec):
         raise UserError(f"controller: give a ControllerSpec, not {type(controller).__name__}")
-    analyse_loop(plant, controller, points=10)  # refuses an axis that a force does not accelerate, in one line
+    axis_mass(plant)  # refuses, in one line, an axis that a force does not accelerate
     ts = controller.sample_time
     num, den = zoh_position_plant(plant, ts)
     p = control.tf(num, den, ts)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-from ..display import escape, figure, short_repr
+from ..display import figure, short_repr
 from ..api_checks import check_arguments
 from ..errors import UserError
 from ..identification.results import Result
@@ -144,16 +144,11 @@ class ModelComparison:
                           [figure(f"{label} fit", value, "%", ".4g") for label, value in fits.items()])
 
     def _repr_html_(self) -> str:
-        """One table, a column per model."""
-        rows = self.table()
-        labels = list(self.validations)
-        head = "".join(f"<th>{escape(label)}</th>" for label in labels)
-        body = "".join(f"<tr><td style=\"text-align:left\">{escape(row)}</td>" + "".join(
-            f"<td>{escape(_cell(values.get(label, '')))}</td>" for label in labels) + "</tr>"
-            for row, values in rows.items())
-        return (f'<div><table class="servofmu"><caption style="text-align:left"><b>ModelComparison</b> '
-                f"{len(labels)} models</caption><thead><tr><th>quantity</th>{head}</tr></thead><tbody>{body}"
-                "</tbody></table></div>")
+        """One table, a column per model (servofmu.output.model_comparison.comparison_table)."""
+        from ..output.model_comparison import comparison_table
+
+        return (f'<div><p><b>ModelComparison</b> {len(self.validations)} models</p>'
+                f"{comparison_table(list(self.validations.items()))}</div>")
 
     def overlay(self, ax: object = None, which: str | None = None) -> Figure:
         """Measured and simulated outputs of every model on one axes per record or experiment
@@ -186,12 +181,6 @@ class ModelComparison:
         """The label of the model with the highest mean fit."""
         fits = self.table()["fit % (mean)"]
         return max(fits, key=lambda k: -math.inf if math.isnan(fits[k]) else fits[k])
-
-
-def _cell(value) -> str:
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike, *, controller: DriveLike = None,

@@ -86,20 +86,12 @@ def add_json_option(p, help: str = "print a JSON summary of what was written (fi
 
 def print_written(args, text: str, summary: dict) -> None:
     """What a command wrote: ``text`` (its lines), or with ``--json`` ``summary`` as one JSON object (numbers that
-    are not finite as null; paths as strings)."""
+    are not finite as null; paths as strings: display.json_safe)."""
     import json
-    import math
 
-    def safe(x):
-        if isinstance(x, dict):
-            return {str(k): safe(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [safe(v) for v in x]
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        return x if isinstance(x, (str, int, float, bool, type(None))) else str(x)
+    from ..display import json_safe
 
-    print(json.dumps(safe(summary), allow_nan=False) if getattr(args, "json", False) else text)
+    print(json.dumps(json_safe(summary), allow_nan=False) if getattr(args, "json", False) else text)
 
 
 def float_list(text: str) -> list[float]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..display import json_safe
 from ..errors import UserError
 from ..fileio import atomic_write, check_output_path, claim_output, file_sha256, output_mode
 from ..identification.results import Result, read_result, to_json
@@ -99,19 +99,8 @@ def linear_state_space(plant: Plant) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return jac[:n, :n], jac[:n, nx:nx + 1], jac[nx:nx + 1, :n], jac[nx:nx + 1, nx:nx + 1]
 
 
-def _finite_or_none(obj):
-    """JSON without NaN/Infinity (not standard JSON): non-finite numbers become null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite_or_none(v) for v in obj]
-    return obj
-
-
 def _json_text(obj: dict) -> str:
-    return json.dumps(_finite_or_none(obj), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_safe(obj), indent=2, allow_nan=False) + "\n"
 
 
 def _pairs(roots) -> list[list[float]]:

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Sequence
 
+from ..display import json_safe
 from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode
 from ..identification.results import read_result
@@ -16,7 +17,8 @@ from .html import escape, figure, page, png_bytes
 from .validate import MIN_FIT, Validation, validate, validation_json
 from .validation_report import plot_residuals, plot_validation
 
-__all__ = ["comparison_rows", "comparison_text", "comparison_json", "comparison_html", "validate_several",
+__all__ = ["comparison_rows", "comparison_text", "comparison_json", "comparison_table", "comparison_html",
+           "validate_several",
            "unique_labels"]
 
 Pairs = Sequence[tuple[str, Validation]]
@@ -76,21 +78,25 @@ def comparison_json(pairs: Pairs) -> dict:
     rows = comparison_rows(pairs)
     return {"data_file": str(pairs[0][1].data_file.path), "models": [label for label, _ in pairs],
             "passed": all(v.passed for _, v in pairs),
-            "table": {row: {k: (None if isinstance(x, float) and not math.isfinite(x) else x)
-                            for k, x in values.items()} for row, values in rows.items()},
+            "table": json_safe(rows),
             "validations": {label: validation_json(v) for label, v in pairs}}
 
 
-def comparison_html(pairs: Pairs) -> list[str]:
-    """The page's sections: the table (a column per model) and the figures, the models overlaid."""
+def comparison_table(pairs: Pairs) -> str:
+    """The table as HTML: a row per quantity, a column per model."""
     rows = comparison_rows(pairs)
     labels = [label for label, _ in pairs]
     head = "".join(f"<th>{escape(label)}</th>" for label in labels)
     body = "".join(f"<tr><td>{escape(row)}</td>" + "".join(f'<td class="num">{escape(_cell(values.get(label, "—")))}'
                                                            "</td>" for label in labels) + "</tr>"
                    for row, values in rows.items())
+    return f'<table id="model-comparison"><thead><tr><th></th>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def comparison_html(pairs: Pairs) -> list[str]:
+    """The page's sections: the table (a column per model) and the figures, the models overlaid."""
     first = pairs[0][1]
-    parts = [f'<table id="model-comparison"><thead><tr><th></th>{head}</tr></thead><tbody>{body}</tbody></table>',
+    parts = [comparison_table(pairs),
              '<p class="note">Fit: 100·(1 − ‖y − ŷ‖/‖y − mean y‖) per record or experiment; parameters: the value '
              "and its 95 % interval (docs/validation.md).</p>"]
     for which in ("records", "experiments"):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..display import Shown, figure, shown_html, shown_repr
+from ..display import Shown, figure, json_safe, shown_html, shown_repr
 from ..errors import UserError
 from ..identification.criterion import POLISH_RTOL, check_structure, fit_percent, record_data, record_errors
 from ..identification.residuals import EXACT, LAGS, LEVEL, ResidualTest, residual_test
@@ -354,18 +354,6 @@ def _test_json(r: ResidualTest | None) -> dict | None:
             "autocorrelation_bound": r.z * r.auto_sigma, "cross_correlation_bound": r.z * r.cross_sigma}
 
 
-def _json_safe(obj):
-    """``obj`` with every NaN or infinite number as None: JSON has no such values (a fit is NaN where the measured
-    signal does not vary, a correlation where the residuals are all zero)."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def validation_json(v: Validation) -> dict:
     """One object for scripts: the verdict (``passed``, ``min_fit_percent``, ``failures``), ``own_data`` and
     ``warnings``, and per record and experiment the fit, the residual test and the verdict."""
@@ -382,7 +370,7 @@ def validation_json(v: Validation) -> dict:
                             "converged": e.converged, "fit_percent": e.fit, "fit_passed": e.fit_passed,
                             "H_relative_error": e.H_error, "passed": e.passed,
                             "residual_test": _test_json(e.residuals)} for e in v.experiments]}
-    return _json_safe(out)
+    return json_safe(out)
 
 
 def _verdict_line(v: Validation) -> str:
