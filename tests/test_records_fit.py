@@ -282,9 +282,9 @@ def test_a_measured_signal_that_does_not_vary_has_no_fit_percent():
     import json
 
     from servofmu.identification.criterion import fit_percent
-    from servofmu.output.validate import _json_safe
+    from servofmu.display import json_safe
 
     assert np.isnan(fit_percent(np.zeros(10), np.ones(10)))
     assert fit_percent(np.arange(10.0), np.zeros(10)) == 100.0
-    assert json.loads(json.dumps(_json_safe({"fit": float("nan"), "r": [1.0, float("inf")]}), allow_nan=False)) == \
+    assert json.loads(json.dumps(json_safe({"fit": float("nan"), "r": [1.0, float("inf")]}), allow_nan=False)) == \
         {"fit": None, "r": [1.0, None]}
