@@ -16,7 +16,8 @@ from scipy import signal
 from scipy.integrate import solve_ivp
 
 from servofmu.errors import UserError
-from servofmu.identification.prior import full_vectors
+from servofmu.identification.criterion import POLISH_RTOL, SEARCH_RTOL, STEP_BUDGET_FACTOR, SineCriterion, SineData
+from servofmu.identification.prior import full_vectors, identified_mask
 from servofmu.model.plant import PlantError, bristle_nominal, load_plant, plant_from_dict, state_scale
 from servofmu.simulation.batch import (
     BatchSimulator,
@@ -264,18 +265,42 @@ def test_warm_starts_begin_each_experiment_on_the_nearest_converged_orbit():
     def features(orbit, converged):
         nan = np.full(converged.shape, np.nan)
         return SteadyStateFeatures(H=nan, dc=nan, distortion=nan, converged=converged, settle_time=nan,
-                                   steps=np.zeros(converged.shape, int), orbit=orbit)
+                                   steps=np.arange(converged.size).reshape(converged.shape) + 10, orbit=orbit)
 
     warm = WarmStarts(capacity=3)
     assert warm.start(np.ones(2)) is None
     orbits = np.arange(2 * 2 * 3, dtype=float).reshape(2, 2, 3)  # 2 sets x 2 experiments x 3 numbers
     warm.add([[1.0, 0.0], [2.0, 0.0]], features(orbits, np.array([[True, False], [True, True]])))
-    start = warm.start([[1.1, 0.0], [np.nan, 0.0]])
+    start, steps = warm.nearest([[1.1, 0.0], [np.nan, 0.0]])
     np.testing.assert_array_equal(start[0, 0], orbits[0, 0])  # the nearest set, [1, 0]
     np.testing.assert_array_equal(start[0, 1], orbits[1, 1])  # [1, 0] did not converge there: the next nearest
-    assert np.isnan(start[1]).all()  # a NaN set is near nothing: from rest
+    np.testing.assert_array_equal(steps[0], [10, 13])  # the steps of the runs begun there
+    assert np.isnan(start[1]).all() and np.isnan(steps[1]).all()  # a NaN set is near nothing: from rest
     warm.add([[5.0, 1.0], [6.0, 1.0]], features(orbits + 100, np.ones((2, 2), bool)))  # [1, 0] is forgotten
     np.testing.assert_array_equal(warm.start([[1.0, 0.0]])[0, 0], orbits[1, 0])
+
+
+def test_a_polish_run_far_stiffer_than_the_run_it_begins_on_is_cut_at_its_step_budget():
+    # lugre_servo with a rest stiffness 1e5 times its own settles from rest in ~2.4e5 steps per experiment; begun
+    # on the orbit of its own plant (~6000 steps), a polish's run may take 20 times that: it counts as without
+    # steady state (the polish steps back) instead of paying for a region no short step would reach
+    plant = load_plant("lugre_servo")
+    sim = simulator("lugre_servo")
+    amps, freqs = np.array([0.5, 0.5, 2.0, 2.0]), np.array([0.5, 5.0, 0.5, 5.0])
+    nominal = plant.parameter_vector()
+    truth = sim.steady_state(nominal, amps, freqs)
+    data = SineData(amplitudes=amps, frequencies=freqs, H=truth.H[0], dc=truth.dc[0], noisy=False, source="test",
+                    skipped=0, noise=np.zeros(4))
+    mask = identified_mask(plant)
+    stiff = nominal.copy()
+    stiff[list(sim.parameter_names).index("sigma0")] *= 1e5
+    assert np.all(np.isfinite(SineCriterion(plant, data, sim).residuals(stiff[mask], POLISH_RTOL)))  # from rest
+    warm = SineCriterion(plant, data, sim)
+    assert np.allclose(warm.residuals(nominal[mask], POLISH_RTOL), 0, atol=1e-7)
+    _, steps = warm.warm_starts.nearest(stiff)
+    assert np.nanmax(steps) * STEP_BUDGET_FACTOR < 2e5
+    assert np.all(np.isnan(warm.residuals(stiff[mask], POLISH_RTOL)))
+    assert np.all(np.isfinite(warm.residuals(stiff[mask], SEARCH_RTOL * 10)))  # a search's run has no budget
 
 
 def test_hopeless_experiment_is_given_up_early_with_the_same_verdict():

@@ -366,7 +366,7 @@ class PSOANNIdentifier(EstimatorDisplay):
             stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0, crit.evaluations - before))
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
             jac = jac_y @ target_jacobian(self.structure, y_best)
-            if not np.all(np.isfinite(jac)):  # a parameter at the edge of its domain (fs = fc)
+            if not np.all(np.isfinite(jac)) and np.all(np.isfinite(r)):  # a parameter at its domain's edge (fs = fc)
                 jac = with_finite_columns(crit, theta, jac)
         else:
             theta, fitness = stages[-1].theta, stages[-1].fitness

@@ -24,7 +24,9 @@ def polish(crit, to_theta, y0: np.ndarray, iterations: int = MAX_POLISH_ITERATIO
     features' noise floor further steps only wander), or when the best step lowers the residual norm by less than
     1 % and Σr² by less than POLISH_MIN_DROP noise variances.  The forward-difference Jacobian
     is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
-    fails both ways ends the polish (NaN intervals rather than false ones)."""
+    fails both ways ends the polish (NaN intervals rather than false ones), as does a start without a steady state
+    (its derivatives would be taken between runs that ran to their time limit: a noise-free stribeck_servo
+    selection spent a tenth of its time on them)."""
 
     def residual(y):
         r = crit.residuals(to_theta(y[None]), POLISH_RTOL)[0]
@@ -39,7 +41,9 @@ def polish(crit, to_theta, y0: np.ndarray, iterations: int = MAX_POLISH_ITERATIO
             cols[failed] = crit.residuals(to_theta(y + np.diag(h)[failed]), JACOBIAN_RTOL)
         return ((cols - r) / h[:, None]).T
 
-    y, r = y0.copy(), residual(y0)
+    y, r = y0.copy(), crit.residuals(to_theta(y0[None]), POLISH_RTOL)[0]
+    if not np.all(np.isfinite(r)):  # no steady state at the start: no derivative to descend along
+        return y, np.full((r.size, y.size), np.nan)
     jac, damping = jacobian(y, r), 1e-6
     for _ in range(iterations):
         if not np.all(np.isfinite(jac)):

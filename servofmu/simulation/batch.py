@@ -260,7 +260,7 @@ class WarmStarts:
         # A ring of the latest `capacity` sets, filled in place (a search adds ten sets per call, and copying the
         # whole memory on every call cost a tenth of a fit): params (capacity, n_params), orbits (capacity, n_exp,
         # orbit) with NaN where the run did not converge; `size` rows hold sets, `next` is where the next goes.
-        self.params = self.orbits = None
+        self.params = self.orbits = self.steps = None
         self.size = self.next = 0
 
     def add(self, params, features: SteadyStateFeatures) -> None:
@@ -269,19 +269,26 @@ class WarmStarts:
         some = np.any(features.converged, axis=1)
         params = params[some][-self.capacity:]
         orbits = np.where(features.converged[some, :, None], features.orbit[some], np.nan)[-self.capacity:]
+        steps = features.steps[some][-self.capacity:]
         if self.params is None:
             self.params = np.empty((self.capacity,) + params.shape[1:])
             self.orbits = np.empty((self.capacity,) + orbits.shape[1:])
+            self.steps = np.zeros((self.capacity,) + steps.shape[1:], dtype=np.int64)
         rows = (self.next + np.arange(len(params))) % self.capacity
-        self.params[rows], self.orbits[rows] = params, orbits
+        self.params[rows], self.orbits[rows], self.steps[rows] = params, orbits, steps
         self.next = (self.next + len(params)) % self.capacity
         self.size = min(self.size + len(params), self.capacity)
 
     def start(self, params) -> np.ndarray | None:
         """``start`` for the parameter sets ``params`` (N, n_params): shape (N, n_exp, orbit), NaN where no
         run converged in an experiment; None before anything converged."""
+        return self.nearest(params)[0]
+
+    def nearest(self, params) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(``start``, as :meth:`start` gives it; the integrator steps the runs begun there took, shape (N, n_exp),
+        NaN where there is no start): what a run from each start may be expected to cost."""
         if self.size == 0:
-            return None
+            return None, None
         known, orbits = self.params[:self.size], self.orbits[:self.size]
         p = np.atleast_2d(np.asarray(params, dtype=float))[:, None, :]
         scale = np.abs(p) + np.abs(known)
@@ -291,14 +298,17 @@ class WarmStarts:
         usable = np.isfinite(orbits[..., 0])  # (M, n_exp)
         if usable.all():  # the usual case: one nearest set for all experiments
             nearest = np.argmin(distance, axis=1)
-            start = orbits[nearest]
-            start[~np.isfinite(distance[np.arange(len(nearest)), nearest])] = np.nan
-            return start
+            start, steps = orbits[nearest], self.steps[nearest].astype(float)
+            far = ~np.isfinite(distance[np.arange(len(nearest)), nearest])
+            start[far], steps[far] = np.nan, np.nan
+            return start, steps
         distance = np.where(usable.T[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
         nearest = np.argmin(distance, axis=2)
         start = orbits[nearest, np.arange(usable.shape[1])]
-        start[~np.isfinite(np.min(distance, axis=2))] = np.nan
-        return start
+        steps = self.steps[:self.size][nearest, np.arange(usable.shape[1])].astype(float)
+        far = ~np.isfinite(np.min(distance, axis=2))
+        start[far], steps[far] = np.nan, np.nan
+        return start, steps
 
 
 def valid_parameter_sets(plant: Plant, params) -> np.ndarray:
