@@ -102,7 +102,7 @@ def selection():
 
 
 def validation(measured):
-    from servofmu.output.validate import validate
+    from servofmu.validation.replay import validate
 
     return validate(fake_result(sf.load_plant("g1")), measured)
 
