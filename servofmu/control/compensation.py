@@ -20,7 +20,7 @@ from ..identification.results import read_result
 from ..measurement.frf import estimate_frequency, harmonics
 from ..model.plant import Plant, load_plant
 from ..runtime import temporary_folder
-from ..model.controller import PARAMETERS, ControllerSpec, friction_feedforward
+from ..model.controller import ControllerSpec, friction_feedforward, missing_parameter, parameter_set, values_from
 from .cosim import CosimResult, cosimulate
 from .system import parameter_set_xml, read_system
 
@@ -62,8 +62,7 @@ def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine:
             for item in src.infolist():
                 if item.filename != "resources/controller.ssv":
                     dst.writestr(item, src.read(item.filename))
-            dst.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
-                                                                                 controller.values))))
+            dst.writestr("resources/controller.ssv", parameter_set_xml(parameter_set(controller)))
         result = cosimulate(variant, engine=engine)
     e = result["reference"] - result["position"]
     return TrackingRun(label, result, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), _distortion(result))
@@ -75,10 +74,10 @@ def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None
     ``progress(done, total)`` (runtime.Progress) as the runs finish."""
     with temporary_folder("compensate") as tmp:
         system = read_system(ssp, tmp)
-    missing = [p.name for p in PARAMETERS if p.name not in system.controller]
+    missing = missing_parameter(system.controller)
     if missing:
-        raise UserError(f"{ssp}: the controller's parameter set has no {missing[0]!r}")
-    base = ControllerSpec("controller", tuple(system.controller[p.name] for p in PARAMETERS), str(ssp))
+        raise UserError(f"{ssp}: the controller's parameter set has no {missing!r}")
+    base = ControllerSpec("controller", values_from(system.controller), str(ssp))
     variants = [(base.with_values(friction_feedforward=0.0), "no compensation"),
                 (friction_feedforward(base, identified), "identified friction")]
     if truth is not None:
