@@ -224,3 +224,12 @@ def test_the_tune_defaults_are_written_once():
             found += [f"{path.relative_to(ROOT)}:{v.lineno}: {name} = {v.value!r}" for name, v in pairs
                       if name in defaults and isinstance(v, ast.Constant) and v.value == defaults[name]]
     assert found == []
+
+
+def test_every_subpackage_is_in_the_wheel():
+    """pyproject's package list names every folder of the package (a new stage, validation, was one to add)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {module_name(p) for p in PACKAGE.rglob("__init__.py")}
+    assert found - listed == set()
