@@ -77,7 +77,7 @@ def test_the_literal_defaults_of_the_command_line_are_the_librarys():
     from servofmu.cli import measure, tune
     from servofmu.measurement.excitation import MAX_STEPS
     from servofmu.model.signals import INTERSAMPLE
-    from servofmu.output.tune_report import DEFAULT_SPEED, DEFAULT_STROKE
+    from servofmu.tuning.task import DEFAULT_SPEED, DEFAULT_STROKE
     from servofmu.tuning.run import METHODS
 
     assert (measure.MAX_STEPS, measure.INTERSAMPLE) == (MAX_STEPS, INTERSAMPLE)

@@ -18,7 +18,7 @@ from servofmu.identification.identifier import PsoOptions
 from servofmu.identification.prior import identified_mask, identified_names
 from servofmu.identification.restarts import RestartOptions
 from servofmu.identification.results import Result, Stage
-from servofmu.model.controller import load_controller
+from servofmu.model.controller import PARAMETERS, load_controller
 from servofmu.runtime import RunOptions
 
 UNIT = re.compile(r"[\d—] (dB|deg|Hz|N|s|m|m/s|rad/s|N·s/m|N/m|%|m/\(N·s\))(?![\w/])")
@@ -102,7 +102,7 @@ def selection():
 
 
 def validation(measured):
-    from servofmu.output.validate import validate
+    from servofmu.validation.replay import validate
 
     return validate(fake_result(sf.load_plant("g1")), measured)
 
@@ -260,7 +260,7 @@ def test_the_loop_shows_its_margins_in_db_deg_and_hz():
 def test_the_controller_names_its_gains_with_units():
     text, page = assert_shows_itself(load_controller("axis_controller"))
     assert re.search(r"kp_velocity [\d.e+-]+ N·s/m", text) and re.search(r"ki_velocity [\d.e+-]+ N/m", text)
-    assert page.count("<tr>") == 1 + 22  # the head and every parameter
+    assert page.count("<tr>") == 1 + len(PARAMETERS) == 1 + 25  # the head and every parameter
 
 
 def test_a_result_shows_its_parameters_with_units_and_intervals():

@@ -19,7 +19,7 @@ from servofmu.measurement.datafile import DataFile, ExperimentResult, Record, Se
 from servofmu.model.plant import load_plant
 from servofmu.output.bode_band import response_band
 from servofmu.output.figures import bode, friction_curve, residual_tests, validation_overlay
-from servofmu.output.validate import RecordValidation, Validation
+from servofmu.validation.replay import RecordValidation, Validation
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("pole1", "dc_gain", "fc_pos", "fc_neg")

@@ -23,6 +23,7 @@ STAGES = [
     {"servofmu.selection"},
     {"servofmu.control"},
     {"servofmu.tuning"},
+    {"servofmu.validation"},
     {"servofmu.output"},
     {"servofmu.api"},
     {"servofmu.cli", "servofmu.__main__"},
@@ -135,3 +136,100 @@ def test_no_two_modules_import_each_other():
     edges = module_imports()
     pairs = sorted({tuple(sorted((a, b))) for a in edges for b in edges[a] if a != b and a in edges.get(b, ())})
     assert pairs == []
+
+
+# What runs a command's work: the stages' entry points, searches and loop simulations.  output/ draws pages of
+# what they computed and exports; it imports none of them at run time (a type under TYPE_CHECKING is no import).
+RUNS_A_COMMAND = {"servofmu.tuning.run", "servofmu.tuning.search", "servofmu.tuning.check",
+                  "servofmu.control.compensation", "servofmu.control.cosim", "servofmu.simulation.closed_loop",
+                  "servofmu.simulation.fmpy_runs", "servofmu.validation.run", "servofmu.identification.run",
+                  "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run"}
+# Not yet in their rooms (issue 44): the demo runs every stage end to end, and select's page is written by
+# select_with_report around selection.run's select_files.
+NOT_YET = {"servofmu.output.demo", "servofmu.output.selection_report"}
+
+
+def runtime_imports(path: Path, root: Path = ROOT) -> set[str]:
+    """The servofmu modules ``path`` imports at run time (``from X import y`` names X.y too), leaving out the
+    blocks under ``if TYPE_CHECKING:``."""
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            node.body = []
+    out = set()
+    for _, module, names in imports_of_tree(tree, path, root):
+        out |= {module} | {f"{module}.{n}" for n in names}
+    return out
+
+
+def imports_of_tree(tree, path: Path, root: Path):
+    """:func:`imports` of an already parsed (and pruned) tree."""
+    package = module_name(path, root).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, []
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module or ""
+            if node.level:
+                module = ".".join(package[:len(package) - node.level + 1] + ([node.module] if node.module else []))
+            yield node.lineno, module, [a.name for a in node.names]
+
+
+@pytest.mark.parametrize("path", sorted((PACKAGE / "output").glob("*.py")), ids=lambda p: p.name)
+def test_output_runs_no_command(path):
+    """output/ holds pages, figures and exports: the work of tune, compensate and validate is in their stages."""
+    if module_name(path) in NOT_YET:
+        return
+    found = sorted(runtime_imports(path) & RUNS_A_COMMAND)
+    assert not found, f"{path.relative_to(ROOT)} imports {', '.join(found)}, which run a command's work"
+
+
+def test_the_output_check_sees_a_command_run(tmp_path):
+    """The check fails on a page module that runs the tuning (as output/tune_report.py did), not on a type."""
+    probe = tmp_path / "servofmu" / "output" / "probe.py"
+    probe.parent.mkdir(parents=True)
+    probe.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..validation.run import x\n"
+                     "from ..tuning.run import Tuning, tune_axis\nfrom ..control import compensation\n")
+    assert runtime_imports(probe, root=tmp_path) & RUNS_A_COMMAND == {"servofmu.tuning.run",
+                                                                      "servofmu.control.compensation"}
+
+
+def test_the_tune_defaults_are_written_once():
+    """TuneOptions holds tune's defaults; the command line's literal copy (for a numpy-free --help) is compared
+    with it in tests/test_cli_options.py.  No other module names them again: no keyword, field or dict entry of
+    max_sensitivity, particles or iterations with a default's value, no default stroke or speed."""
+    from servofmu.tuning.search import TuneOptions
+
+    defaults = {n: getattr(TuneOptions(), n) for n in ("max_sensitivity", "particles", "iterations")}
+    homes = {PACKAGE / "tuning" / "search.py", PACKAGE / "tuning" / "task.py", PACKAGE / "cli" / "tune.py"}
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path in homes:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            pairs = []
+            if isinstance(node, ast.keyword):
+                pairs = [(node.arg, node.value)]
+            elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                pairs = [(node.target.id, node.value)]
+            elif isinstance(node, ast.Dict):
+                pairs = [(k.value, v) for k, v in zip(node.keys, node.values) if isinstance(k, ast.Constant)]
+            elif isinstance(node, ast.Assign):
+                names = [t.id for t in node.targets if isinstance(t, ast.Name)]
+                if {"DEFAULT_STROKE", "DEFAULT_SPEED"} & set(names):
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {names}")
+            found += [f"{path.relative_to(ROOT)}:{v.lineno}: {name} = {v.value!r}" for name, v in pairs
+                      if name in defaults and isinstance(v, ast.Constant) and v.value == defaults[name]]
+    assert found == []
+
+
+def test_every_subpackage_is_in_the_wheel():
+    """pyproject's package list names every folder of the package (a new stage, validation, was one to add)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {module_name(p) for p in PACKAGE.rglob("__init__.py")}
+    assert found - listed == set()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from servofmu.identification.residuals import EXACT, residual_test
-from servofmu.output.validate import RecordValidation, Validation, validation_json, validation_text
+from servofmu.validation.replay import RecordValidation, Validation, validation_json, validation_text
 
 
 def _validation(noise: float) -> Validation:

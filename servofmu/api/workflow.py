@@ -2,7 +2,7 @@
 holds (Records, a DataFile, a Plant, a ControllerSpec, a Result) and returning objects, with no file written.
 
 These are the command line's computations (selection.run.select_files, identification.run.identify_to_file,
-output.validate.validate, tuning.run.tune_axis) called on objects: the same checks, the same numbers.
+validation.replay.validate, tuning.run.tune_axis) called on objects: the same checks, the same numbers.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from ..identification.results import Result
 from ..measurement.datafile import DataFile, read_data_file
 from ..model.controller import ControllerSpec, load_controller
 from ..model.plant import Plant
-from ..output.validate import Validation, validate
+from ..validation.replay import Validation, validate
 from ..runtime import Progress, RunOptions
 from .records import Records
 
@@ -126,7 +126,7 @@ def select(data: DataLike | list, validation: DataLike, *, controller: DriveLike
 
 @dataclass(frozen=True)
 class ModelComparison:
-    """Several models validated on the same data: one :class:`~servofmu.output.validate.Validation` per model, by
+    """Several models validated on the same data: one :class:`~servofmu.validation.replay.Validation` per model, by
     label, in the order given; :meth:`table` has a column per model."""
 
     validations: dict[str, Validation]
@@ -210,7 +210,7 @@ def compare_models(results: Sequence[Result] | dict[str, Result], data: DataLike
     if isinstance(results, dict):
         labelled = dict(results)
     else:
-        from ..output.model_comparison import unique_labels
+        from ..validation.run import unique_labels
 
         results = list(results)
         labelled = dict(zip(unique_labels([getattr(r, "plant", None) and r.plant.name or "model" for r in results]),
@@ -250,7 +250,7 @@ def tune(result: Result, controller: DriveLike, *, stroke: float | None = None, 
         Every controller's run (given, rule, tuned); ``controller`` is the one chosen.
     """
     check_arguments(tune, locals())
-    from ..output.tune_report import load_task
+    from ..tuning.task import load_task
     from ..tuning.run import tune_axis
     from ..tuning.search import TuneOptions  # noqa: F811  (at run time: the one for the default)
 

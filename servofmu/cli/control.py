@@ -61,11 +61,17 @@ def cmd_compensate(args) -> None:
     """The axis with and without the feed-forward of the identified friction."""
     import json
 
-    from ..output.compensation_report import compensate_files, compensation_json, compensation_text
+    from ..control.compensation import compensate_files
+    from ..output.compensation_report import compensation_json, compensation_page, compensation_text
 
-    with ProgressBar(args, "run") as bar:
-        runs = compensate_files(args.result, args.axis, truth=args.truth, output=args.output, engine=args.engine,
-                                overwrite=args.force, progress=bar.update)
+    with ProgressBar(args, "run") as bar:  # (the page claimed with the command's outputs, before the runs)
+        compensation = compensate_files(args.result, args.axis, truth=args.truth, engine=args.engine,
+                                        progress=bar.update)
+    if args.output:
+        from ..fileio import atomic_write
+
+        atomic_write(args.output, compensation_page(compensation))
+    runs = compensation.runs
     if args.json:
         print(json.dumps(compensation_json(runs), allow_nan=True))
         return

@@ -11,11 +11,7 @@ def cmd_validate(args) -> None:
     exit status 1 when a model's verdict is "failed"."""
     import json
 
-    run, as_json, as_text, passed = _validation(args)
-    with ProgressBar(args, "step") as bar:  # a step per model simulated on the data, and the page written
-        out = run(data_path=args.data, output=args.output, skip=args.skip, controller=args.closed_loop,
-                  overwrite=args.force, progress=bar.update,
-                  **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+    out, as_json, as_text, passed = _validate_with_page(args)
     if args.json:
         print(json.dumps(as_json(out), allow_nan=False))
     else:
@@ -27,17 +23,40 @@ def cmd_validate(args) -> None:
 
 
 def _validation(args):
-    """(run, to JSON, to text, passed) of one result's validation or of several results' side by side."""
+    """(run, write the page, to JSON, to text, passed) of one result's validation or of several results' side by
+    side."""
     if len(args.result) > 1:
-        from ..output.model_comparison import comparison_json, comparison_text, validate_several
+        from ..output.model_comparison import comparison_json, comparison_text, write_comparison
+        from ..validation.run import validate_several
 
-        return (lambda **kw: validate_several(args.result, **kw), comparison_json, comparison_text,
+        return (lambda **kw: validate_several(args.result, **kw),
+                lambda output, pairs: write_comparison(output, pairs, args.data), comparison_json, comparison_text,
                 lambda pairs: all(v.passed for _, v in pairs))
-    from ..output.validate import validation_json, validation_text
-    from ..output.validation_report import validate_files
+    from ..output.validation_report import write_validation
+    from ..validation.replay import validation_json, validation_text
+    from ..validation.run import validate_files
 
-    return (lambda **kw: validate_files(args.result[0], **kw), validation_json, validation_text,
-            lambda v: v.passed)
+    return (lambda **kw: validate_files(args.result[0], **kw),
+            lambda output, v: write_validation(output, v, args.result[0], args.data), validation_json,
+            validation_text, lambda v: v.passed)
+
+
+def _validate_with_page(args):
+    """The validation (servofmu.validation.run) and its page or figure: (validation(s), to JSON, to text, passed)."""
+    run, write, as_json, as_text, passed = _validation(args)
+    if args.output:  # (claimed with the command's outputs already; its kind checked before any work)
+        from ..output.validation_report import check_page_suffix
+
+        check_page_suffix(args.output)
+    with ProgressBar(args, "step") as bar:  # a step per model simulated on the data, and the page written
+        pages = 1 if args.output else 0
+        out = run(data_path=args.data, skip=args.skip, controller=args.closed_loop,
+                  progress=lambda done, total: bar.update(done, total + pages),
+                  **({} if args.min_fit is None else {"min_fit": args.min_fit}))
+        if args.output:
+            write(args.output, out)
+            bar.update(len(args.result) + 1, len(args.result) + 1)
+    return out, as_json, as_text, passed
 
 
 def cmd_report(args) -> None:
@@ -82,7 +101,7 @@ def register(sub) -> None:
                    help="closed-loop records of this controller: replayed in the loop from their reference")
     p.add_argument("--min-fit", type=float, metavar="PCT",
                    help="the fit (%%) every record and experiment must reach (default 80, "
-                        "servofmu.output.validate.MIN_FIT; docs/validation.md); exit status 1 when the model fails")
+                        "servofmu.validation.replay.MIN_FIT; docs/validation.md); exit status 1 when the model fails")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_progress_option(p)
     p.add_argument("-o", "--output", metavar="FILE.html|FILE.png", help="write a page or a figure")

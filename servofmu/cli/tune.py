@@ -1,9 +1,10 @@
-"""`servofmu tune`: the drive's gains for an identified axis (servofmu.tuning, the page in output.tune_report)."""
+"""`servofmu tune`: the drive's gains for an identified axis (servofmu.tuning.run.tune_files, the page in
+output.tune_report)."""
 from __future__ import annotations
 
 __all__ = ["register", "cmd_tune", "DEFAULT_STROKE", "DEFAULT_SPEED", "METHODS", "OPTION_DEFAULTS"]
 
-# The library's values (servofmu.output.tune_report.DEFAULT_STROKE and DEFAULT_SPEED, servofmu.tuning.run.METHODS,
+# The library's values (servofmu.tuning.task.DEFAULT_STROKE and DEFAULT_SPEED, servofmu.tuning.run.METHODS,
 # servofmu.tuning.search.TuneOptions' defaults), here as literals so that `--help` loads neither numpy nor h5py
 # (tests/test_cli_options.py checks that they agree); the options left out reach the library as its defaults.
 DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15
@@ -15,22 +16,35 @@ def cmd_tune(args) -> None:
     """Tune a controller file for an identified axis; write the tuned controller file (and its page)."""
     import json
 
-    from ..output.tune_report import tune_files, tune_json, tune_text
-    from ..tuning.search import TuneOptions
-    from .common import ProgressBar
+    from ..output.tune_report import tune_json, tune_text
 
-    options = TuneOptions(**{k: getattr(args, k) for k in OPTION_DEFAULTS if getattr(args, k) is not None},
-                          keep=args.keep, work_limit=args.work_limit)
-    with ProgressBar(args, "iteration") as bar:
-        tuning = tune_files(args.result, args.controller, args.output, task=args.task, stroke=args.stroke,
-                            speed=args.speed, options=options, compensate=args.compensate, method=args.method,
-                            axis=args.axis, report=args.report, engine=args.engine, overwrite=args.force,
-                            progress=bar.update)
+    tuning = _tune_with_page(args)
     if args.json:
         print(json.dumps(tune_json(tuning), allow_nan=True))
         return
     print(tune_text(tuning))
     print(f"wrote {args.output}" + (f" and {args.report}" if args.report else ""))
+
+
+def _tune_with_page(args):
+    """The tuning (servofmu.tuning.run.tune_files) and its page: the controller file and the page, or neither."""
+    from pathlib import Path
+
+    from ..fileio import all_or_none, atomic_write
+    from ..output.tune_report import tune_html
+    from ..tuning.run import tune_files
+    from ..tuning.search import TuneOptions
+    from .common import ProgressBar
+
+    options = TuneOptions(**{k: getattr(args, k) for k in OPTION_DEFAULTS if getattr(args, k) is not None},
+                          keep=args.keep, work_limit=args.work_limit)
+    with ProgressBar(args, "iteration") as bar, all_or_none((args.output, args.report)):
+        tuning = tune_files(args.result, args.controller, args.output, task=args.task, stroke=args.stroke,
+                            speed=args.speed, options=options, compensate=args.compensate, method=args.method,
+                            axis=args.axis, engine=args.engine, overwrite=args.force, progress=bar.update)
+        if args.report:
+            atomic_write(args.report, tune_html(tuning, Path(args.result).name, Path(args.controller).name))
+    return tuning
 
 
 def register(sub) -> None:

@@ -4,6 +4,7 @@ the identified friction, and with the true one when known — the paper's "veloc
 Each run is the axis archive with the controller's feed-forward parameters replaced in its parameter set
 (resources/controller.ssv); nothing else changes.  Per run: the tracking error e = r − x (RMS and peak), and the
 velocity's harmonic distortion over the reference's whole periods (when the reference is periodic).
+:func:`compensate_files` is `servofmu compensate` from files; its page is servofmu.output.compensation_report's.
 """
 from __future__ import annotations
 
@@ -15,14 +16,15 @@ import numpy as np
 
 from ..errors import UserError
 from ..fileio import write_failures
+from ..identification.results import read_result
 from ..measurement.frf import estimate_frequency, harmonics
-from ..model.plant import Plant
+from ..model.plant import Plant, load_plant
 from ..runtime import temporary_folder
-from ..model.controller import PARAMETERS, ControllerSpec, friction_feedforward
+from ..model.controller import ControllerSpec, friction_feedforward, missing_parameter, parameter_set, values_from
 from .cosim import CosimResult, cosimulate
 from .system import parameter_set_xml, read_system
 
-__all__ = ["TrackingRun", "run_variant", "compare_compensation", "reconstructed_friction"]
+__all__ = ["TrackingRun", "Compensation", "run_variant", "compare_compensation", "compensate_files"]
 
 
 @dataclass(frozen=True)
@@ -60,8 +62,7 @@ def run_variant(ssp: str | Path, controller: ControllerSpec, label: str, engine:
             for item in src.infolist():
                 if item.filename != "resources/controller.ssv":
                     dst.writestr(item, src.read(item.filename))
-            dst.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
-                                                                                 controller.values))))
+            dst.writestr("resources/controller.ssv", parameter_set_xml(parameter_set(controller)))
         result = cosimulate(variant, engine=engine)
     e = result["reference"] - result["position"]
     return TrackingRun(label, result, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), _distortion(result))
@@ -73,10 +74,10 @@ def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None
     ``progress(done, total)`` (runtime.Progress) as the runs finish."""
     with temporary_folder("compensate") as tmp:
         system = read_system(ssp, tmp)
-    missing = [p.name for p in PARAMETERS if p.name not in system.controller]
+    missing = missing_parameter(system.controller)
     if missing:
-        raise UserError(f"{ssp}: the controller's parameter set has no {missing[0]!r}")
-    base = ControllerSpec("controller", tuple(system.controller[p.name] for p in PARAMETERS), str(ssp))
+        raise UserError(f"{ssp}: the controller's parameter set has no {missing!r}")
+    base = ControllerSpec("controller", values_from(system.controller), str(ssp))
     variants = [(base.with_values(friction_feedforward=0.0), "no compensation"),
                 (friction_feedforward(base, identified), "identified friction")]
     if truth is not None:
@@ -91,14 +92,22 @@ def compare_compensation(ssp: str | Path, identified: Plant, truth: Plant | None
     return runs
 
 
-def reconstructed_friction(run: TrackingRun, plant: Plant) -> tuple[np.ndarray, np.ndarray] | None:
-    """(velocity, friction force) points reconstructed from a run through the identified linear part, where G is
-    first order without zeros: G = K/(s − p) is a mass 1/K, so everything but inertia, u − (dv/dt)/K, is friction
-    — the viscous part b·v = −p·v/K included, as in the feed-forward.  The force held on [t_i, t_i+1) is paired
-    with the mean velocity and the velocity difference of that interval.  None for other G."""
-    if plant.order != 1 or plant.zeros:
-        return None
-    t, u, v = run.result.time, run.result["force"], run.result["v"]
-    return (v[:-1] + v[1:]) / 2, u[:-1] - np.diff(v) / np.diff(t) / plant.numerator_gain()
+@dataclass(frozen=True)
+class Compensation:
+    """`servofmu compensate`'s runs and the plants whose friction they fed forward (the truth None if not given)."""
+
+    runs: list[TrackingRun]
+    identified: Plant
+    truth: Plant | None
+    axis: str  # the axis archive's file name
 
 
+def compensate_files(result_path: str | Path, ssp: str | Path, truth: str | Path | None = None,
+                     engine: str = "libcosim", progress=None) -> Compensation:
+    """`servofmu compensate` from files: the axis archive ``ssp`` run without friction feed-forward, with the
+    friction of the result file ``result_path`` and (``truth``: a plant file or an example's name) with the true
+    friction (:func:`compare_compensation`); ``progress(done, total)`` as the runs finish.  Nothing is written."""
+    identified = read_result(result_path).plant
+    true_plant = load_plant(truth) if truth is not None else None
+    runs = compare_compensation(ssp, identified, true_plant, engine=engine, progress=progress)
+    return Compensation(runs, identified, true_plant, Path(ssp).name)

@@ -27,7 +27,7 @@ from ..errors import UserError
 from ..fileio import atomic_write, claim_output, output_mode, write_failures
 from ..runtime import temporary_folder
 from ..simulation.fmpy_runs import FmuInfo, read_fmu
-from ..model.controller import PARAMETERS, ControllerSpec
+from ..model.controller import ControllerSpec, missing_parameter, parameter_set, values_from
 from .fmus import (
     CONTROLLER_INPUTS,
     CONTROLLER_OUTPUTS,
@@ -79,12 +79,11 @@ def _tag(ns: str, name: str) -> str:
 def controller_from_fmu(path: str | Path) -> ControllerSpec:
     """The controller an FMU built by servofmu was made of (its parameters' start values)."""
     info = read_fmu(path)
-    missing = [p.name for p in PARAMETERS if p.name not in info.variables]
-    missing += [n for n in _CONTROLLER_VARIABLES if n not in info.variables]
+    missing = [n for n in (missing_parameter(info.variables), *_CONTROLLER_VARIABLES)
+               if n is not None and n not in info.variables]
     if missing:
         raise UserError(f"{path}: not a servofmu controller FMU (it has no variable {missing[0]!r})")
-    return ControllerSpec(info.model_name, tuple(float(info.variables[p.name].start) for p in PARAMETERS),
-                          str(path))
+    return ControllerSpec(info.model_name, values_from({n: v.start for n, v in info.variables.items()}), str(path))
 
 
 def _check_fmi2_cs(path: Path, role: str) -> FmuInfo:
@@ -203,8 +202,7 @@ def write_system(plant_fmu: str | Path, controller_fmu: str | Path, reference: t
         buffer = io.BytesIO()
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("SystemStructure.ssd", _ssd(controller, float(time[-1]), connectors, connections))
-            zf.writestr("resources/controller.ssv", parameter_set_xml(dict(zip((p.name for p in PARAMETERS),
-                                                                 controller.values))))
+            zf.writestr("resources/controller.ssv", parameter_set_xml(parameter_set(controller)))
             for name, path in fmus.items():
                 zf.write(path, f"resources/{name}.fmu")
     atomic_write(output, buffer.getvalue())

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..model.controller import MAX_DELAY, ControllerSpec
 
-__all__ = ["law_command", "LawFit", "law_fit", "LAW_REFUSED", "LAW_SUSPECT", "LAW_WARNED", "EXPLAINS_BETTER"]
+__all__ = ["law_command", "feedforward_force", "LawFit", "law_fit", "LAW_REFUSED", "LAW_SUSPECT", "LAW_WARNED", "EXPLAINS_BETTER"]
 
 # The file's law may leave this share of the command's variation (relative RMS) unexplained before identify
 # refuses the log: a drive's log holds its command to its number format, a measured current or a command logged
@@ -72,12 +72,20 @@ def _reference_terms(reference: np.ndarray, ts: float) -> tuple[np.ndarray, np.n
     return v_ref, a_ref
 
 
-def _feedforward(controller: ControllerSpec, v: np.ndarray) -> np.ndarray:
+def feedforward_force(controller: ControllerSpec, v: np.ndarray) -> np.ndarray:
+    """The friction feed-forward F_ff(v) (N) of controller_law.h at the reference velocities ``v`` (m/s), before
+    its share: the Stribeck curve with exponent δ, the tanh sign, the viscous part and its direction-dependent
+    part."""
     c = controller
-    th, bump = np.tanh(v / c["ff_v_smooth"]), np.exp(-(v / c["ff_vs"]) ** 2)
+    th = np.tanh(v / c["ff_v_smooth"])
+    delta = c["ff_delta"]
+    bump = np.exp(-(v / c["ff_vs"]) ** 2) if delta == 2.0 else np.exp(-np.abs(v / c["ff_vs"]) ** delta)
     g_pos = c["ff_fc_pos"] + (c["ff_fs_pos"] - c["ff_fc_pos"]) * bump
     g_neg = c["ff_fc_neg"] + (c["ff_fs_neg"] - c["ff_fc_neg"]) * bump
-    return g_pos * np.maximum(th, 0) + g_neg * np.minimum(th, 0) + c["ff_fv"] * v
+    f = g_pos * np.maximum(th, 0) + g_neg * np.minimum(th, 0) + c["ff_fv"] * v
+    if c["ff_fv_pos"] or c["ff_fv_neg"]:
+        f = f + c["ff_fv_pos"] * np.maximum(v, 0) + c["ff_fv_neg"] * np.minimum(v, 0)
+    return f
 
 
 def _integral(step: np.ndarray, f: np.ndarray, limit: float) -> np.ndarray:
@@ -122,7 +130,7 @@ def law_command(controller: ControllerSpec, reference: np.ndarray, position: np.
     e = c["kp_position"] * (r - y) + c["velocity_feedforward"] * v_ref - _velocity(c, y)
     f = c["kp_velocity"] * e + c["mass_feedforward"] * a_ref
     if c["friction_feedforward"]:
-        f = f + c["friction_feedforward"] * _feedforward(c, v_ref)
+        f = f + c["friction_feedforward"] * feedforward_force(c, v_ref)
     u = f + _integral(c["ki_velocity"] * ts * e, f, c["force_limit"]) if c["ki_velocity"] else f
     return np.clip(u, -c["force_limit"], c["force_limit"]) if clip else u
 

@@ -1,7 +1,7 @@
 """The residual analysis of an output-error model, as MATLAB's ``resid`` does it: the autocorrelation of the
 residuals e (lags 1..LAGS) and their cross-correlation with the input u (lags −LAGS..LAGS), with bounds that a
 right model (e white and independent of u) stays within at the probability LEVEL, jointly over the lags tested
-(servofmu.output.validate explains the bounds; the selection of structures ranks candidates by them too)."""
+(servofmu.validation.replay explains the bounds; the selection of structures ranks candidates by them too)."""
 from __future__ import annotations
 
 import math
@@ -73,7 +73,7 @@ def residual_test(e: np.ndarray, u: np.ndarray, y: np.ndarray, lags: int = LAGS,
     output ``y``.
 
     The bounds hold with probability ``level`` jointly over the lags of ``functions`` correlation functions
-    (Bonferroni: each lag at 1 − (1 − level)/(lags·functions)); servofmu.output.validate passes the number of
+    (Bonferroni: each lag at 1 − (1 − level)/(lags·functions)); servofmu.validation.replay passes the number of
     functions it tests over the whole data file.
     """
     from scipy.stats import norm

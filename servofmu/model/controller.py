@@ -20,8 +20,9 @@ from .friction import viscous_damping
 from .laws.viscous import viscous_levels
 from .plant import Plant
 
-__all__ = ["Parameter", "PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError", "load_controller",
-           "controller_from_dict", "controller_toml", "friction_feedforward", "params_header"]
+__all__ = ["Parameter", "PARAMETERS", "OPTIONAL_PARAMETERS", "FILTERS", "ControllerSpec", "ControllerError",
+           "load_controller", "controller_from_dict", "controller_toml", "friction_feedforward", "params_header",
+           "missing_parameter", "values_from", "parameter_set"]
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,11 @@ PARAMETERS = (
     Parameter("encoder_resolution", "m", "encoder quantum of the measured position (0: exact)", 0.0),
     Parameter("force_noise", "N", "standard deviation of the actuator noise added to the applied force", 0.0),
     Parameter("noise_seed", "1", "seed of the actuator noise", 0.0, 0.0, 2.0**53, integer=True),
+    # (after the others: the vector's earlier indices, and the FMU's value references, stay as they were)
+    Parameter("ff_delta", "1", "shape exponent of the feed-forward's Stribeck curve exp(-|v/vs|^delta)", 2.0,
+              low_open=True),
+    Parameter("ff_fv_pos", "N.s/m", "feed-forward viscous friction added for v > 0 (direction-dependent part)", 0.0),
+    Parameter("ff_fv_neg", "N.s/m", "feed-forward viscous friction added for v < 0 (direction-dependent part)", 0.0),
 )
 INDEX = {p.name: i for i, p in enumerate(PARAMETERS)}
 
@@ -141,9 +147,13 @@ _FILE_KEYS = {
     "encoder": {"resolution": "encoder_resolution"},
     "compensation": {"v_smooth": "ff_v_smooth", "share": "friction_feedforward", "fc_pos": "ff_fc_pos",
                      "fc_neg": "ff_fc_neg", "fs_pos": "ff_fs_pos", "fs_neg": "ff_fs_neg", "vs": "ff_vs",
-                     "fv": "ff_fv"},
+                     "fv": "ff_fv", "delta": "ff_delta", "fv_pos": "ff_fv_pos", "fv_neg": "ff_fv_neg"},
 }
 _REQUIRED = ("sample_time", "kp_velocity")
+# Parameters a file, an FMU or an axis's parameter set need not hold (added later): written only where they differ
+# from their default, so that a controller without them reads, runs and is written exactly as before they existed
+OPTIONAL_PARAMETERS = ("ff_delta", "ff_fv_pos", "ff_fv_neg")
+_PAIRED = (("fv_pos", "fv_neg"), ("fv_neg", "fv_pos"))  # [compensation] keys given together
 
 
 def controller_from_dict(data: dict, source: str = "<memory>") -> ControllerSpec:
@@ -179,6 +189,10 @@ def controller_from_dict(data: dict, source: str = "<memory>") -> ControllerSpec
                 fail(label, why)
             values[parameter] = float(v)
             given.add(parameter)
+    section = data.get("compensation")
+    for key, other in _PAIRED:
+        if isinstance(section, dict) and key in section and other not in section:
+            fail(f"compensation.{key}", f"direction-dependent viscous feed-forward needs {other} too")
     for parameter in _REQUIRED:
         if parameter not in given:
             fail(next(f"{s}.{k}".lstrip(".") for s, keys in _FILE_KEYS.items() for k, p in keys.items()
@@ -196,6 +210,8 @@ def controller_toml(spec: ControllerSpec, comment: str = "") -> str:
             lines += ["", f"[{section}]"]
         for key, parameter in keys.items():
             value = spec[parameter]
+            if parameter in OPTIONAL_PARAMETERS and _left_out(spec):
+                continue
             if parameter == "velocity_filter":
                 lines.append(f'{key} = "{FILTERS[int(value)]}"')
             elif PARAMETERS[INDEX[parameter]].integer:
@@ -203,6 +219,11 @@ def controller_toml(spec: ControllerSpec, comment: str = "") -> str:
             else:
                 lines.append(f"{key} = {float(value)!r}")
     return "\n".join(lines) + "\n"
+
+
+def _left_out(spec: ControllerSpec) -> bool:
+    """Whether the file leaves out the optional keys: the Gaussian curve and no direction-dependent viscous part."""
+    return all(spec[p] == PARAMETERS[INDEX[p]].default for p in OPTIONAL_PARAMETERS)
 
 
 def load_controller(path: str | Path) -> ControllerSpec:
@@ -248,15 +269,37 @@ def friction_feedforward(controller: ControllerSpec, plant: Plant, share: float 
     the reference velocity — known ahead and free of the encoder's noise, where the measured velocity would feed
     quantisation noise back and chatter around the reversals.  The tanh sign is smoothed by the plant's v_smooth
     (a law without one, LuGre or Dahl: the controller file's, default 1e-3 m/s).  The law gives the values
-    (FrictionLaw.feedforward: the controller's curve is Stribeck's with exponent 2); a direction-dependent viscous
-    friction is fed forward as the mean of its two coefficients."""
+    (FrictionLaw.feedforward: Stribeck's curve with its shape exponent δ, 2 where the law has none).  A
+    direction-dependent viscous friction is fed forward by direction (ff_fv_pos, ff_fv_neg), the damping of G's
+    pole, common to both directions, as ff_fv."""
     values = plant.friction.values()
     ff = plant.friction.law.feedforward(values, controller["ff_v_smooth"])
     fv_pos, fv_neg = viscous_levels(values)
+    if "fv_pos" in values:
+        viscous = {"ff_fv": viscous_damping(plant), "ff_fv_pos": fv_pos, "ff_fv_neg": fv_neg}
+    else:
+        viscous = {"ff_fv": 0.5 * (fv_pos + fv_neg) + viscous_damping(plant), "ff_fv_pos": 0.0, "ff_fv_neg": 0.0}
     return controller.with_values(friction_feedforward=share, ff_fc_pos=ff["fc_pos"], ff_fc_neg=ff["fc_neg"],
                                   ff_fs_pos=ff["fs_pos"], ff_fs_neg=ff["fs_neg"], ff_vs=ff["vs"],
-                                  ff_fv=0.5 * (fv_pos + fv_neg) + viscous_damping(plant),
-                                  ff_v_smooth=ff["v_smooth"])
+                                  ff_delta=ff["delta"], ff_v_smooth=ff["v_smooth"], **viscous)
+
+
+def missing_parameter(names) -> str | None:
+    """The first parameter of the vector that ``names`` (an FMU's variables, an axis's parameter set) lacks, None
+    where it has them all (the optional ones may be missing)."""
+    return next((p.name for p in PARAMETERS if p.name not in names and p.name not in OPTIONAL_PARAMETERS), None)
+
+
+def values_from(values: dict) -> tuple[float, ...]:
+    """The parameter vector from name -> value (an optional parameter missing: its default)."""
+    return tuple(float(values.get(p.name, p.default)) for p in PARAMETERS)
+
+
+def parameter_set(spec: ControllerSpec) -> dict[str, float]:
+    """name -> value of ``spec`` for an axis's parameter set, the optional parameters left out at their defaults
+    (an axis built before they existed runs as before)."""
+    return {p.name: v for p, v in zip(PARAMETERS, spec.values)
+            if p.name not in OPTIONAL_PARAMETERS or v != p.default}
 
 
 def params_header() -> str:

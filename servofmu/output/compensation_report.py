@@ -1,4 +1,5 @@
-"""`servofmu compensate`: what feeding forward the identified friction buys on an axis (docs/control.md).
+"""`servofmu compensate`'s page: what feeding forward the identified friction buys on an axis (docs/control.md; the
+runs: servofmu.control.compensation.compensate_files).
 
 The axis (an SSP archive) runs without friction feed-forward, with the identified friction, and with the true
 friction when a plant file of the truth is given; the table gives the tracking error (RMS, peak) and the
@@ -7,21 +8,21 @@ truth, points reconstructed from the uncompensated run) and the tracking error o
 """
 from __future__ import annotations
 
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..control.compensation import TrackingRun, compare_compensation, reconstructed_friction
 from ..model.friction import steady_friction, viscous_damping
-from ..fileio import atomic_write, claim_output, output_mode
-from ..identification.results import read_result
-from ..model.plant import Plant, load_plant
+from ..model.plant import Plant
 from ..runtime import utc_now
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import figure_axes
 
-__all__ = ["compensate_files", "compensation_json", "compensation_text", "compensation_html",
-           "plot_compensation_friction", "plot_tracking_error"]
+if TYPE_CHECKING:  # the types only: the page runs nothing
+    from ..control.compensation import Compensation, TrackingRun
+
+__all__ = ["compensation_json", "compensation_text", "compensation_html", "compensation_page",
+           "plot_compensation_friction", "plot_tracking_error", "reconstructed_friction"]
 
 
 def compensation_json(runs: list[TrackingRun]) -> dict:
@@ -44,6 +45,17 @@ def compensation_text(runs: list[TrackingRun]) -> str:
                  f"{summary['rms_reduction']:.1f}x" + (f"; {summary['identified_over_true']:.3f} times the error "
                                                        "with the true friction" if len(runs) > 2 else ""))
     return "\n".join(lines)
+
+
+def reconstructed_friction(run: TrackingRun, plant: Plant) -> tuple[np.ndarray, np.ndarray] | None:
+    """(velocity, friction force) points reconstructed from a run through the identified linear part, where G is
+    first order without zeros: G = K/(s − p) is a mass 1/K, so everything but inertia, u − (dv/dt)/K, is friction
+    — the viscous part b·v = −p·v/K included, as in the feed-forward.  The force held on [t_i, t_i+1) is paired
+    with the mean velocity and the velocity difference of that interval.  None for other G."""
+    if plant.order != 1 or plant.zeros:
+        return None
+    t, u, v = run.result.time, run.result["force"], run.result["v"]
+    return (v[:-1] + v[1:]) / 2, u[:-1] - np.diff(v) / np.diff(t) / plant.numerator_gain()
 
 
 def plot_compensation_friction(runs: list[TrackingRun], identified: Plant, truth: Plant | None = None, ax=None):
@@ -101,16 +113,7 @@ def compensation_html(runs: list[TrackingRun], identified: Plant, truth: Plant |
     return page(f"Friction compensation on {source}", parts)
 
 
-def compensate_files(result_path: str | Path, ssp: str | Path, truth: str | Path | None = None,
-                     output: str | Path | None = None, engine: str = "libcosim",
-                     overwrite: bool = False, progress=None) -> list[TrackingRun]:
-    """Run the comparison for a result file and an axis archive; write the HTML page ``output`` if given (an
-    existing one only with ``overwrite``); ``progress(done, total)`` as the co-simulated runs finish."""
-    if output is not None:
-        output = claim_output(output, output_mode(overwrite), inputs=(result_path, ssp))
-    identified = read_result(result_path).plant
-    true_plant = load_plant(truth) if truth is not None else None
-    runs = compare_compensation(ssp, identified, true_plant, engine=engine, progress=progress)
-    if output is not None:
-        atomic_write(output, compensation_html(runs, identified, true_plant, Path(ssp).name))
-    return runs
+def compensation_page(compensation: Compensation) -> str:
+    """:func:`compensation_html` of `servofmu compensate`'s runs (servofmu.control.compensation.compensate_files)."""
+    c = compensation
+    return compensation_html(c.runs, c.identified, c.truth, c.axis)

@@ -27,16 +27,18 @@ from ..measurement.measure import PROGRESS_SCALE, measure
 from ..measurement.records import LoopChannels, import_records
 from ..runtime import Progress, RunOptions
 from ..model.plant import load_plant
-from .compensation_report import compensate_files, compensation_text
+from ..control.compensation import compensate_files
+from .compensation_report import compensation_page, compensation_text
 from ..claims import refuse_package_data
-from ..fileio import OutputExists, file_sha256, staged_folder
+from ..fileio import OutputExists, atomic_write, file_sha256, staged_folder
 from .export import remeasure
 from .paper import COLUMNS, TABLES
 from .plots import bode_figure
 from .report import make_report
 from ..tuning.search import TuneOptions
-from .tune_report import tune_files, tune_text
-from .validate import validate
+from ..tuning.run import tune_files
+from .tune_report import tune_html, tune_text
+from ..validation.replay import validate
 
 __all__ = ["run_demo", "run_closed_loop_demo", "paper_comparison", "reference_trajectories", "demo_pulses",
            "write_drive_log", "DEMO_PLANTS", "DEMO_PLANS", "DEMO_SAMPLES", "DEMO_AXIS_LOAD", "FORCE_CONSTANT",
@@ -231,13 +233,14 @@ def run_closed_loop_demo(out: Path, report: Callable[[str], None], command: str 
     ssp = write_system(out / "axis.fmu", out / "axis-controller.fmu", references["reversals"],
                        out / "axis-reversals.ssp", overwrite=True)
     (out / "axis-compensation.html").unlink(missing_ok=True)
-    tracking = compensate_files(out / "axis-result.h5", ssp, truth=axis_file, output=out / "axis-compensation.html")
-    report(compensation_text(tracking))
+    tracking = compensate_files(out / "axis-result.h5", ssp, truth=axis_file)
+    atomic_write(out / "axis-compensation.html", compensation_page(tracking))
+    report(compensation_text(tracking.runs))
     report(f"wrote {out / 'axis-compensation.html'}")
     # the drive's gains tuned on the identified model for the same stroke, checked on the axis (a short swarm)
     tuning = tune_files(out / "axis-result.h5", controller.source, out / "axis-tuned.toml", stroke=0.1,
-                        speed=0.05 * np.pi, axis=ssp, report=out / "axis-tune.html", overwrite=True,
-                        options=TuneOptions(particles=10, iterations=10))
+                        speed=0.05 * np.pi, axis=ssp, overwrite=True, options=TuneOptions(particles=10, iterations=10))
+    atomic_write(out / "axis-tune.html", tune_html(tuning, "axis-result.h5", Path(controller.source).name))
     report(tune_text(tuning))
     report(f"wrote {out / 'axis-tuned.toml'} and {out / 'axis-tune.html'}")
     return result

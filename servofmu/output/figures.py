@@ -7,7 +7,7 @@ notebook a returned Figure shows itself; write one with ``fig.savefig(path)``.
 
 Models are given as one object, a sequence, or a mapping label -> object: identified results
 (servofmu.identification.results.Result), plants (servofmu.model.plant.Plant) where only the model is needed,
-or validations (servofmu.output.validate.Validation) for the views of a validation.
+or validations (servofmu.validation.replay.Validation) for the views of a validation.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from ..model.friction import steady_friction
 from ..model.plant import Plant
 from .bode_band import response_band
 from .plots import MAX_PANELS, bode_points, draw_measured, figure_axes
-from .validate import RecordValidation, Validation, validate
+from ..validation.replay import RecordValidation, Validation, validate
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -317,7 +317,7 @@ def validation_overlay(validations: Models, data: DataLike | None = None, ax: Ax
     Parameters
     ----------
     validations : Validation, Result, sequence of them, or mapping label -> Validation/Result
-        Validations (servofmu.output.validate.validate) of the same data, or results with ``data`` (or the
+        Validations (servofmu.validation.replay.validate) of the same data, or results with ``data`` (or the
         pair ``(results, data)``).
     data : DataFile or path, optional
         Data to validate results on (each simulated as `servofmu validate` does).

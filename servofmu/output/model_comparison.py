@@ -8,31 +8,16 @@ from pathlib import Path
 from typing import Sequence
 
 from ..display import json_safe
-from ..errors import UserError
-from ..fileio import atomic_write, claim_output, output_mode
-from ..identification.results import read_result
-from ..measurement.datafile import read_data_file
+from ..fileio import atomic_write
 from ..runtime import utc_now
+from ..validation.replay import Validation, validation_json
 from .html import escape, figure, page, png_bytes
-from .validate import MIN_FIT, Validation, validate, validation_json
-from .validation_report import plot_residuals, plot_validation
+from .validation_report import check_page_suffix, plot_residuals, plot_validation
 
 __all__ = ["comparison_rows", "comparison_text", "comparison_json", "comparison_table", "comparison_html",
-           "validate_several",
-           "unique_labels"]
+           "write_comparison"]
 
 Pairs = Sequence[tuple[str, Validation]]
-
-
-def unique_labels(names: Sequence[str]) -> list[str]:
-    """``names`` with repeats numbered: a, a (2), b."""
-    out: list[str] = []
-    for name in names:
-        label, n = name, 2
-        while label in out:
-            label, n = f"{name} ({n})", n + 1
-        out.append(label)
-    return out
 
 
 def comparison_rows(pairs: Pairs) -> dict[str, dict[str, object]]:
@@ -108,39 +93,15 @@ def comparison_html(pairs: Pairs) -> list[str]:
     return parts
 
 
-def validate_several(result_paths: Sequence[str | Path], data_path: str | Path, output: str | Path | None = None,
-                     skip: float = 0.0, controller: str | Path | None = None, min_fit: float = MIN_FIT,
-                     overwrite: bool = False, progress=None) -> list[tuple[str, Validation]]:
-    """Validate several result files on one data file; (label, Validation) per result, labelled by its file's
-    name.  ``output``: an .html page (the table and the overlaid figures) or a .png figure; ``progress(done,
-    total)`` counts the models and the page."""
-    paths = list(result_paths)
-    if len(paths) < 2:
-        raise UserError("give two or more result files to compare (one: servofmu validate RESULT.h5 DATA.h5)")
-    if output is not None:
-        output = claim_output(output, output_mode(overwrite), inputs=(*paths, data_path, controller))
-        if output.suffix.lower() not in (".html", ".png"):
-            raise UserError(f"{output}: write an .html page or a .png figure")
-    law = None
-    if controller is not None:
-        from ..model.controller import load_controller
-
-        law = load_controller(controller)
-    report = progress or (lambda done, total: None)
-    total = len(paths) + (output is not None)
-    data = read_data_file(data_path)
-    pairs = []
-    for k, (label, path) in enumerate(zip(unique_labels([Path(p).stem for p in paths]), paths)):
-        report(k, total)
-        pairs.append((label, validate(read_result(path), data, skip, law, min_fit=min_fit)))
-    report(len(paths), total)
-    if output is None:
-        return pairs
+def write_comparison(output: str | Path, pairs: Pairs, data_path: str | Path) -> Path:
+    """Write several models' validations (servofmu.validation.run.validate_several) as the .html page (the table
+    and the overlaid figures) or the .png figure ``output`` (claimed by the caller)."""
+    check_page_suffix(output)
+    output = Path(output)
     if output.suffix.lower() == ".png":
-        atomic_write(output, png_bytes(plot_validation(pairs, "records" if data.records else "experiments")))
-    else:
-        title = f"{len(pairs)} models validated on {Path(data_path).name}"
-        atomic_write(output, page(title, [f"<h1>{escape(title)}</h1>", *comparison_html(pairs),
-                                          f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']))
-    report(total, total)
-    return pairs
+        first = pairs[0][1]
+        return atomic_write(output, png_bytes(plot_validation(list(pairs), "records" if first.records
+                                                              else "experiments")))
+    title = f"{len(pairs)} models validated on {Path(data_path).name}"
+    return atomic_write(output, page(title, [f"<h1>{escape(title)}</h1>", *comparison_html(pairs),
+                                             f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']))

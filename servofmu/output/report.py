@@ -32,8 +32,8 @@ from .paper import COLUMNS as PAPER_COLUMNS
 from .paper import PAPER
 from .paper import REFERENCES as PAPER_REFERENCES
 from .paper import TABLES as PAPER_TABLES
-from .validate import Validation
-from .validate import validate as validate_model
+from ..validation.replay import Validation
+from ..validation.replay import validate as validate_model
 from .report_entries import Entry, compute_entries, loop_controller, read_entries, used_sine_data, velocity_range
 from .report_figures import bla_report_figure, bode_figures, convergence_figure, friction_figure, records_figure
 from .validation_report import validation_html

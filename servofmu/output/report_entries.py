@@ -14,8 +14,8 @@ from ..measurement.datafile import DataFile
 from ..model.controller import load_controller
 from ..model.plant import Plant
 from ..simulation.batch import BatchSimulator
-from .validate import Validation
-from .validate import validate as validate_model
+from ..validation.replay import Validation
+from ..validation.replay import validate as validate_model
 
 __all__ = ["Entry", "read_entries", "compute_entries", "model_sine", "velocity_range", "used_sine_data",
            "loop_controller", "CURVE_POINTS", "CURVE_RTOL", "FRICTION_POINTS"]

@@ -17,7 +17,7 @@ from ..selection.select import STRONG_EVIDENCE, SelectOptions
 from ..selection.validation import VALIDATION_LEVEL
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import figure_axes
-from .validate import Validation, validate
+from ..validation.replay import Validation, validate
 
 __all__ = ["select_with_report", "selection_page", "plot_side_by_side", "SIDE_BY_SIDE"]
 

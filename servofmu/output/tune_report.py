@@ -1,4 +1,5 @@
-"""`servofmu tune`: the drive's gains for an identified axis, written as a controller file, and its page.
+"""`servofmu tune`'s page: the drive's gains for an identified axis (the tuning and the controller file it writes:
+servofmu.tuning.run.tune_files).
 
 The page shows what the tuning weighed: every controller's gains, the linearised loop's sensitivity peak and
 margins (nominal and the worst over the corners of the model's 95 % box), the figures on the model (RMS and peak
@@ -8,37 +9,21 @@ the responses and tracking errors over time.
 """
 from __future__ import annotations
 
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import UserError
-from ..fileio import all_or_none, atomic_write, claim_outputs, output_mode
-from ..identification.results import read_result
-from ..model.controller import FILTERS, controller_toml, load_controller
+from ..model.controller import FILTERS
 from ..runtime import utc_now
-from ..text_digest import with_digest
-from ..tuning.run import Tuning, tune_axis
-from ..tuning.search import TuneOptions
-from ..tuning.task import Task, stroke_task, task_from_csv
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import figure_axes
 
-__all__ = ["tune_files", "tune_text", "tune_json", "tune_html", "load_task", "DEFAULT_STROKE", "DEFAULT_SPEED",
-           "plot_loop_bode", "plot_nyquist", "plot_responses"]
+if TYPE_CHECKING:  # the type only: the page runs no tuning
+    from ..tuning.run import Tuning
 
-DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15  # m, m/s: the reversing stroke tuned for when no task is given
+__all__ = ["tune_text", "tune_json", "tune_html", "plot_loop_bode", "plot_nyquist", "plot_responses"]
+
 LABELS = {"given": "given gains", "rule": "reference rule", "tuned": "tuned (swarm)"}
-
-
-def load_task(task: str | Path | None, stroke: float | None, speed: float | None, sample_time: float) -> Task:
-    """The task from a reference file or a stroke (default: 0.1 m at 0.15 m/s); not both."""
-    if task is not None and (stroke is not None or speed is not None):
-        raise UserError("give a task as --task REF.csv or as --stroke/--speed, not both")
-    if task is not None:
-        return task_from_csv(task, sample_time)
-    return stroke_task(DEFAULT_STROKE if stroke is None else stroke, DEFAULT_SPEED if speed is None else speed,
-                       sample_time)
 
 
 def _gains(c) -> list[str]:
@@ -238,34 +223,3 @@ def tune_html(tuning: Tuning, result_source: str, controller_source: str) -> str
                     png_bytes(plot_responses(tuning)), "responses"),
              f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
     return page(f"Tuning {controller_source}", parts)
-
-
-def tune_files(result: str | Path, controller: str | Path, output: str | Path, task: str | Path | None = None,
-               stroke: float | None = None, speed: float | None = None, options: TuneOptions | None = None,
-               compensate: bool = False, method: str = "pso", axis: str | Path | None = None,
-               report: str | Path | None = None, engine: str = "libcosim", overwrite: bool = False,
-               progress=None) -> Tuning:
-    """Tune the controller file ``controller`` for the result file ``result`` and write the tuned controller file
-    ``output`` (and the page ``report``); an existing output only with ``overwrite``.  ``options``: the bound on
-    the sensitivity peak, the swarm's seed, particles and iterations, the undetermined parameters kept, the work
-    limit (servofmu.tuning.search.TuneOptions, checked before any work).  Nothing is written when the tuning
-    fails."""
-    options = options or TuneOptions()
-    claimed = claim_outputs({"output": output, "report": report}, output_mode(overwrite),
-                            inputs=(result, controller, task, axis))
-    output, report = claimed["output"], claimed.get("report")
-    spec = load_controller(controller)
-    tuning = tune_axis(read_result(result), spec, load_task(task, stroke, speed, spec.sample_time), options,
-                       method=method, compensate=compensate, axis=axis, engine=engine, progress=progress,
-                       source=str(result))
-    run = tuning.runs[tuning.chosen]
-    note = (f"Tuned by servofmu tune ({tuning.method}) from {Path(controller).name} for {Path(result).name} on "
-            f"{tuning.task.label}, {utc_now()}:\nsensitivity peak {run.loop.ms:.3f} (bound {options.max_sensitivity:g}), "
-            f"gain margin {run.loop.summary()['gain_margin_db']:.2f} dB, phase margin {run.loop.phase_margin:.1f} "
-            f"deg; RMS tracking error on the model {run.figures.rms_error:.4g} m "
-            f"(given gains {tuning.runs['given'].figures.rms_error:.4g} m).")
-    with all_or_none((output, report)):  # the controller file and its page, or neither
-        atomic_write(output, with_digest(controller_toml(tuning.controller, note)))
-        if report is not None:
-            atomic_write(report, tune_html(tuning, Path(result).name, Path(controller).name))
-    return tuning

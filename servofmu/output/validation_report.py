@@ -1,21 +1,19 @@
 """`servofmu validate`'s page and figure: the verdict, the fits, the residuals and their correlation functions of a
-validation (servofmu.output.validate), and the command that writes them."""
+validation (servofmu.validation.replay; the command's work: servofmu.validation.run)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from ..errors import UserError
-from ..fileio import atomic_write, claim_output, output_mode
-from ..identification.results import read_result
-from ..measurement.datafile import read_data_file
+from ..fileio import atomic_write
 from ..runtime import utc_now
+from ..validation.replay import Validation, own_data_warning, residual_tests_phrase
 from .html import escape, figure, number, page, png_bytes, table
 from .figures import item_title, item_unit, residual_tests, validation_items, validation_overlay
 from .plots import MAX_PANELS, figure_axes
-from .validate import MIN_FIT, Validation, own_data_warning, residual_tests_phrase, validate
 
-__all__ = ["validate_files", "validation_html", "validation_figure", "residual_figure", "plot_validation",
-           "plot_residuals"]
+__all__ = ["check_page_suffix", "write_validation", "validation_html", "validation_figure", "residual_figure",
+           "plot_validation", "plot_residuals"]
 
 
 def _pairs(v) -> list[tuple[str, Validation]]:
@@ -128,38 +126,23 @@ def validation_html(v: Validation) -> list[str]:
     return parts
 
 
-def validate_files(result_path: str | Path, data_path: str | Path, output: str | Path | None = None,
-                   skip: float = 0.0, controller: str | Path | None = None, min_fit: float = MIN_FIT,
-                   overwrite: bool = False, progress=None) -> Validation:
-    """Validate a result file on a data file (closed-loop records with the controller file ``controller``) with
-    the minimum fit ``min_fit`` (%); write ``output`` (.html page or .png figure) if given (an existing one only
-    with ``overwrite``).  ``progress(done, total)`` (runtime.Progress) counts the two steps: the model simulated
-    on the data, the output written."""
-    steps = 1 if output is None else 2
-    report = progress or (lambda done, total: None)
-    if output is not None:
-        output = claim_output(output, output_mode(overwrite), inputs=(result_path, data_path, controller))
-        if output.suffix.lower() not in (".html", ".png"):
-            raise UserError(f"{output}: write an .html page or a .png figure")
-    law = None
-    if controller is not None:
-        from ..model.controller import load_controller
-        law = load_controller(controller)
-    report(0, steps)
-    v = validate(read_result(result_path), read_data_file(data_path), skip, law, min_fit=min_fit)
-    report(1, steps)
-    if output is None:
-        return v
+def check_page_suffix(output: str | Path) -> None:
+    """Refuse a page or figure that is neither .html nor .png (before any work)."""
+    if Path(output).suffix.lower() not in (".html", ".png"):
+        raise UserError(f"{output}: write an .html page or a .png figure")
+
+
+def write_validation(output: str | Path, v: Validation, result_path: str | Path, data_path: str | Path) -> Path:
+    """Write a validation (servofmu.validation.run.validate_files) as the .html page or .png figure ``output``
+    (claimed by the caller)."""
+    check_page_suffix(output)
+    output = Path(output)
     if output.suffix.lower() == ".png":
-        image = validation_figure(v, "records" if v.records else "experiments")
-        atomic_write(output, image)
-    else:
-        title = f"Validation of {v.result.structure.name} on {Path(data_path).name}"
-        parts = [f"<h1>{escape(title)}</h1>",
-                 f"<p>Result <code>{escape(Path(result_path).name)}</code> ({escape(v.result.method)}), data "
-                 f"<code>{escape(Path(data_path).name)}</code>: {len(v.records)} records, {len(v.experiments)} "
-                 "experiments.</p>", *validation_html(v),
-                 f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
-        atomic_write(output, page(title, parts))
-    report(2, steps)
-    return v
+        return atomic_write(output, validation_figure(v, "records" if v.records else "experiments"))
+    title = f"Validation of {v.result.structure.name} on {Path(data_path).name}"
+    parts = [f"<h1>{escape(title)}</h1>",
+             f"<p>Result <code>{escape(Path(result_path).name)}</code> ({escape(v.result.method)}), data "
+             f"<code>{escape(Path(data_path).name)}</code>: {len(v.records)} records, {len(v.experiments)} "
+             "experiments.</p>", *validation_html(v),
+             f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>']
+    return atomic_write(output, page(title, parts))

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError
-from ..model.controller import PARAMETERS, ControllerSpec
+from ..model.controller import ControllerSpec, missing_parameter
 from ..runtime import temporary_folder
 from .task import Task
 
@@ -119,9 +119,9 @@ def step_drive(controller: ControllerSpec) -> ControllerSpec:
 def axis_drive(axis: dict, settings: ControllerSpec, source: str) -> ControllerSpec:
     """The controller run on the axis: ``settings``' values with the axis's runtime (encoder, actuator noise and
     its seed) from its parameter set ``axis``; an axis sampled otherwise than the controller is refused."""
-    missing = [p.name for p in PARAMETERS if p.name not in axis]
+    missing = missing_parameter(axis)
     if missing:
-        raise UserError(f"{source}: the controller's parameter set has no {missing[0]!r}")
+        raise UserError(f"{source}: the controller's parameter set has no {missing!r}")
     for name in ("sample_time", "delay"):
         if abs(axis[name] - settings[name]) > 1e-12 * abs(settings[name]):
             raise UserError(f"{source}: its drive has {name} = {axis[name]:g}, the controller {settings.source} "

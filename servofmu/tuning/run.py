@@ -16,18 +16,20 @@ import numpy as np
 
 from ..display import Shown, figure, gain_db, hz, shown_html, shown_repr
 from ..errors import UserError
-from ..identification.results import Result
-from ..model.controller import ControllerSpec, friction_feedforward, load_controller
-from ..runtime import Progress
+from ..fileio import atomic_write, claim_output, output_mode
+from ..identification.results import Result, read_result
+from ..model.controller import ControllerSpec, controller_toml, friction_feedforward, load_controller
+from ..runtime import Progress, utc_now
 from ..simulation.closed_loop import LoopSimulator
+from ..text_digest import with_digest
 from .check import AxisRun, Figures, check_on_axis, step_drive, tracking_figures
 from .loop import LoopAnalysis, analyse_loop, axis_mass, sensitivity_peak
 from .rule import tune_rule
 from .search import (TuneOptions, TuneSearch, Uncertainty, determined_intervals, search_gains, tracking_errors,
                      uncertainty_sets)
-from .task import Task, check_task, step_task
+from .task import Task, check_task, load_task, step_task
 
-__all__ = ["METHODS", "Tuning", "ModelRun", "check_pairing", "tune_axis", "step_for"]
+__all__ = ["METHODS", "Tuning", "ModelRun", "check_pairing", "tune_axis", "step_for", "tune_files"]
 
 METHODS = ("pso", "rule")
 MASS_MISMATCH = 20.0  # a mass feed-forward this many times off the identified mass: another axis
@@ -229,3 +231,34 @@ def tune_axis(result: Result, controller: ControllerSpec, task: Task, options: T
         axis_runs = check_on_axis(axis, controllers, task, step, engine)
     return Tuning(result, task, step, method, options, compensate, runs, rule_a, search, axis_runs,
                   clock.perf_counter() - started, uncertainty)
+
+
+def tune_files(result: str | Path, controller: str | Path, output: str | Path | None, task: str | Path | None = None,
+               stroke: float | None = None, speed: float | None = None, options: TuneOptions | None = None,
+               compensate: bool = False, method: str = "pso", axis: str | Path | None = None,
+               engine: str = "libcosim", overwrite: bool = False, progress: Progress | None = None) -> Tuning:
+    """`servofmu tune` from files: tune the controller file ``controller`` for the result file ``result``
+    (:func:`tune_axis`) and write the tuned controller file ``output`` (None: nothing written; an existing one only
+    with ``overwrite``).  ``task``: a reference file, or ``stroke`` and ``speed`` (servofmu.tuning.task.load_task);
+    ``options``: the one TuneOptions of the run, checked before any work.  Nothing is written when the tuning
+    fails; the page is servofmu.output.tune_report's."""
+    options = options or TuneOptions()
+    if output is not None:
+        output = claim_output(output, output_mode(overwrite), inputs=(result, controller, task, axis))
+    spec = load_controller(controller)
+    tuning = tune_axis(read_result(result), spec, load_task(task, stroke, speed, spec.sample_time), options,
+                       method=method, compensate=compensate, axis=axis, engine=engine, progress=progress,
+                       source=str(result))
+    if output is not None:
+        atomic_write(output, with_digest(controller_toml(tuning.controller, _tuned_note(tuning, controller, result))))
+    return tuning
+
+
+def _tuned_note(tuning: Tuning, controller: str | Path, result: str | Path) -> str:
+    """The tuned controller file's comment: where it came from and the chosen loop's figures."""
+    run = tuning.runs[tuning.chosen]
+    return (f"Tuned by servofmu tune ({tuning.method}) from {Path(controller).name} for {Path(result).name} on "
+            f"{tuning.task.label}, {utc_now()}:\nsensitivity peak {run.loop.ms:.3f} (bound "
+            f"{tuning.options.max_sensitivity:g}), gain margin {run.loop.summary()['gain_margin_db']:.2f} dB, phase "
+            f"margin {run.loop.phase_margin:.1f} deg; RMS tracking error on the model {run.figures.rms_error:.4g} m "
+            f"(given gains {tuning.runs['given'].figures.rms_error:.4g} m).")

@@ -19,8 +19,10 @@ from ..model.controller import ControllerSpec
 from ..model.laws.viscous import viscous_levels
 from ..model.plant import Plant
 
-__all__ = ["Task", "stroke_task", "task_from_csv", "check_task", "reference_velocity", "step_task",
-           "MIN_SAMPLES_PER_PERIOD"]
+__all__ = ["Task", "stroke_task", "task_from_csv", "load_task", "check_task", "reference_velocity", "step_task",
+           "MIN_SAMPLES_PER_PERIOD", "DEFAULT_STROKE", "DEFAULT_SPEED"]
+
+DEFAULT_STROKE, DEFAULT_SPEED = 0.1, 0.15  # m, m/s: the reversing stroke tuned for when no task is given
 
 # A stroke's period spans at least this many controller samples: a discrete loop follows nothing faster than a few
 # samples per period, and the tuning's loop and page need a sampled motion to measure errors on
@@ -100,6 +102,16 @@ def task_from_csv(path: str | Path, sample_time: float) -> Task:
         raise UserError(f"{path}: column 'position' stays at 0 m throughout: a task that never moves has no tracking "
                         "error to tune for; give --task a motion (or --stroke and --speed)")
     return Task(t, r, str(path))
+
+
+def load_task(task: str | Path | None, stroke: float | None, speed: float | None, sample_time: float) -> Task:
+    """The task from a reference file or a stroke (default: DEFAULT_STROKE at DEFAULT_SPEED); not both."""
+    if task is not None and (stroke is not None or speed is not None):
+        raise UserError("give a task as --task REF.csv or as --stroke/--speed, not both")
+    if task is not None:
+        return task_from_csv(task, sample_time)
+    return stroke_task(DEFAULT_STROKE if stroke is None else stroke, DEFAULT_SPEED if speed is None else speed,
+                       sample_time)
 
 
 def check_task(task: Task, plant: Plant, controller: ControllerSpec, mass: float) -> float:

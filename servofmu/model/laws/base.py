@@ -107,11 +107,12 @@ class FrictionLaw:
 
     def feedforward(self, values: dict[str, float], v_smooth: float) -> dict[str, float]:
         """The drive's friction feed-forward (servofmu.model.controller): Coulomb and static levels, Stribeck
-        velocity and the tanh sign's scale (the law's own, else ``v_smooth``, the controller file's) — the
-        controller's curve is fc± + (fs± − fc±)·exp(−(v/vs)²)."""
+        velocity, its shape exponent δ (2 where the law has none) and the tanh sign's scale (the law's own, else
+        ``v_smooth``, the controller file's) — the controller's curve is fc± + (fs± − fc±)·exp(−|v/vs|^δ)."""
         return {"fc_pos": values["fc_pos"], "fc_neg": values["fc_neg"],
                 "fs_pos": values.get("fs_pos", values["fc_pos"]), "fs_neg": values.get("fs_neg", values["fc_neg"]),
-                "vs": values.get("vs") or 1.0, "v_smooth": values["v_smooth"] if self.smoothing else v_smooth}
+                "vs": values.get("vs") or 1.0, "delta": values.get("delta", 2.0),
+                "v_smooth": values["v_smooth"] if self.smoothing else v_smooth}
 
     def rows(self, values: dict[str, float]) -> list[tuple[str, str]]:
         """(label, value) rows of the results table for the law's keys beyond the Coulomb levels."""

@@ -12,8 +12,9 @@
  *   I      = I + ki_velocity·Ts·e                (not integrated while the output saturates: anti-windup)
  *   f      = kp_velocity·e + I + mass_feedforward·a_ref + friction_feedforward·F_ff(v_ref)
  *   u_k    = min(max(f, −limit), limit)
- * F_ff(v) = g+(v)·max(t, 0) + g−(v)·min(t, 0) + fv·v with t = tanh(v/v_smooth), g±(v) = fc± + (fs± − fc±)·
- * exp(−(v/vs)²): the steady friction of the plant model.  The command u_k is applied from t_{k+delay} (delay ≥ 1:
+ * F_ff(v) = g+(v)·max(t, 0) + g−(v)·min(t, 0) + fv·v + fv_pos·max(v, 0) + fv_neg·min(v, 0) with
+ * t = tanh(v/v_smooth), g±(v) = fc± + (fs± − fc±)·exp(−|v/vs|^δ): the steady friction of the plant model (δ = 2
+ * and no direction-dependent part: the arithmetic of before they existed, to the bit).  The command u_k is applied from t_{k+delay} (delay ≥ 1:
  * the drive computes during the sample).  Actuator noise (force_noise > 0): a Gaussian sample per controller
  * sample (seeded, platform independent) added to the applied force, not to the logged command.  A known
  * disturbance d (a test signal the drive injects: force pulses, a noise burst) is added after the output limit,
@@ -47,10 +48,17 @@ static double ctrl_encoder(const double *p, double x) {
 }
 
 static double ctrl_friction(const double *p, double v) {
-    double th = tanh(v / p[CP_FF_V_SMOOTH]), bump = exp(-(v / p[CP_FF_VS]) * (v / p[CP_FF_VS]));
-    double g_pos = p[CP_FF_FC_POS] + (p[CP_FF_FS_POS] - p[CP_FF_FC_POS]) * bump;
-    double g_neg = p[CP_FF_FC_NEG] + (p[CP_FF_FS_NEG] - p[CP_FF_FC_NEG]) * bump;
-    return g_pos * fmax(th, 0.0) + g_neg * fmin(th, 0.0) + p[CP_FF_FV] * v;
+    double th = tanh(v / p[CP_FF_V_SMOOTH]), bump, g_pos, g_neg, f;
+    if (p[CP_FF_DELTA] == 2.0)
+        bump = exp(-(v / p[CP_FF_VS]) * (v / p[CP_FF_VS]));
+    else
+        bump = exp(-pow(fabs(v / p[CP_FF_VS]), p[CP_FF_DELTA]));
+    g_pos = p[CP_FF_FC_POS] + (p[CP_FF_FS_POS] - p[CP_FF_FC_POS]) * bump;
+    g_neg = p[CP_FF_FC_NEG] + (p[CP_FF_FS_NEG] - p[CP_FF_FC_NEG]) * bump;
+    f = g_pos * fmax(th, 0.0) + g_neg * fmin(th, 0.0) + p[CP_FF_FV] * v;
+    if (p[CP_FF_FV_POS] != 0.0 || p[CP_FF_FV_NEG] != 0.0)
+        f += p[CP_FF_FV_POS] * fmax(v, 0.0) + p[CP_FF_FV_NEG] * fmin(v, 0.0);
+    return f;
 }
 
 /* A standard normal sample from the state's xorshift64* generator (Box–Muller, one of the pair). */

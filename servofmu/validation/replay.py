@@ -1,4 +1,5 @@
-"""`servofmu validate`: an identified model checked on data it was not fitted to (docs/validation.md).
+"""An identified model checked on data it was not fitted to (docs/validation.md; `servofmu validate` from files:
+servofmu.validation.run).
 
 The identified plant is simulated on every record of a data file — driven by the recorded input with the
 record's own intersample behaviour, from rest at its first sample, compared on the signal the record measures
