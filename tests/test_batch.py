@@ -303,6 +303,27 @@ def test_a_polish_run_far_stiffer_than_the_run_it_begins_on_is_cut_at_its_step_b
     assert np.all(np.isfinite(warm.residuals(stiff[mask], SEARCH_RTOL * 10)))  # a search's run has no budget
 
 
+def test_whole_sets_end_a_sets_other_experiments_once_one_fails():
+    # g2 at 0.6 N, 1 Hz never settles (below); at 2 N it does.  With whole_sets the experiment after the failed one
+    # is not run (one thread: the set's experiments in order); the criterion, which needs both, runs the one that
+    # failed before first next time
+    plant = load_plant("g2")
+    sim = BatchSimulator(plant, threads=1)
+    amps, freqs = [0.6, 2.0], [1.0, 1.0]
+    every = sim.steady_state(plant.parameter_vector(), amps, freqs)
+    whole = sim.steady_state(plant.parameter_vector(), amps, freqs, SteadyStateOptions(whole_sets=True))
+    assert list(every.converged[0]) == [False, True] and not whole.converged[0].any()
+    assert whole.steps[0, 1] == 0 and np.isnan(whole.settle_time[0, 1]) and whole.steps[0, 0] == every.steps[0, 0]
+    assert list(whole.failed()[0]) == [True, False]  # the run not made is no failure
+    backwards = sim.steady_state(plant.parameter_vector(), amps[::-1], freqs, SteadyStateOptions(whole_sets=True))
+    assert backwards.converged[0, 0] and backwards.experiments([1, 0]).failed()[0].tolist() == [True, False]
+    data = SineData(amplitudes=np.array(amps[::-1]), frequencies=np.array(freqs), H=every.H[0, ::-1],
+                    dc=every.dc[0, ::-1], noisy=False, source="test", skipped=0, noise=np.zeros(2))
+    crit = SineCriterion(plant, data, sim)
+    assert np.isnan(crit.residuals(plant.parameter_vector()[identified_mask(plant)], SEARCH_RTOL)).all()
+    assert crit.failures.tolist() == [0, 1]
+
+
 def test_hopeless_experiment_is_given_up_early_with_the_same_verdict():
     # g2 at 0.6 N, 1 Hz: the friction's relay oscillation near 5 Hz does not lock to the excitation
     plant = load_plant("g2")

@@ -276,6 +276,9 @@ class SineCriterion:
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
         self.warm_starts = WarmStarts()  # every candidate's runs begin on the orbits of the nearest one before
+        # how often each experiment had no steady state: the likeliest to fail run first, so that a candidate's
+        # others are not run once one fails (whole_sets)
+        self.failures = np.zeros(len(data.amplitudes))
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         """(N, 3n) residuals of the N candidates ``theta``; NaN rows for candidates without a steady state."""
@@ -283,10 +286,15 @@ class SineCriterion:
         self.evaluations += theta.shape[0]
         full = full_vectors(self.structure, theta)
         start, steps = self.warm_starts.nearest(full)
-        options = steady_state_options(rtol)
+        # a candidate is compared only where every experiment settles: one without steady state ends its others
+        options = replace(steady_state_options(rtol), whole_sets=True)
         if rtol < SEARCH_RTOL and steps is not None and np.all(np.isfinite(steps)):
             options = replace(options, max_steps=int(max(STEP_BUDGET_FLOOR, STEP_BUDGET_FACTOR * steps.max())))
-        feats = self.simulator.steady_state(full, self.data.amplitudes, self.data.frequencies, options, start=start)
+        order = np.argsort(-self.failures, kind="stable")
+        feats = self.simulator.steady_state(full, self.data.amplitudes[order], self.data.frequencies[order], options,
+                                            start=None if start is None else start[:, order])
+        feats = feats.experiments(np.argsort(order))
+        self.failures += feats.failed().sum(axis=0)
         self.warm_starts.add(full, feats)
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared

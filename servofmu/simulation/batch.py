@@ -20,7 +20,7 @@ tolerance: docs/bench-batch.md.
 from __future__ import annotations
 
 import ctypes
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -55,7 +55,9 @@ class SteadyStateOptions:
     reaches it.  ``max_steps``: integrator step budget per experiment
     (exceeding it gives NaN).  ``accelerate`` (Newton's method on the period
     map), ``give_up_early`` (stop a run that cannot converge within
-    ``max_time``): see batch_c/batch_driver.c's ``sine_task``.
+    ``max_time``): see batch_c/batch_driver.c's ``sine_task``.  ``whole_sets``: once an experiment of a
+    parameter set ends without a steady state, the set's experiments not yet begun are not run (not converged,
+    NaN features) — for a criterion that has no use for a set unless every experiment settles.
     """
 
     rtol: float = 1e-8
@@ -65,6 +67,7 @@ class SteadyStateOptions:
     max_steps: int = 5_000_000
     accelerate: bool = True
     give_up_early: bool = True
+    whole_sets: bool = False
 
     def __post_init__(self):
         if not 0 < self.rtol < 1e-2:
@@ -108,6 +111,15 @@ class SteadyStateFeatures:
     settle_time: np.ndarray
     steps: np.ndarray
     orbit: np.ndarray
+
+    def experiments(self, index) -> "SteadyStateFeatures":
+        """The features of the experiments ``index`` (an index array along the experiments' axis), in its order."""
+        return SteadyStateFeatures(**{f.name: getattr(self, f.name)[:, index] for f in fields(self)})
+
+    def failed(self) -> np.ndarray:
+        """(N, n_exp): the runs that ended without a steady state (not those never run: an invalid set's, or a
+        whole set's after one of its experiments failed)."""
+        return ~self.converged & np.isfinite(self.settle_time)
 
 
 class BatchSimulator:
@@ -181,7 +193,7 @@ class BatchSimulator:
                                    c_doubles(amp), c_doubles(freq), options.rtol, options.tol, options.max_time,
                                    options.min_periods,
                                    H_START, options.max_steps, int(options.accelerate),
-                                   int(options.give_up_early), self.threads,
+                                   int(options.give_up_early), int(options.whole_sets), self.threads,
                                    None if start is None else c_doubles(start[lo:hi]), c_doubles(out[lo:hi]),
                                    c_doubles(orbit[lo:hi]))
             if rc != 0:

@@ -238,7 +238,7 @@ def _declare(lib: ctypes.CDLL) -> None:
     d, pd, lng, i = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long, ctypes.c_int
     pu = ctypes.POINTER(ctypes.c_ubyte)
     lib.sb_sizes.argtypes = [ctypes.POINTER(i)] * 3
-    lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, i, pd, pd, pd]
+    lib.sb_sine.argtypes = [lng, i, pd, pu, i, pd, pd, d, d, d, lng, d, lng, lng, lng, lng, i, pd, pd, pd]
     lib.sb_sine.restype = i
     lib.sb_record.argtypes = [lng, i, pd, pu, lng, pd, pd, i, d, d, d, d, lng, i, pd]
     lib.sb_record.restype = i

@@ -615,6 +615,7 @@ typedef struct {
     SineOptions options;
     const double *start;   /* ORBIT doubles per task, or NULL */
     double *out, *orbits;  /* NF and ORBIT doubles per task */
+    unsigned char *failed; /* per set: one of its experiments had no steady state; NULL: every task runs */
 } SineJob;
 
 static void *sine_worker(void *arg) {
@@ -624,13 +625,14 @@ static void *sine_worker(void *arg) {
         long set = task / job->n_exp, e = task % job->n_exp;
         double *out = job->out + task * NF, *orbit = job->orbits + task * ORBIT;
         int i;
-        if (!job->tasks.valid[set]) {
+        if (!job->tasks.valid[set] || (job->failed && __atomic_load_n(&job->failed[set], __ATOMIC_RELAXED))) {
             no_features(out);
             for (i = 0; i < ORBIT; ++i) orbit[i] = NAN;
             continue;
         }
         sine_task(job->tasks.params + set * job->tasks.n_plant, job->tasks.n_plant, job->amp[e], job->freq[e],
                   &job->options, job->start ? job->start + task * ORBIT : NULL, out, orbit);
+        if (job->failed && out[SINE_CONVERGED] != 1.0) __atomic_store_n(&job->failed[set], 1, __ATOMIC_RELAXED);
     }
     return NULL;
 }
@@ -678,19 +680,23 @@ int sb_sizes(int *ns, int *np, int *nf) {
 }
 
 /* Tasks [0, n_sets*n_exp): set = task / n_exp, experiment = task % n_exp; out has NF doubles per task, orbits
- * ORBIT; start (ORBIT doubles per task) may be NULL: every task from rest. */
+ * ORBIT; start (ORBIT doubles per task) may be NULL: every task from rest.  whole_sets: a set's experiments not yet
+ * begun when one of its experiments ends without a steady state are not run (their features NaN, not converged):
+ * a criterion that needs every experiment of a set has no use for the rest. */
 int sb_sine(long n_sets, int n_plant, const double *params, const unsigned char *valid, int n_exp, const double *amp,
             const double *freq, double rtol, double tol, double max_time, long min_periods, double h_start,
-            long max_steps, long accelerate, long give_up, int n_threads, const double *start, double *out,
-            double *orbits) {
+            long max_steps, long accelerate, long give_up, long whole_sets, int n_threads, const double *start,
+            double *out, double *orbits) {
     SineJob job = {.tasks = {.n_tasks = n_sets * n_exp, .n_plant = n_plant, .params = params, .valid = valid},
                    .n_exp = n_exp, .amp = amp, .freq = freq,
                    .options = {.rtol = rtol, .tol = tol, .max_time = max_time, .h_start = h_start,
                                .min_periods = min_periods, .max_steps = max_steps, .accelerate = accelerate,
                                .give_up = give_up},
-                   .start = start, .out = out, .orbits = orbits};
+                   .start = start, .out = out, .orbits = orbits, .failed = NULL};
     if (n_plant != SB_NP) return -1;
+    if (whole_sets && !(job.failed = calloc((size_t)n_sets, 1))) return -2;
     run_threads(sine_worker, &job, job.tasks.n_tasks, n_threads);
+    free(job.failed);
     return 0;
 }
 
