@@ -5,6 +5,7 @@ from __future__ import annotations
 from .base import FrictionLaw
 from .coulomb import COULOMB
 from .dahl import DAHL
+from .gms import GMS_LAW
 from .lugre import LUGRE
 from .stribeck import STRIBECK
 
@@ -75,5 +76,5 @@ def law_key(name: str):
     return None
 
 
-for _law in (COULOMB, STRIBECK, LUGRE, DAHL):
+for _law in (COULOMB, STRIBECK, LUGRE, DAHL, GMS_LAW):
     register(_law)
