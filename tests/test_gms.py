@@ -286,5 +286,11 @@ def test_gms_is_a_candidate_when_named_but_not_by_default():
     from servofmu.model.laws.registry import default_laws, get_law
     from servofmu.selection.candidates import parse_candidates
 
+    from servofmu.selection.candidates import candidate_plant
+    from servofmu.selection.estimate import LinearEstimate
+
     assert "gms" not in default_laws() and get_law("gms").cost > get_law("lugre").cost
-    assert [c.name for c in parse_candidates(["gms/1"])] == ["gms/1"]
+    (candidate,) = parse_candidates(["gms/1"])
+    plant = candidate_plant(candidate, LinearEstimate((-8.0 + 0j,), (), 12.0, 0.3, 0.25, 0.1))
+    assert plant.friction.structure() == {"elements": 4} and len(plant.friction.states()) == 4
+    assert plant.friction.sigma0 == 0.275 / 1e-4 and plant.friction.attraction == 50.0
