@@ -4,6 +4,7 @@ sticking), the non-local memory of its presliding loops (a closed minor loop ret
 elasto-plastic elements of the published model do exactly), noise-free identification, and bad keys refused in one
 line naming the key."""
 import functools
+import json
 import os
 import tomllib
 from pathlib import Path
@@ -294,3 +295,39 @@ def test_gms_is_a_candidate_when_named_but_not_by_default():
     plant = candidate_plant(candidate, LinearEstimate((-8.0 + 0j,), (), 12.0, 0.3, 0.25, 0.1))
     assert plant.friction.structure() == {"elements": 4} and len(plant.friction.states()) == 4
     assert plant.friction.sigma0 == 0.275 / 1e-4 and plant.friction.attraction == 50.0
+
+
+@pytest.mark.long
+@LONG
+def test_a_selection_ranks_gms_first_on_its_data_and_its_result_exports_and_back(tmp_path):
+    """gms_servo measured without noise: named with lugre and stribeck, gms/1 ranks first (its fit is the truth, G
+    holding fv); the fit written, exported as a plant file and an FMU, and read back with its four elements."""
+    from fmpy.validation import validate_fmu
+
+    import servofmu as sf
+    from servofmu.measurement.measure import MeasureOptions
+    from servofmu.runtime import RunOptions
+    from servofmu.selection.select import SelectOptions
+
+    fmu = sf.build_fmu(load_plant(MODELS / "gms_servo.toml"), tmp_path / "gms.fmu")
+    data = {}
+    for name, amplitudes in (("fit", [2.0, 0.6]), ("val", [1.5, 0.8])):
+        data[name] = tmp_path / f"{name}.h5"
+        sf.measure(fmu, data[name], options=MeasureOptions(), run=RunOptions(workers=0), amplitudes=amplitudes,
+                   frequencies=[0.3, 1.0, 3.0, 10.0])
+    selection = sf.select_files([data["fit"]], data["val"], tmp_path / "s.h5",
+                                SelectOptions(candidates=("gms/1", "lugre/1", "stribeck/1"), iterations=20),
+                                RunOptions(workers=0))
+    assert [s.name for s in selection.scores] == ["gms/1", "lugre/1", "stribeck/1"]
+    first = selection.scores[0].result
+    assert abs(first.plant.friction.sigma0 / 1000.0 - 1) < 1e-6
+    result = tmp_path / "result.h5"
+    sf.write_result(result, first)
+    back, _ = sf.export_result(result, tmp_path / "back.toml")
+    again = sf.load_plant(back)
+    assert again.friction.structure() == {"elements": 4}
+    assert np.allclose(again.parameter_vector(), first.plant.parameter_vector(), rtol=1e-15)
+    exported, _ = sf.export_result(result, tmp_path / "back.fmu", fmi_version=2)
+    assert validate_fmu(str(exported)) == []
+    control, _ = sf.export_result(result, tmp_path / "back.json", fmt="control")
+    assert json.loads(control.read_text())["friction"]["elements"] == 4
