@@ -93,6 +93,8 @@ def test_the_example_has_four_elements_and_round_trips(tmp_path):
     path = tmp_path / "back.toml"
     path.write_text(plant.to_toml())
     assert load_plant(path) == plant and 'elements = 4\n' in path.read_text()
+    assert "gms elements=4, 8 parameters" in repr(plant.friction)
+    assert ("N", "4") in plant.friction.law.rows({**plant.friction.structure(), **plant.friction.values()})
 
 
 @pytest.mark.parametrize("version", [2, 3])

@@ -98,7 +98,8 @@ class Friction:
     def _shown(self) -> Shown:
         values = self.values()
         units = [self.law.key(k).unit if get_law(self.model) and self.law.key(k) else "" for k in values]
-        return Shown(type(self).__name__, f"{self.model}{' symmetric' if self.symmetric else ''}, "
+        structure = "".join(f" {k}={v}" for k, v in self.structure().items()) if get_law(self.model) else ""
+        return Shown(type(self).__name__, f"{self.model}{structure}{' symmetric' if self.symmetric else ''}, "
                      f"{len(values)} parameters", parameter_figures(list(values), list(values.values()), units))
 
     @classmethod

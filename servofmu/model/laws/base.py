@@ -136,6 +136,7 @@ class FrictionLaw:
                 "vs": values.get("vs") or 1.0, "v_smooth": values["v_smooth"] if self.smoothing else v_smooth}
 
     def rows(self, values: dict[str, float]) -> list[tuple[str, str]]:
-        """(label, value) rows of the results table for the law's keys beyond the Coulomb levels."""
-        return [(k.label or k.name, f"{values[k.name]:.6g}") for k in self.keys
+        """(label, value) rows of the results table for the law's structure choices and keys beyond the Coulomb
+        levels."""
+        return [(k.label or k.name, f"{values[k.name]:.6g}") for k in self.structure + self.keys
                 if k.name in values and not k.name.startswith("fc_")]
