@@ -269,6 +269,7 @@ def test_elements_belong_to_gms_only():
 @pytest.mark.parametrize("line, fragment", [
     ("elements = 0", "friction.elements: must be a whole number from 1 to 16, not 0"),
     ("elements = 100", "friction.elements: must be a whole number from 1 to 16, not 100"),
+    ("elements = 2.5", "friction.elements: must be a whole number from 1 to 16, not 2.5"),
     ("elements = 4\ndelta = 0.0", "friction.delta: must be positive"),
     ("elements = 4\nsigma1 = 5.0", "friction.sigma1: unknown key"),
     ("elements = 4\nwobble = 1.0", "friction.wobble: unknown key"),
