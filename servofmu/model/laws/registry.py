@@ -23,6 +23,8 @@ def register(law: FrictionLaw) -> FrictionLaw:
         raise ValueError(f"{law!r} is not a FrictionLaw with a name of letters, digits and underscores")
     if law.name in _LAWS and _LAWS[law.name] is not law:
         raise ValueError(f"a friction law named {law.name!r} is registered already")
+    if any(key.whole is None for key in law.structure):
+        raise ValueError(f"{law.name}: a structure choice needs its range of whole numbers (LawKey.whole)")
     if law.nested is not None and law.nested not in _LAWS:
         raise ValueError(f"{law.name} contains {law.nested!r}, which is not registered")
     _LAWS[law.name] = law
