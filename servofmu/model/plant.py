@@ -577,9 +577,9 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
 
 def _read_friction(fr: dict, fail) -> tuple[str, bool, dict[str, float]]:
     """The [friction] section: (law, symmetric, structure choices then values in parameter-vector order), each key
-    checked against the
-    law's (servofmu.model.laws): known, a number, not negative (positive where the law says so), a default where
-    it has one, a symmetric friction's levels for v < 0 equal to those for v > 0, then the law's own rules."""
+    checked against the law's (servofmu.model.laws): known, a number (a structure choice: a whole number in its
+    range), not negative (positive where the law says so), a default where it has one, a symmetric friction's
+    levels for v < 0 equal to those for v > 0, then the law's own rules."""
     model = fr.get("model")
     law = get_law(model)
     if law is None:
