@@ -30,7 +30,7 @@ def presliding_loop(name: str, amplitude: float = 4e-4, minor: float = 1.5e-4):
     import casadi as ca
 
     plant = load_plant(ROOT / "fmu_models" / f"{name}.toml")
-    v, z = ca.SX.sym("v"), ca.SX.sym("z", len(plant.friction.law.states))
+    v, z = ca.SX.sym("v"), ca.SX.sym("z", len(plant.friction.states()))
     force, dz = friction_force(plant, plant.parameters(), v, [z[i] for i in range(z.numel())])
     f = ca.Function("f", [v, z], [force, ca.vertcat(*dz)])
     corners = [0.0, amplitude, -amplitude + minor, -amplitude + 2 * minor, -amplitude + minor, -amplitude, amplitude]

@@ -120,7 +120,7 @@ def test_a_law_written_here_runs_plant_file_to_export_and_back(saturating, tmp_p
 
 
 # A comparison with a law's name: a string literal of one, or the law/model attribute compared with anything
-NAME_PATTERNS = [r"""["'](coulomb|stribeck|lugre|dahl)["']""",
+NAME_PATTERNS = [r"""["'](coulomb|stribeck|lugre|dahl|gms)["']""",
                  r"""\.(model|law)\s*(==|!=|\bin\b|\bnot in\b)""", r"""(==|!=)\s*\w+\.(friction\.model|law)\b"""]
 
 
@@ -164,7 +164,7 @@ def test_bad_friction_keys_are_refused_naming_the_key(friction, key, fragment):
 
 
 def test_the_registry_lists_the_shipped_laws_and_refuses_a_second_law_of_a_name():
-    assert law_names()[:4] == ("coulomb", "stribeck", "lugre", "dahl")
+    assert law_names()[:5] == ("coulomb", "stribeck", "lugre", "dahl", "gms")
     with pytest.raises(ValueError, match="registered already"):
         register(type("Other", (Saturating,), {"name": "stribeck"})())
 
@@ -175,7 +175,7 @@ def test_the_docs_name_every_key_of_every_shipped_law():
 
     table = (ROOT / "docs" / "plant-format.md").read_text()
     laws = (ROOT / "docs" / "friction.md").read_text()
-    for name in ("coulomb", "stribeck", "lugre", "dahl"):
+    for name in ("coulomb", "stribeck", "lugre", "dahl", "gms"):
         assert f"`{name}`" in laws and f"`{name}`" in table.split("| `friction.model` |")[1].split("\n")[0]
         for key in get_law(name).all_keys():
             assert f"`friction.{key.name}`" in table, key.name
@@ -183,7 +183,8 @@ def test_the_docs_name_every_key_of_every_shipped_law():
 
 
 @pytest.mark.parametrize("friction, fragment", [
-    ('model = "gms"\nfc_pos = 1.0\nfc_neg = 1.0', "friction.model: must be one of coulomb, stribeck, lugre, dahl"),
+    ('model = "maxwell"\nfc_pos = 1.0\nfc_neg = 1.0',
+     "friction.model: must be one of coulomb, stribeck, lugre, dahl, gms"),
     ('model = "coulomb"\nfc_pos = 1.0\nfc_neg = 1.0\nfv_neg = 0.2', "friction.fv_neg: direction-dependent"),
 ])  # (the library refuses the other bad keys: test_bad_friction_keys_are_refused_naming_the_key)
 def test_the_cli_refuses_a_bad_friction_in_one_line_and_writes_nothing(tmp_path, friction, fragment):

@@ -54,7 +54,7 @@ def position_index(model: SymbolicModel) -> int:
 
 def state_units(model: SymbolicModel) -> list[str | None]:
     # xi2.. are scaled derivatives of v with no physical unit of their own; the friction law's states have theirs
-    law = {state.name: unit_or_none(state.unit) for state in model.plant.friction.law.states}
+    law = {state.name: unit_or_none(state.unit) for state in model.plant.friction.states()}
     return ["m/s" if n == "xi1" else None if n.startswith("xi") else law.get(n, "m") for n in model.state_names]
 
 
@@ -78,7 +78,7 @@ def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
         out.append(Variable(name, VR_P0 + i, "parameter", "tunable", text, unit=unit_or_none(unit),
                             start=float(start[i]), initial="exact"))
     units = state_units(model)
-    law_states = {state.name: state for state in model.plant.friction.law.states}
+    law_states = {state.name: state for state in model.plant.friction.states()}
     for i, name in enumerate(model.state_names):
         if name == "position":
             continue
@@ -95,6 +95,6 @@ def fmu_variables(model: SymbolicModel, excitation_amplitude: float = 0.0,
 def state_nominals(model: SymbolicModel) -> list[float]:
     """Nominal magnitudes of the states (for absolute tolerances): 1 for G's and the position, the friction
     law's own for its states (LuGre's bristle deflection at sliding, g/sigma0 to a power of two)."""
-    law = dict(zip((state.name for state in model.plant.friction.law.states),
+    law = dict(zip((state.name for state in model.plant.friction.states()),
                    law_state_nominals(model.plant.friction)))
     return [law.get(name, 1.0) for name in model.state_names]

@@ -212,7 +212,7 @@ def paper_rows(plant: Plant) -> list[tuple[str, str]]:
     rows.append(("DC gain", f"{p['dc_gain']:.6g}" if p["dc_gain"] is not None else "—"))
     fr = plant.friction
     rows += [("Fc+", f"{fr.fc_pos:.6g}"), ("Fc−", f"{fr.fc_neg:.6g}")]
-    rows += fr.law.rows(fr.values())
+    rows += fr.law.rows({**fr.structure(), **fr.values()})
     labels = {"offset": "offset", "stiffness": "k", "x0": "x0", "ripple_amplitude": "ripple A",
               "ripple_period": "ripple period", "ripple_phase": "ripple phase"}
     rows += [(labels[key], f"{value:.6g}") for key, value in plant.load.values().items()]

@@ -18,16 +18,12 @@ def steady_friction(plant: Plant, v: np.ndarray) -> np.ndarray:
 
     v = np.asarray(v, dtype=float).ravel()
     vel = ca.SX.sym("v")
-    z = ca.vertcat(*[ca.SX.sym(state.name) for state in plant.friction.law.states])
+    z = ca.vertcat(*[ca.SX.sym(state.name) for state in plant.friction.states()])
     force, dz = friction_force(plant, plant.parameters(), vel, [z[i] for i in range(z.numel())])
-    if dz:
-        # the laws' state derivatives are linear in their states at a constant v: one Newton step from 0 lands on
-        # their root exactly (v ≠ 0)
-        dz = ca.vertcat(*dz)
-        zero = ca.DM.zeros(z.numel())
-        step = ca.substitute(dz, z, zero)
-        z_rest = -step / ca.jacobian(dz, z) if z.numel() == 1 else -ca.solve(ca.jacobian(dz, z), step)
-        force = ca.substitute(force, z, z_rest)
+    if dz:  # the states at rest in steady sliding (FrictionLaw.steady_states)
+        states = [z[i] for i in range(z.numel())]
+        rest = plant.friction.law.steady_states(plant.parameters(), vel, states, dz)
+        force = ca.substitute(force, z, ca.vertcat(*rest))
     curve = ca.Function("friction", [vel], [force]).map(v.size)
     return np.asarray(curve(v[None, :])).ravel()
 

@@ -98,7 +98,8 @@ class Friction:
     def _shown(self) -> Shown:
         values = self.values()
         units = [self.law.key(k).unit if get_law(self.model) and self.law.key(k) else "" for k in values]
-        return Shown(type(self).__name__, f"{self.model}{' symmetric' if self.symmetric else ''}, "
+        structure = "".join(f" {k}={v}" for k, v in self.structure().items()) if get_law(self.model) else ""
+        return Shown(type(self).__name__, f"{self.model}{structure}{' symmetric' if self.symmetric else ''}, "
                      f"{len(values)} parameters", parameter_figures(list(values), list(values.values()), units))
 
     @classmethod
@@ -135,6 +136,15 @@ class Friction:
     def values(self) -> dict[str, float]:
         """The model's parameters by name (units as in the class docstring)."""
         return {k: float(self.get(k)) for k in self.keys()}
+
+    def structure(self) -> dict[str, int]:
+        """The law's structure choices by name (FrictionLaw.structure: whole numbers, no parameters), e.g. the
+        number of Maxwell-slip elements; empty for most laws."""
+        return {k.name: int(self.get(k.name)) for k in self.law.structure}
+
+    def states(self) -> tuple:
+        """The law's internal states (LawState) for this friction's structure and values (FrictionLaw.states_for)."""
+        return self.law.states_for({**self.structure(), **self.values()})
 
     def with_values(self, values: dict[str, float]) -> "Friction":
         """The same law and form with the values of ``values`` (a subset of :meth:`keys`) changed."""
@@ -342,6 +352,7 @@ class Plant:
         lines += ["", "[linear]", f"poles = {pairs(self.poles)}", f"zeros = {pairs(self.zeros)}",
                   f"{self.gain_key} = {self.parameters()[self.gain_key]!r}", "", "[friction]",
                   f'model = "{self.friction.model}"'] + (["symmetric = true"] if self.friction.symmetric else [])
+        lines += [f"{k} = {v!r}" for k, v in self.friction.structure().items()]
         lines += [f"{k} = {v!r}" for k, v in self.friction.values().items()]
         if self.load.keys():
             lines += ["", "[load]"] + [f"{k} = {v!r}" for k, v in self.load.values().items()]
@@ -360,7 +371,7 @@ def state_scale(plant: Plant) -> float:
 def state_nominals(friction: Friction) -> tuple[float, ...]:
     """The nominal magnitudes of the friction law's states (their absolute tolerances' scale), powers of two as
     :func:`state_scale` is (FrictionLaw.state_nominals)."""
-    return tuple(friction.law.state_nominals(friction.values()))
+    return tuple(friction.law.state_nominals({**friction.structure(), **friction.values()}))
 
 
 def bristle_nominal(friction: Friction) -> float:
@@ -565,9 +576,10 @@ def plant_from_dict(data: dict, source: str = "<memory>") -> Plant:
 
 
 def _read_friction(fr: dict, fail) -> tuple[str, bool, dict[str, float]]:
-    """The [friction] section: (law, symmetric, values in parameter-vector order), each key checked against the
-    law's (servofmu.model.laws): known, a number, not negative (positive where the law says so), a default where
-    it has one, a symmetric friction's levels for v < 0 equal to those for v > 0, then the law's own rules."""
+    """The [friction] section: (law, symmetric, structure choices then values in parameter-vector order), each key
+    checked against the law's (servofmu.model.laws): known, a number (a structure choice: a whole number in its
+    range), not negative (positive where the law says so), a default where it has one, a symmetric friction's
+    levels for v < 0 equal to those for v > 0, then the law's own rules."""
     model = fr.get("model")
     law = get_law(model)
     if law is None:
@@ -577,6 +589,7 @@ def _read_friction(fr: dict, fail) -> tuple[str, bool, dict[str, float]]:
     symmetric = fr.get("symmetric", False)
     if not isinstance(symmetric, bool):
         fail("friction.symmetric", f"must be true or false, not {symmetric!r}")
+    structure = {key.name: _whole(fr, key, model, fail) for key in law.structure}
     keys = law.parameter_keys(lambda k: k in fr)
     values = {}
     for k_ in keys:
@@ -602,8 +615,21 @@ def _read_friction(fr: dict, fail) -> tuple[str, bool, dict[str, float]]:
     for k_ in keys:
         if law.key(k_).positive and values[k_] <= 0:
             fail(f"friction.{k_}", "must be positive")
-    law.check(values, fail)
-    return model, symmetric, values
+    law.check({**structure, **values}, fail)
+    return model, symmetric, {**structure, **values}
+
+
+def _whole(fr: dict, key, model: str, fail) -> int:
+    """A structure choice of the [friction] section (LawKey.whole): a whole number within the key's range."""
+    low, high = key.whole
+    if key.name not in fr:
+        if key.default is not None:
+            return int(key.default)
+        fail(f"friction.{key.name}", f"missing (required by the {model} model: a whole number from {low} to {high})")
+    value = fr[key.name]
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        fail(f"friction.{key.name}", f"must be a whole number from {low} to {high}, not {value!r}")
+    return value
 
 
 def _read_fixed(names, plant: Plant, fail) -> tuple[str, ...]:

@@ -180,9 +180,9 @@ def build_model(plant: Plant) -> SymbolicModel:
     position = ca.SX.sym("position")
     states = [xi, position]
     state_names = [f"xi{i + 1}" for i in range(n)] + ["position"]
-    law_states = [ca.SX.sym(state.name) for state in plant.friction.law.states]
+    law_states = [ca.SX.sym(state.name) for state in plant.friction.states()]
     states += law_states
-    state_names += [state.name for state in plant.friction.law.states]
+    state_names += [state.name for state in plant.friction.states()]
     x = ca.vertcat(*states)
 
     v = xi[0]

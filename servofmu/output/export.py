@@ -132,7 +132,8 @@ def control_document(result: Result, name: str | None = None, provenance: dict |
             "zeros": _pairs(plant.all_zeros()), "gain": plant.numerator_gain(),
             "state_space": {"A": A.tolist(), "B": B.tolist(), "C": C.tolist(), "D": D.tolist(),
                             "states": [f"xi{i + 1}" for i in range(plant.order)]},
-            "friction": {"model": plant.friction.model, **plant.friction.values()},
+            "friction": {"model": plant.friction.model, **plant.friction.structure(),
+                         **plant.friction.values()},
             "load": plant.load.values(),
             "provenance": provenance if provenance is not None else export_provenance(result)}
 

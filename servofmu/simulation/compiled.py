@@ -40,8 +40,10 @@ DRIVER_DIR = PACKAGE / "simulation" / "batch_c"  # the C drivers of the batch an
 DRIVER = DRIVER_DIR / "batch_driver.c"
 FMU_C_DIR = PACKAGE / "fmu" / "c"  # servo_core.c: the FMU's integrator, which the driver includes
 # The Python modules whose code writes the generated C sources (with the C files, part of a library's cache key).
+# (a friction law's module writes its part of the equations: changing one changes the code of its plants)
 GENERATORS = ("model/plant.py", "model/symbolic.py", "model/signals.py", "fmu/sources.py", "fmu/variables.py",
-              "simulation/compiled.py")
+              "simulation/compiled.py") + tuple(f"model/laws/{p.name}"
+                                                for p in sorted(PACKAGE.glob("model/laws/*.py")))
 EXTRA_CFLAGS = ("-pthread", "-O3")
 # On x86-64 the library is built for this machine's processor: about 10 % faster steady states.  No contraction
 # into fused multiply-adds, so that results stay bit for bit those of a portable build; the processor is part of

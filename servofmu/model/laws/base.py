@@ -26,7 +26,11 @@ class FrictionLaw:
         The law's own keys in parameter-vector order; the viscous term (``fv``, or ``fv_pos``/``fv_neg``) and,
         where ``smoothing``, ``v_smooth`` follow them in every law.
     states : tuple of LawState
-        Internal states (after G's realisation and the position).
+        Internal states (after G's realisation and the position) of a law whose states are the same for every
+        friction; a law whose states depend on a structure choice writes :meth:`states_for` instead.
+    structure : tuple of LawKey
+        Structure choices (whole numbers, ``LawKey.whole``), e.g. a number of elements: plant-file keys that are
+        no parameters; they may set the states (:meth:`states_for`).
     smoothing : bool
         The law's sign(v) is a tanh of scale ``v_smooth`` (a parameter); a law with presliding states has none.
     nested : str or None
@@ -45,6 +49,7 @@ class FrictionLaw:
     title: str = ""
     keys: tuple[LawKey, ...] = ()
     states: tuple[LawState, ...] = ()
+    structure: tuple[LawKey, ...] = ()
     smoothing: bool = True
     nested: str | None = None
     cost: int = 0
@@ -55,7 +60,7 @@ class FrictionLaw:
     # ---- keys ---------------------------------------------------------------
     def all_keys(self) -> tuple[LawKey, ...]:
         """Every key a plant file of this law may give: its own, the viscous ones and v_smooth (where it has it)."""
-        return self.keys + VISCOUS_KEYS + ((SMOOTHING_KEY,) if self.smoothing else ())
+        return self.structure + self.keys + VISCOUS_KEYS + ((SMOOTHING_KEY,) if self.smoothing else ())
 
     def key(self, name: str) -> LawKey | None:
         """The key ``name`` of this law, None where it has none."""
@@ -83,15 +88,32 @@ class FrictionLaw:
                 fail(f"friction.{a}", f"must not be below {b}")
 
     # ---- equations ------------------------------------------------------------
+    def states_for(self, values: dict[str, float]) -> tuple[LawState, ...]:
+        """The states of a friction of this law with ``values`` (its structure choices and parameters by name):
+        :attr:`states` unless the law's states depend on a structure choice."""
+        return self.states
+
     def force(self, par: dict, v, states: list) -> tuple:
         """(F, [d state/dt …]) as CasADi expressions of the velocity ``v`` (m/s), the law's ``states`` and the
-        parameters ``par`` (name -> expression), without the viscous term (added by the model)."""
+        parameters ``par`` (name -> expression), without the viscous term (added by the model); ``states`` are
+        the symbols of :meth:`states_for`."""
         raise NotImplementedError(f"friction law {self.name} has no force")
+
+    def steady_states(self, par: dict, v, states: list, derivatives: list) -> list:
+        """The states at rest in steady sliding at the velocity ``v`` (≠ 0) as CasADi expressions (``par`` as for
+        :meth:`force`; ``derivatives`` :meth:`force`'s, of the symbols ``states``): one Newton step from 0, the
+        root where the derivatives are linear in the states (LuGre's, Dahl's); a law whose are not writes its own."""
+        import casadi as ca
+
+        z, dz = ca.vertcat(*states), ca.vertcat(*derivatives)
+        step = ca.substitute(dz, z, ca.DM.zeros(z.numel()))
+        rest = -step / ca.jacobian(dz, z) if z.numel() == 1 else -ca.solve(ca.jacobian(dz, z), step)
+        return [rest[i] for i in range(z.numel())]
 
     def state_nominals(self, values: dict[str, float]) -> tuple[float, ...]:
         """The nominal magnitudes of the law's states (absolute tolerances' scale), powers of two: plants of one
-        structure whose values round alike share a compiled simulator."""
-        return tuple(1.0 for _ in self.states)
+        structure whose values round alike share a compiled simulator; ``values`` as for :meth:`states_for`."""
+        return tuple(1.0 for _ in self.states_for(values))
 
     # ---- what later stages need --------------------------------------------------
     def start_values(self, fc_pos: float, fc_neg: float, v_rms: float, mass: float) -> dict[str, float]:
@@ -115,6 +137,7 @@ class FrictionLaw:
                 "v_smooth": values["v_smooth"] if self.smoothing else v_smooth}
 
     def rows(self, values: dict[str, float]) -> list[tuple[str, str]]:
-        """(label, value) rows of the results table for the law's keys beyond the Coulomb levels."""
-        return [(k.label or k.name, f"{values[k.name]:.6g}") for k in self.keys
+        """(label, value) rows of the results table for the law's structure choices and keys beyond the Coulomb
+        levels."""
+        return [(k.label or k.name, f"{values[k.name]:.6g}") for k in self.structure + self.keys
                 if k.name in values and not k.name.startswith("fc_")]

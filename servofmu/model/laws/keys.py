@@ -13,8 +13,9 @@ class LawKey:
     and the JSON field's), ``unit`` (ASCII, an FMU unit name; "1" for none), ``description``, ``default`` (the
     value where the file leaves the key out; None: required), ``positive`` (> 0, else ≥ 0), ``mirror`` (a level
     for v < 0: the level for v > 0 a symmetric friction copies), ``optional`` (a parameter only where the file
-    gives it: without it the law has its default form, e.g. Stribeck's exponent 2) and ``label`` (the result
-    table's row label)."""
+    gives it: without it the law has its default form, e.g. Stribeck's exponent 2), ``label`` (the result
+    table's row label) and ``whole`` ((low, high): a structure choice, a whole number from low to high, e.g. the
+    number of Maxwell-slip elements — no parameter: it sets the model's states, no fit changes it)."""
 
     name: str
     unit: str
@@ -24,6 +25,7 @@ class LawKey:
     mirror: str | None = None
     optional: bool = False
     label: str | None = None
+    whole: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)

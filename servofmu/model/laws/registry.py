@@ -5,6 +5,7 @@ from __future__ import annotations
 from .base import FrictionLaw
 from .coulomb import COULOMB
 from .dahl import DAHL
+from .gms import GMS_LAW
 from .lugre import LUGRE
 from .stribeck import STRIBECK
 
@@ -22,6 +23,8 @@ def register(law: FrictionLaw) -> FrictionLaw:
         raise ValueError(f"{law!r} is not a FrictionLaw with a name of letters, digits and underscores")
     if law.name in _LAWS and _LAWS[law.name] is not law:
         raise ValueError(f"a friction law named {law.name!r} is registered already")
+    if any(key.whole is None for key in law.structure):
+        raise ValueError(f"{law.name}: a structure choice needs its range of whole numbers (LawKey.whole)")
     if law.nested is not None and law.nested not in _LAWS:
         raise ValueError(f"{law.name} contains {law.nested!r}, which is not registered")
     _LAWS[law.name] = law
@@ -75,5 +78,5 @@ def law_key(name: str):
     return None
 
 
-for _law in (COULOMB, STRIBECK, LUGRE, DAHL):
+for _law in (COULOMB, STRIBECK, LUGRE, DAHL, GMS_LAW):
     register(_law)
