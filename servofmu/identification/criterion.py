@@ -54,9 +54,7 @@ JACOBIAN_RTOL = 1e-9
 JACOBIAN_STEP = 1e-5
 
 
-# ---------------------------------------------------------------------------
-# What is fitted
-# ---------------------------------------------------------------------------
+# ---- What is fitted ----
 @dataclass(frozen=True)
 class SineData:
     """Stepped-sine observations the identifier fits: the converged experiments of a data file.
@@ -217,9 +215,7 @@ def sine_data(data: DataFile) -> SineData:
                     source=str(data.path), skipped=len(data.experiments) - len(exps), noise=noise)
 
 
-# ---------------------------------------------------------------------------
-# Residuals
-# ---------------------------------------------------------------------------
+# ---- Residuals ----
 def _weighted(data: SineData, dH, ddc, axis: int) -> np.ndarray:
     """Deviations of the response phasor and of the mean velocity, weighted and stacked along ``axis``
     (the experiments' axis: last for residuals, first for Jacobians)."""
@@ -243,11 +239,9 @@ def sine_residual_jacobian(data: SineData, dH: np.ndarray, ddc: np.ndarray) -> n
     return _weighted(data, dH, ddc, axis=0)
 
 
-# A polish's run begun on the orbit of a nearby parameter set may take at most this many times the steps that set's
-# run took (and at least STEP_BUDGET_FLOOR); beyond, it counts as without steady state and the polish steps back.
-# A trial step into a region where the friction is far stiffer took millions of steps per experiment for nothing
-# (noise-free lugre_servo: 8 such trials, 116 of a selection's 123 s of simulation, where the runs it stepped from
-# took at most 5000); a region the optimum lies in is reached by shorter steps, each within the budget.
+# A polish's run begun on a nearby set's orbit may take this many times that run's steps (at least the floor), else
+# it has no steady state and the polish steps back: trials into far stiffer friction took millions of steps each
+# (noise-free lugre_servo: 116 of a selection's 123 s); an optimum there is reached by shorter steps.
 STEP_BUDGET_FACTOR = 20
 STEP_BUDGET_FLOOR = 20_000
 
@@ -276,9 +270,7 @@ class SineCriterion:
         self.structure, self.data, self.simulator = structure, data, simulator
         self.evaluations = 0
         self.warm_starts = WarmStarts()  # every candidate's runs begin on the orbits of the nearest one before
-        # how often each experiment had no steady state: the likeliest to fail run first, so that a candidate's
-        # others are not run once one fails (whole_sets)
-        self.failures = np.zeros(len(data.amplitudes))
+        self.failures = np.zeros(len(data.amplitudes))  # per experiment: those that fail most run first (whole_sets)
 
     def residuals(self, theta: np.ndarray, rtol: float) -> np.ndarray:
         """(N, 3n) residuals of the N candidates ``theta``; NaN rows for candidates without a steady state."""
@@ -413,9 +405,7 @@ def output_error_fitness(structure: Plant, data: SineData, theta: np.ndarray, th
     return float(rms(crit.residuals(np.asarray(theta, dtype=float)[None], POLISH_RTOL))[0])
 
 
-# ---------------------------------------------------------------------------
-# Derivatives and intervals
-# ---------------------------------------------------------------------------
+# ---- Derivatives and intervals ----
 def central_jacobian(crit: SineCriterion | RecordCriterion, theta: np.ndarray) -> np.ndarray:
     """d residuals / d theta by central differences (one batch call)."""
     p = theta.size
