@@ -20,8 +20,8 @@ from servofmu.model.symbolic import friction_force
 from servofmu.output.plots import figure_axes
 
 ROOT = Path(__file__).resolve().parent.parent
-CURVES = ["g1", "stribeck_servo", "stribeck_shaped", "viscous_axis", "lugre_servo", "dahl_servo"]
-LOOPS = ["lugre_servo", "dahl_servo"]
+CURVES = ["g1", "stribeck_servo", "stribeck_shaped", "viscous_axis", "lugre_servo", "dahl_servo", "gms_servo"]
+LOOPS = ["lugre_servo", "dahl_servo", "gms_servo"]
 
 
 def presliding_loop(name: str, amplitude: float = 4e-4, minor: float = 1.5e-4):
