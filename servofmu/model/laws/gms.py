@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from .base import FrictionLaw
 from .keys import LawKey, LawState, power_of_two
-from .stribeck import DELTA_KEY, STRIBECK, STRIBECK_KEYS, stribeck_level
+from .stribeck import DELTA_KEY, STRIBECK, STRIBECK_KEYS, StribeckDivides, stribeck_level
 
 __all__ = ["GMS", "GMS_LAW", "MAX_ELEMENTS", "element_stiffness", "ATTRACTION"]
 
@@ -36,7 +36,7 @@ def element_stiffness(sigma0, n: int) -> list:
     return [sigma0 / (i * harmonic) for i in range(1, n + 1)]
 
 
-class GMS(FrictionLaw):
+class GMS(StribeckDivides, FrictionLaw):
     """Generalised Maxwell-slip friction: N presliding elements on the Stribeck curve (N states)."""
 
     name = "gms"
@@ -60,14 +60,6 @@ class GMS(FrictionLaw):
         n = int(values["elements"])
         return tuple(LawState(f"z{i}", "m", f"deflection of Maxwell-slip element {i} of {n} (its force k{i}*z{i})")
                      for i in range(1, n + 1))
-
-    def low_open(self, name):
-        """sigma0, vs and the Coulomb levels are positive (s divides)."""
-        return super().low_open(name) or name.startswith("fc_")
-
-    def at_least(self):
-        """Static friction is not below Coulomb friction."""
-        return (("fs_pos", "fc_pos"), ("fs_neg", "fc_neg"))
 
     def check(self, values, fail):
         """fs± ≥ fc± > 0, attraction ≥ 1."""

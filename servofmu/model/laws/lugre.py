@@ -6,12 +6,12 @@ import math
 
 from .base import FrictionLaw
 from .keys import LawKey, LawState, power_of_two
-from .stribeck import DELTA_KEY, STRIBECK, STRIBECK_KEYS, stribeck_level
+from .stribeck import DELTA_KEY, STRIBECK, STRIBECK_KEYS, StribeckDivides, stribeck_level
 
 __all__ = ["LuGre", "LUGRE"]
 
 
-class LuGre(FrictionLaw):
+class LuGre(StribeckDivides, FrictionLaw):
     """LuGre friction: presliding and the Stribeck curve, one state."""
 
     name = "lugre"
@@ -25,14 +25,6 @@ class LuGre(FrictionLaw):
     default_candidate = True
     equations = ("dz/dt = v - sigma0*|v|*z/g(v) (g = g+ for v >= 0, else g-; g+- the Stribeck curve);  "
                  "F = sigma0*z + sigma1*dz/dt + viscous")
-
-    def low_open(self, name):
-        """sigma0, vs and the Coulomb levels are positive (g divides)."""
-        return super().low_open(name) or name.startswith("fc_")
-
-    def at_least(self):
-        """Static friction is not below Coulomb friction."""
-        return (("fs_pos", "fc_pos"), ("fs_neg", "fc_neg"))
 
     def check(self, values, fail):
         """fs± ≥ fc± > 0."""

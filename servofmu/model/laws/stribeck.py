@@ -7,7 +7,7 @@ from .base import FrictionLaw
 from .coulomb import LEVEL_KEYS
 from .keys import LawKey
 
-__all__ = ["Stribeck", "STRIBECK_KEYS", "DELTA_KEY", "stribeck_level", "STRIBECK"]
+__all__ = ["Stribeck", "StribeckDivides", "STRIBECK_KEYS", "DELTA_KEY", "stribeck_level", "STRIBECK"]
 
 STRIBECK_KEYS = LEVEL_KEYS + (
     LawKey("fs_pos", "N", "static (breakaway) friction for v > 0", label="Fs+"),
@@ -31,6 +31,19 @@ def stribeck_level(par: dict, side: str, v):
     # |r|^δ has an infinite slope at 0 for δ < 1: the guard keeps the derivative at v = 0 finite (0·inf)
     bump = ca.if_else(r > 0, ca.exp(-ca.if_else(r > 0, r, 1) ** par["delta"]), 1)
     return fc + (par[f"fs_{side}"] - fc) * bump
+
+
+class StribeckDivides:
+    """The value rules of a law whose state equation divides by its Stribeck curve (LuGre, Maxwell-slip): mix it in
+    before FrictionLaw."""
+
+    def low_open(self, name):
+        """sigma0, vs and the Coulomb levels are positive (the curve divides)."""
+        return super().low_open(name) or name.startswith("fc_")
+
+    def at_least(self):
+        """Static friction is not below Coulomb friction."""
+        return (("fs_pos", "fc_pos"), ("fs_neg", "fc_neg"))
 
 
 class Stribeck(FrictionLaw):
