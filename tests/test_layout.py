@@ -25,6 +25,7 @@ STAGES = [
     {"servofmu.tuning"},
     {"servofmu.validation"},
     {"servofmu.output"},
+    {"servofmu.commands"},
     {"servofmu.api"},
     {"servofmu.cli", "servofmu.__main__"},
 ]
@@ -144,11 +145,6 @@ RUNS_A_COMMAND = {"servofmu.tuning.run", "servofmu.tuning.search", "servofmu.tun
                   "servofmu.control.compensation", "servofmu.control.cosim", "servofmu.simulation.closed_loop",
                   "servofmu.simulation.fmpy_runs", "servofmu.validation.run", "servofmu.identification.run",
                   "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run"}
-# Not yet in their rooms (issue 44): the demo runs every stage end to end, and select's page is written by
-# select_with_report around selection.run's select_files.
-NOT_YET = {"servofmu.output.demo", "servofmu.output.selection_report"}
-
-
 def runtime_imports(path: Path, root: Path = ROOT) -> set[str]:
     """The servofmu modules ``path`` imports at run time (``from X import y`` names X.y too), leaving out the
     blocks under ``if TYPE_CHECKING:``."""
@@ -180,9 +176,8 @@ def imports_of_tree(tree, path: Path, root: Path):
 
 @pytest.mark.parametrize("path", sorted((PACKAGE / "output").glob("*.py")), ids=lambda p: p.name)
 def test_output_runs_no_command(path):
-    """output/ holds pages, figures and exports: the work of tune, compensate and validate is in their stages."""
-    if module_name(path) in NOT_YET:
-        return
+    """output/ holds pages, figures and exports: the work of every command is in its stage, a run written with its
+    page (select_with_report) and the demo in the commands stage above."""
     found = sorted(runtime_imports(path) & RUNS_A_COMMAND)
     assert not found, f"{path.relative_to(ROOT)} imports {', '.join(found)}, which run a command's work"
 
