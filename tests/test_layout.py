@@ -47,21 +47,7 @@ def module_name(path: Path, root: Path = ROOT) -> str:
 
 def imports(path: Path, root: Path = ROOT):
     """(line, imported module, imported names) of every import in ``path``, relative ones resolved."""
-    tree = ast.parse(path.read_text())
-    package = module_name(path, root).split(".")
-    if path.name != "__init__.py":
-        package = package[:-1]
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield node.lineno, alias.name, []
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package[:len(package) - node.level + 1]
-                module = ".".join(base + ([node.module] if node.module else []))
-            else:
-                module = node.module or ""
-            yield node.lineno, module, [a.name for a in node.names]
+    return imports_of_tree(ast.parse(path.read_text()), path, root)
 
 
 def package_files():
@@ -137,6 +123,55 @@ def test_no_two_modules_import_each_other():
     edges = module_imports()
     pairs = sorted({tuple(sorted((a, b))) for a in edges for b in edges[a] if a != b and a in edges.get(b, ())})
     assert pairs == []
+
+
+def circles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The circles of the import graph ``edges``: its strongly connected sets of more than one module (Tarjan's
+    algorithm, iterative), each sorted."""
+    index, low, on, stack, found, counter = {}, {}, set(), [], [], 0
+    for root in sorted(edges):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(edges.get(root, ()))))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            node, targets = work[-1]
+            target = next(targets, None)
+            if target is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    group = []
+                    while not group or group[-1] != node:
+                        group.append(stack.pop())
+                        on.discard(group[-1])
+                    if len(group) > 1:
+                        found.append(sorted(group))
+            elif target not in index:
+                index[target] = low[target] = counter
+                counter += 1
+                stack.append(target)
+                on.add(target)
+                work.append((target, iter(sorted(edges.get(target, ())))))
+            elif target in on:
+                low[node] = min(low[node], index[target])
+    return found
+
+
+def test_no_circle_of_any_length():
+    """No circle through any number of modules either (a within-stage arrow that runs back up makes one), imports
+    inside functions and under TYPE_CHECKING counted."""
+    assert circles(module_imports()) == []
+
+
+def test_the_circle_check_sees_a_circle_of_three():
+    edges = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"a"}}
+    assert circles(edges) == [["a", "b", "c"]]
+    assert circles({**edges, "c": {"d"}}) == []
 
 
 # What runs a command's work: the stages' entry points, searches and loop simulations.  output/ draws pages of
