@@ -179,7 +179,9 @@ def test_the_circle_check_sees_a_circle_of_three():
 RUNS_A_COMMAND = {"servofmu.tuning.run", "servofmu.tuning.search", "servofmu.tuning.check",
                   "servofmu.control.compensation", "servofmu.control.cosim", "servofmu.simulation.closed_loop",
                   "servofmu.simulation.fmpy_runs", "servofmu.validation.run", "servofmu.identification.run",
-                  "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run"}
+                  "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run",
+                  "servofmu.measurement.measure", "servofmu.commands.select", "servofmu.commands.demo",
+                  "servofmu.commands.roundtrip"}
 def runtime_imports(path: Path, root: Path = ROOT) -> set[str]:
     """The servofmu modules ``path`` imports at run time (``from X import y`` names X.y too), leaving out the
     blocks under ``if TYPE_CHECKING:``."""
@@ -212,7 +214,7 @@ def imports_of_tree(tree, path: Path, root: Path):
 @pytest.mark.parametrize("path", sorted((PACKAGE / "output").glob("*.py")), ids=lambda p: p.name)
 def test_output_runs_no_command(path):
     """output/ holds pages, figures and exports: the work of every command is in its stage, a run written with its
-    page (select_with_report) and the demo in the commands stage above."""
+    page (select_with_report), an export measured again (remeasure) and the demo in the commands stage above."""
     found = sorted(runtime_imports(path) & RUNS_A_COMMAND)
     assert not found, f"{path.relative_to(ROOT)} imports {', '.join(found)}, which run a command's work"
 

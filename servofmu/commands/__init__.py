@@ -1,6 +1,6 @@
-"""Stage after output, commands: the work of a command together with what it writes of the later stages — a
-stage's run and its page, all or none (select_with_report: selection.run and output.selection_report's page),
-and the demo, which runs every stage end to end.  The stages below run no command's page; output/ draws pages
-and runs no stage's work."""
+"""Stage after output, commands: a stage's work together with what output/ makes of it — select's run and its
+page, all or none (select: selection.run and output.selection_report), an export measured again (roundtrip:
+output.export and measurement.measure), and the demo, which runs every stage end to end.  output/ draws pages
+and writes exports and runs no stage's work."""
 
 __all__: list[str] = []

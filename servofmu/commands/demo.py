@@ -31,7 +31,7 @@ from ..control.compensation import compensate_files
 from ..output.compensation_report import compensation_page, compensation_text
 from ..claims import refuse_package_data
 from ..fileio import OutputExists, atomic_write, file_sha256, staged_folder
-from ..output.export import remeasure
+from .roundtrip import remeasure
 from ..output.paper import COLUMNS, TABLES
 from ..output.plots import bode_figure
 from ..output.report import make_report
