@@ -28,7 +28,8 @@ sys.path.insert(0, str(ROOT))
 
 from servofmu.fmu import build_fmu  # noqa: E402
 from servofmu.measurement.excitation import DEFAULT_AMPLITUDES, ExperimentSpec, default_frequencies  # noqa: E402
-from servofmu.measurement.measure import Job, MeasureOptions, estimate_bandwidth, run_experiment
+from servofmu.measurement.excitation import estimate_bandwidth
+from servofmu.measurement.measure import Job, MeasureOptions, run_experiment
 from servofmu.model.plant import load_plant  # noqa: E402
 from servofmu.runtime import available_cores  # noqa: E402
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions  # noqa: E402

@@ -29,7 +29,7 @@ from servofmu.control.cosim import cosimulate, write_cosim_records
 from servofmu.control.fmus import build_controller_fmu
 from servofmu.control.system import write_system
 from servofmu.identification.prior import identified_mask, identified_names
-from servofmu.output.demo import reference_trajectories
+from servofmu.commands.demo import reference_trajectories
 from servofmu.runtime import available_cores
 
 PLANTS = ("linear_axis", "stribeck_axis")

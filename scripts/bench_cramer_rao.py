@@ -52,7 +52,7 @@ from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.frf import harmonics
 from servofmu.model.controller import load_controller
 from servofmu.model.plant import load_plant
-from servofmu.output.demo import reference_trajectories
+from servofmu.commands.demo import reference_trajectories
 from servofmu.simulation.batch import BatchSimulator
 from servofmu.simulation.closed_loop import LoopSimulator
 

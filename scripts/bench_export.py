@@ -4,7 +4,7 @@ For g1 and g2, data are measured from the true plant's FMU (the plans of tests/t
 
 1. the identifier's batch simulator (at the polish tolerance) against the FMU measurement, experiment by
    experiment, on the true plant: how far apart the two computations of the same first harmonics are;
-2. round trips (servofmu.output.export.remeasure) of a perfect identification and of identifications whose parameters
+2. round trips (servofmu.commands.roundtrip.remeasure) of a perfect identification and of identifications whose parameters
    are off by 0.5, 1 and 2 %: the fitness the identifier's criterion gives (batch simulator) against the RMS of
    the same residuals from measuring the exported FMU.  Their difference is what ROUND_TRIP_TOLERANCE must cover.
 
@@ -28,7 +28,7 @@ from servofmu.identification.results import Result
 from servofmu.measurement.measure import measure
 from servofmu.model.plant import load_plant
 from servofmu.fileio import file_sha256
-from servofmu.output.export import ROUND_TRIP_TOLERANCE, remeasure
+from servofmu.commands.roundtrip import ROUND_TRIP_TOLERANCE, remeasure
 from servofmu.simulation.batch import BatchSimulator, SteadyStateOptions
 from servofmu.runtime import RunOptions
 
@@ -91,7 +91,7 @@ def main() -> None:
         "## Round trips", "",
         "Parameters (poles, gain, Coulomb levels) scaled by 1 + offset; *fitness*: the identifier's criterion "
         "(identify.SineCriterion, batch simulator); *round trip*: RMS of the same residuals from measuring the "
-        "exported FMU (servofmu.output.export.remeasure, which also builds the FMU). "
+        "exported FMU (servofmu.commands.roundtrip.remeasure, which also builds the FMU). "
         f"ROUND_TRIP_TOLERANCE = {ROUND_TRIP_TOLERANCE:g}.", "",
         "| plant | offset | fitness | round trip | difference | max relative H error | reproduces | seconds |",
         "|---|---|---|---|---|---|---|---|", *trips, "",

@@ -373,7 +373,7 @@ def make_files(tmp: Path, demo: bool) -> None:
              "--workers", "0", "-o", small / "data.h5")
     servofmu("identify", small / "data.h5", "--structure", "g1", "--method", "pso", "-o", small / "result.h5")
     if demo:
-        from servofmu.output.demo import DEMO_PLANS
+        from servofmu.commands.demo import DEMO_PLANS
 
         amplitudes, frequencies = DEMO_PLANS["g1"]
         servofmu("measure", tmp / "g1.fmu", "--amplitudes", ",".join(map(str, amplitudes)), "--frequencies",

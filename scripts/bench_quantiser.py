@@ -38,7 +38,7 @@ from servofmu.identification.identifier import PSOANNIdentifier
 from servofmu.identification.prior import full_vectors, identified_mask, identified_names
 from servofmu.model.controller import controller_from_dict, load_controller
 from servofmu.model.plant import load_plant, plant_from_dict
-from servofmu.output.demo import reference_trajectories
+from servofmu.commands.demo import reference_trajectories
 from servofmu.runtime import available_cores
 
 SNR_DB = 40.0

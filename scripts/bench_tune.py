@@ -36,7 +36,7 @@ from servofmu.identification.closed_loop import closed_loop_data
 from servofmu.identification.prior import full_vectors, identified_mask
 from servofmu.identification.results import result_from_estimator
 from servofmu.model.controller import load_controller
-from servofmu.output.demo import reference_trajectories
+from servofmu.commands.demo import reference_trajectories
 from servofmu.runtime import available_cores
 from servofmu.simulation.closed_loop import LoopSimulator
 from servofmu.tuning.check import check_on_axis

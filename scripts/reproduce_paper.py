@@ -1,6 +1,6 @@
 """Reproduce the paper's Tables II and III with every method, noise-free and at 40 dB SNR; write docs/results.md.
 
-For g1 and g2 (the demo's plans, servofmu.output.demo.DEMO_PLANS): build the FMU, measure it, train the ANN on a
+For g1 and g2 (the demo's plans, servofmu.commands.demo.DEMO_PLANS): build the FMU, measure it, train the ANN on a
 training set under the same plan, then
 - noise-free: every method of `servofmu compare`, in the paper's layout beside the paper's published columns;
 - 40 dB SNR output noise, `--seeds` measurements: mean ± standard deviation of every parameter per method;
@@ -29,7 +29,7 @@ from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.measure import MeasureOptions, measure
 from servofmu.model.plant import load_plant
 from servofmu.baselines.compare import METHODS, max_relative_errors, run_methods
-from servofmu.output.demo import DEMO_PLANS
+from servofmu.commands.demo import DEMO_PLANS
 from servofmu.output.paper import COLUMNS, TABLES
 from servofmu.output.report_entries import compute_entries, velocity_range
 from servofmu.output.report_figures import bode_figures, convergence_figure, friction_figure

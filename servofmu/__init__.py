@@ -54,7 +54,7 @@ _API = {
     "fit_chen2002": "servofmu.baselines.chen2002",
     "SelectOptions": "servofmu.selection.select",
     "select_files": "servofmu.selection.run",
-    "select_with_report": "servofmu.output.selection_report",
+    "select_with_report": "servofmu.commands.select",
     "export_result": "servofmu.output.export",
     "analyse_loop": "servofmu.tuning.loop",
     "TuneOptions": "servofmu.tuning.search",
@@ -90,7 +90,7 @@ if TYPE_CHECKING:  # what static tools see; at run time the names are loaded by 
     from .measurement.records import import_records  # noqa: F401
     from .model.plant import Plant, load_plant  # noqa: F401
     from .output.export import export_result  # noqa: F401
-    from .output.selection_report import select_with_report  # noqa: F401
+    from .commands.select import select_with_report  # noqa: F401
     from .selection.run import select_files  # noqa: F401
     from .selection.select import SelectOptions  # noqa: F401
     from .simulation.fmpy_runs import simulate  # noqa: F401

@@ -221,7 +221,7 @@ def test_the_argument_check_leaves_what_it_does_not_know_to_the_function():
 def test_the_demo_draws_a_bar_per_long_step_under_its_lines(tmp_path, monkeypatch, capsys):
     """The demo's CLI hands each long step (here a stand-in training) a labelled bar and prints its lines above."""
     from servofmu.cli import main
-    from servofmu.output import demo
+    from servofmu.commands import demo
 
     def fake_demo(out, report, overwrite=False, stage=None):
         report("built g1.fmu")

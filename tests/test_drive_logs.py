@@ -44,12 +44,13 @@ limit = {LIMIT_VOLTS * FORCE_CONSTANT}
 """
 # The structure: first-order G = K/(s − p) (a mass 1/K with damping −p/K), Stribeck friction; start values 10-25 %
 # off the truth.
-STRUCTURE = """name = "volt_axis"
+LINEAR = """name = "volt_axis"
 [linear]
 poles = [[-2.0, 0.0]]
 zeros = []
 gain = 0.045
-[friction]
+"""
+STRUCTURE = LINEAR + """[friction]
 model = "stribeck"
 fc_pos = 25.0
 fc_neg = 28.0
@@ -211,12 +212,7 @@ def test_drive_logs_are_identified_exactly_and_replay_a_second_log(logs):
 # symmetric: a constant load and friction levels that differ by direction are the same force in every motion and at
 # rest (docs/identification.md), the offset is separated only when the friction is the same both ways.
 SYMMETRIC = {"fc_pos": 27.0, "fc_neg": 27.0, "fs_pos": 41.5, "fs_neg": 41.5, "vs": 0.01, "v_smooth": 1e-3}
-SYMMETRIC_STRUCTURE = """name = "volt_axis"
-[linear]
-poles = [[-2.0, 0.0]]
-zeros = []
-gain = 0.045
-[friction]
+SYMMETRIC_STRUCTURE = LINEAR + """[friction]
 model = "stribeck"
 symmetric = true
 fc_pos = 23.0

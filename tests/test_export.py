@@ -35,13 +35,12 @@ from servofmu.errors import UserError
 from servofmu.identification.prior import identified_mask, identified_names
 from servofmu.identification.results import Result, Stage, write_result
 from servofmu.model.plant import load_plant
+from servofmu.commands.roundtrip import ROUND_TRIP_TOLERANCE, remeasure
 from servofmu.output.export import (
     FORMATS,
-    ROUND_TRIP_TOLERANCE,
     export_result,
     identified_plant,
     load_control,
-    remeasure,
 )
 from servofmu.runtime import RunOptions
 from hdf5edit import edit_hdf5

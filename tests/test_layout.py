@@ -25,6 +25,7 @@ STAGES = [
     {"servofmu.tuning"},
     {"servofmu.validation"},
     {"servofmu.output"},
+    {"servofmu.commands"},
     {"servofmu.api"},
     {"servofmu.cli", "servofmu.__main__"},
 ]
@@ -46,21 +47,7 @@ def module_name(path: Path, root: Path = ROOT) -> str:
 
 def imports(path: Path, root: Path = ROOT):
     """(line, imported module, imported names) of every import in ``path``, relative ones resolved."""
-    tree = ast.parse(path.read_text())
-    package = module_name(path, root).split(".")
-    if path.name != "__init__.py":
-        package = package[:-1]
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield node.lineno, alias.name, []
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package[:len(package) - node.level + 1]
-                module = ".".join(base + ([node.module] if node.module else []))
-            else:
-                module = node.module or ""
-            yield node.lineno, module, [a.name for a in node.names]
+    return imports_of_tree(ast.parse(path.read_text()), path, root)
 
 
 def package_files():
@@ -138,17 +125,63 @@ def test_no_two_modules_import_each_other():
     assert pairs == []
 
 
+def circles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The circles of the import graph ``edges``: its strongly connected sets of more than one module (Tarjan's
+    algorithm, iterative), each sorted."""
+    index, low, on, stack, found, counter = {}, {}, set(), [], [], 0
+    for root in sorted(edges):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(edges.get(root, ()))))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            node, targets = work[-1]
+            target = next(targets, None)
+            if target is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    group = []
+                    while not group or group[-1] != node:
+                        group.append(stack.pop())
+                        on.discard(group[-1])
+                    if len(group) > 1:
+                        found.append(sorted(group))
+            elif target not in index:
+                index[target] = low[target] = counter
+                counter += 1
+                stack.append(target)
+                on.add(target)
+                work.append((target, iter(sorted(edges.get(target, ())))))
+            elif target in on:
+                low[node] = min(low[node], index[target])
+    return found
+
+
+def test_no_circle_of_any_length():
+    """No circle through any number of modules either (a within-stage arrow that runs back up makes one), imports
+    inside functions and under TYPE_CHECKING counted."""
+    assert circles(module_imports()) == []
+
+
+def test_the_circle_check_sees_a_circle_of_three():
+    edges = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"a"}}
+    assert circles(edges) == [["a", "b", "c"]]
+    assert circles({**edges, "c": {"d"}}) == []
+
+
 # What runs a command's work: the stages' entry points, searches and loop simulations.  output/ draws pages of
 # what they computed and exports; it imports none of them at run time (a type under TYPE_CHECKING is no import).
 RUNS_A_COMMAND = {"servofmu.tuning.run", "servofmu.tuning.search", "servofmu.tuning.check",
                   "servofmu.control.compensation", "servofmu.control.cosim", "servofmu.simulation.closed_loop",
                   "servofmu.simulation.fmpy_runs", "servofmu.validation.run", "servofmu.identification.run",
-                  "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run"}
-# Not yet in their rooms (issue 44): the demo runs every stage end to end, and select's page is written by
-# select_with_report around selection.run's select_files.
-NOT_YET = {"servofmu.output.demo", "servofmu.output.selection_report"}
-
-
+                  "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run",
+                  "servofmu.measurement.measure", "servofmu.commands.select", "servofmu.commands.demo",
+                  "servofmu.commands.roundtrip"}
 def runtime_imports(path: Path, root: Path = ROOT) -> set[str]:
     """The servofmu modules ``path`` imports at run time (``from X import y`` names X.y too), leaving out the
     blocks under ``if TYPE_CHECKING:``."""
@@ -180,9 +213,8 @@ def imports_of_tree(tree, path: Path, root: Path):
 
 @pytest.mark.parametrize("path", sorted((PACKAGE / "output").glob("*.py")), ids=lambda p: p.name)
 def test_output_runs_no_command(path):
-    """output/ holds pages, figures and exports: the work of tune, compensate and validate is in their stages."""
-    if module_name(path) in NOT_YET:
-        return
+    """output/ holds pages, figures and exports: the work of every command is in its stage, a run written with its
+    page (select_with_report), an export measured again (remeasure) and the demo in the commands stage above."""
     found = sorted(runtime_imports(path) & RUNS_A_COMMAND)
     assert not found, f"{path.relative_to(ROOT)} imports {', '.join(found)}, which run a command's work"
 

@@ -16,7 +16,8 @@ from scipy.optimize import fsolve
 from servofmu.errors import UserError
 from servofmu.measurement.datafile import read_data_file
 from servofmu.measurement.excitation import ExperimentSpec, default_frequencies
-from servofmu.measurement.measure import Job, MeasureOptions, estimate_bandwidth, measure, run_experiment
+from servofmu.measurement.excitation import estimate_bandwidth
+from servofmu.measurement.measure import Job, MeasureOptions, measure, run_experiment
 from servofmu.model.plant import load_plant
 from servofmu.simulation.fmu_runner import FmuRunnerFactory
 from servofmu.simulation.parallel import WorkerResource, Workers

@@ -142,19 +142,27 @@ API_WRITERS = ["build_fmu", "build_controller_fmu", "measure", "import_records",
 def test_library_writers_refuse_an_existing_output(tmp_path, monkeypatch, writer):
     from servofmu.fileio import OutputExists
 
+    refused, can_continue = refused_over_an_old_file(tmp_path, monkeypatch, writer, False, OutputExists)
+    message = str(refused)
+    assert "out.file: exists already" in message and "overwrite=True" in message and "\n" not in message
+    if can_continue:
+        assert f"{can_continue}=True" in message
+
+
+def refused_over_an_old_file(tmp_path, monkeypatch, writer: str, overwrite: bool, error) -> tuple:
+    """Call the library writer ``writer`` over an old out.file (with ``overwrite``) among the stand-in inputs: it
+    raises ``error`` and leaves the old file as it was, and no other out* file.  Returns (the error, the
+    writer's option that continues a file, if any)."""
     monkeypatch.chdir(tmp_path)
     stand_ins(tmp_path)
     call, can_continue = api_writers()[writer]
     out = tmp_path / "out.file"
     out.write_bytes(PREVIOUS)
-    with pytest.raises(OutputExists) as info:
-        call(out, False)
-    message = str(info.value)
-    assert "out.file: exists already" in message and "overwrite=True" in message and "\n" not in message
-    if can_continue:
-        assert f"{can_continue}=True" in message
+    with pytest.raises(error) as info:
+        call(out, overwrite)
     assert out.read_bytes() == PREVIOUS
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("out")) == ["out.file"]
+    return info.value, can_continue
 
 
 @pytest.mark.parametrize("writer", ["measure", "train_from_file", "identify_to_file", "export_result",
@@ -163,13 +171,5 @@ def test_library_writers_given_overwrite_fail_on_their_input_and_leave_the_old_f
     from servofmu.errors import UserError
     from servofmu.fileio import OutputExists
 
-    monkeypatch.chdir(tmp_path)
-    stand_ins(tmp_path)
-    call, _ = api_writers()[writer]
-    out = tmp_path / "out.file"
-    out.write_bytes(PREVIOUS)
-    with pytest.raises(UserError) as info:
-        call(out, True)
-    assert not isinstance(info.value, OutputExists)
-    assert out.read_bytes() == PREVIOUS
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("out")) == ["out.file"]
+    refused, _ = refused_over_an_old_file(tmp_path, monkeypatch, writer, True, UserError)
+    assert not isinstance(refused, OutputExists)  # the input's error, not the output's

@@ -12,7 +12,7 @@ from servofmu.identification.closed_loop import (ClosedLoopCriterion, ClosedLoop
                                                  ENCODER_REALISATIONS, LoopSimulator)
 from servofmu.identification.prior import full_vectors, identified_mask, identified_names
 from servofmu.model.controller import load_controller
-from servofmu.output.demo import reference_trajectories
+from servofmu.commands.demo import reference_trajectories
 
 TS = 1e-3
 Q = 1e-6

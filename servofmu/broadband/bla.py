@@ -313,12 +313,8 @@ def closed_loop_estimate(r: np.ndarray, u: np.ndarray, y: np.ndarray, rate: floa
     ----------
     r, u, y : ndarray
         Reference (any unit), plant input (N) and output (m/s), one record each, sampled at ``rate``.
-    rate : float
-        Sample rate (Hz).
-    segment : int, optional
-        Samples per Welch segment (default: the record / 8, at least 256).
-    band : (float, float), optional
-        Keep the frequencies in [f_min, f_max] (Hz).
+    rate, segment, band
+        As for :func:`h1_estimate`: the sample rate (Hz), the Welch segment and the band kept.
 
     Returns
     -------

@@ -10,7 +10,7 @@ __all__ = ["register", "cmd_demo"]
 
 def cmd_demo(args) -> None:
     """Run the demo into its folder, printing what it does (with --json: the files written, at the end)."""
-    from ..output.demo import run_demo
+    from ..commands.demo import run_demo
 
     with ProgressBar(args, "step", label="demo") as bar:
         results = run_demo(Path(args.output), report=(lambda line: None) if args.json else bar.say,

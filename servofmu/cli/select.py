@@ -21,7 +21,7 @@ def cmd_select(args) -> None:
     """Fit every candidate structure, rank them on the validation file, write SELECT.h5, the plant file, the page."""
     import json
 
-    from ..output.selection_report import select_with_report
+    from ..commands.select import select_with_report
     from ..selection.summary import selection_json, selection_text
     from ..selection.select import SelectOptions
 

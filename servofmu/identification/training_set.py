@@ -114,6 +114,20 @@ def load_training_set(path: str | Path) -> TrainingSet:
                        converged=arrays["converged"].astype(bool), done=arrays["done"].astype(bool), attributes=attrs)
 
 
+def _take_resumed(output: Path, arrays: dict, structure: Plant, data: SineData) -> None:
+    """Copy into ``arrays`` what the training set ``output`` holds already, refusing one made with other arguments
+    (its drawn parameters, plan or structure differ)."""
+    old, theta = load_training_set(output), arrays["parameters"]
+    same = (old.parameters.shape == theta.shape and np.array_equal(old.parameters, theta)
+            and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml())
+    if not same:
+        raise UserError(f"{output}: made with other arguments (structure, plan, samples, spread or seed); "
+                        "cannot resume it")
+    for k, v in (("H_re", old.H.real), ("H_im", old.H.imag), ("dc", old.dc),
+                 ("converged", old.converged.astype(np.uint8)), ("done", old.done.astype(np.uint8))):
+        arrays[k][...] = v
+
+
 def _simulate_chunk(simulator, item):
     """Worker task: features of one chunk of parameter sets (full vectors)."""
     params, amps, freqs, rtol = item
@@ -186,15 +200,16 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
               "dc": np.full((samples, n_exp), np.nan), "converged": np.zeros((samples, n_exp), np.uint8),
               "done": np.zeros(samples, np.uint8)}
     if run.resume and output.exists():
-        old = load_training_set(output)
-        same = (old.parameters.shape == theta.shape and np.array_equal(old.parameters, theta)
-                and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml())
-        if not same:
-            raise UserError(f"{output}: made with other arguments (structure, plan, samples, spread or seed); "
-                            "cannot resume it")
-        for k, v in (("H_re", old.H.real), ("H_im", old.H.imag), ("dc", old.dc),
-                     ("converged", old.converged.astype(np.uint8)), ("done", old.done.astype(np.uint8))):
-            arrays[k][...] = v
+        _take_resumed(output, arrays, structure, data)
+    _simulate_into(output, arrays, attrs, structure, full, rtol, run)
+    return load_training_set(output)
+
+
+def _simulate_into(output: Path, arrays: dict, attrs: dict, structure: Plant, full: np.ndarray, rtol: float,
+                   run: RunOptions) -> None:
+    """Simulate the plants ``full`` (full parameter vectors) not yet done into ``arrays``, in chunks on the
+    workers, writing the training set every WRITE_EVERY seconds and at the end (also when interrupted)."""
+    samples = arrays["done"].size
     todo = np.flatnonzero(arrays["done"] == 0)
     chunks = [todo[i:i + CHUNK] for i in range(0, len(todo), CHUNK)]
     # written first once a chunk is done: a run that fails at its start (a memory limit, Ctrl-C) leaves the file
@@ -203,7 +218,7 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     run.report(done, samples)
     workers = Workers(scheduler=run.scheduler, workers=0 if run.scheduler is None else None)
     resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
-    items = [(full[rows], data.amplitudes, data.frequencies, rtol) for rows in chunks]
+    items = [(full[rows], arrays["amplitudes"], arrays["frequencies"], rtol) for rows in chunks]
     written = time.monotonic()
     with workers:
         try:
@@ -219,4 +234,3 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
         finally:  # what is done is kept, also when the run is interrupted
             if done > start:
                 _write(output, arrays, attrs)
-    return load_training_set(output)

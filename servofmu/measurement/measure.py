@@ -35,11 +35,11 @@ from ..simulation.parallel import WorkerResource, Workers, report
 from ..version import __version__
 from .datafile import (DataFile, ExperimentResult, Series, add_experiments, create_measurement, mark_complete,
                        read_data_file)
-from .excitation import (DEFAULT_AMPLITUDES, MAX_STEPS, ExperimentSpec, Plan, corner_frequency,
-                         default_frequencies)
+from .excitation import (DEFAULT_AMPLITUDES, MAX_STEPS, ExperimentSpec, Plan, default_frequencies,
+                         estimate_bandwidth)
 from .frf import HARMONICS, SteadyStateDetector, harmonics
 
-__all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "estimate_bandwidth", "check_fmu", "check_work",
+__all__ = ["MeasureOptions", "measure", "run_experiment", "Job", "check_fmu", "check_work",
            "MAX_STEPS", "PROGRESS_SCALE"]
 
 SOLVER = "the FMU's own Co-Simulation solver (servofmu FMUs: adaptive RODAS4), driven through FMPy"
@@ -236,36 +236,6 @@ def _add_noise(transient: Series, window: Series, opt: MeasureOptions, spec: Exp
             dict(noise_sigma=sigma, H_noisy=h.first / u1, dc_noisy=h.dc))
 
 
-def run_step_response(runner: FmuRunner, amplitude: float, tolerance: float, max_time: float = 1000.0):
-    """v(t) after a step of ``amplitude`` on the input at t = 0, long enough to be settled
-    (the horizon grows ×4 from 1 s until the last quarter varies by < 2 % and the 63 % point is early)."""
-    values = {runner.input_name: amplitude}
-    if runner.builtin:
-        values[EXCITATION[0]] = 0.0
-    runner.start(tolerance, values)
-    ts, vs = [0.0], [runner.value()]
-    horizon, t = 1.0, 0.0
-    while True:
-        grid = np.linspace(t, horizon, 1001)[1:]
-        for tn in grid:
-            vs.append(runner.step(t, tn - t))
-            ts.append(tn)
-            t = tn
-        tt, vv = np.asarray(ts), np.asarray(vs)
-        tail = vv[tt >= 0.75 * horizon]
-        final = float(np.mean(tail))
-        spread = float(np.max(tail) - np.min(tail))
-        early = np.any(np.abs(vv[tt <= 0.25 * horizon]) >= (1 - math.exp(-1)) * abs(final))
-        if abs(final) > 0 and spread < 0.02 * abs(final) and early:
-            runner.finish()
-            return tt, vv
-        if horizon >= max_time:
-            runner.finish()
-            raise UserError(f"{runner.name}: the step response of {runner.output_name!r} does not settle within "
-                            f"{max_time:g} s: cannot estimate the bandwidth (give the frequencies)")
-        horizon *= 4
-
-
 # ---------------------------------------------------------------------------
 # The whole measurement (main process)
 # ---------------------------------------------------------------------------
@@ -322,7 +292,6 @@ def provenance_for(info: FmuInfo, sha: str, options: MeasureOptions, command: st
     return prov
 
 
-
 def _check_resume(path: Path, existing, prov: dict, plan: Plan) -> None:
     if existing.kind != "measurement":
         raise UserError(f"{path}: is a {existing.kind} file, not a measurement to resume")
@@ -373,16 +342,6 @@ def check_work(plan: Plan, options: MeasureOptions, builtin: bool, max_steps: fl
                  "lower --samples-per-period or --max-time, or measure fewer frequencies")
 
 
-def estimate_bandwidth(factory: FmuRunnerFactory, amplitude: float, tolerance: float) -> float:
-    """The plant's bandwidth (Hz) from its step response (excitation.corner_frequency)."""
-    runner = factory()
-    try:
-        t, v = run_step_response(runner, amplitude, tolerance)
-    finally:
-        runner.close()
-    return corner_frequency(t, v)
-
-
 @holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
 def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | None = None,
             frequencies: Sequence[float] | None = None,
@@ -422,7 +381,7 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
     Returns
     -------
     DataFile
-        The data file read back.
+        The measurement, read back from ``output``.
 
     Raises
     ------
@@ -447,6 +406,24 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
     factory = FmuRunnerFactory(data=data, name=info.path.name, input=options.input, output=options.output)
     factory().close()  # an FMU whose binary cannot be loaded fails here, before anything is written
 
+    plan, source = _plan(amplitudes, frequencies, existing, factory, options)
+    check_work(plan, options, info.has_builtin_excitation, max_steps)
+    prov = provenance_for(info, sha, options, run.command, source)
+    if existing is not None:
+        _check_resume(out, existing, prov, plan)
+    todo = existing.missing() if existing is not None else plan.experiments
+    resource = WorkerResource(key=f"fmu:{sha}:{options.input}:{options.output}", factory=factory)
+    create = None if existing is not None else lambda: create_measurement(out, plan, prov, fmu_parameters(info))
+    _run_jobs(out, [Job(spec, options) for spec in todo], resource, len(plan), create, options, run, warn)
+    mark_complete(out)
+    return read_data_file(out)
+
+
+def _plan(amplitudes: Sequence[float] | None, frequencies: Sequence[float] | None, existing: DataFile | None,
+          factory: FmuRunnerFactory, options: MeasureOptions) -> tuple[Plan, str]:
+    """:func:`measure`'s plan (amplitudes and frequencies given, else a resumed file's, else the defaults) and
+    where its frequencies come from (given, the resumed file's source, or a 1-2-5 grid around the bandwidth
+    estimated from a step response)."""
     if amplitudes is None:
         amplitudes = existing.plan.amplitudes if existing is not None and existing.plan else DEFAULT_AMPLITUDES
     amplitudes = Plan(tuple(amplitudes), (1.0,)).amplitudes  # validates
@@ -458,15 +435,15 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
         bandwidth = estimate_bandwidth(factory, max(amplitudes), options.tolerance)
         frequencies = default_frequencies(bandwidth)
         source = f"1-2-5 grid over 0.25..15 x the bandwidth {bandwidth:.6g} Hz estimated from a step response"
-    plan = Plan(tuple(amplitudes), tuple(frequencies))
-    check_work(plan, options, info.has_builtin_excitation, max_steps)
-    prov = provenance_for(info, sha, options, run.command, source)
-    if existing is not None:
-        _check_resume(out, existing, prov, plan)
-    todo = existing.missing() if existing is not None else plan.experiments
-    total, done = len(plan), len(plan) - len(todo)
-    jobs = [Job(spec, options) for spec in todo]
-    resource = WorkerResource(key=f"fmu:{sha}:{options.input}:{options.output}", factory=factory)
+    return Plan(tuple(amplitudes), tuple(frequencies)), source
+
+
+def _run_jobs(out: Path, jobs: list[Job], resource: WorkerResource, total: int, create: Callable[[], None] | None,
+              options: MeasureOptions, run: RunOptions, warn: Callable[[str], None] | None) -> None:
+    """:func:`measure`'s experiments ``jobs`` (of ``total`` in the plan) run on workers, each added to ``out`` as it
+    ends.  ``create``, when given, makes the file once the workers are connected (a bad scheduler writes nothing);
+    a run that stores no experiment then leaves no empty file.  An experiment without steady state is warned of."""
+    done = total - len(jobs)
     running: dict[int, float] = {}  # experiment index -> fraction done
 
     def show(index: int | None = None, fraction: float = 0.0) -> None:
@@ -474,9 +451,9 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
             running[index] = fraction
         run.report(int(PROGRESS_SCALE * (done + sum(running.values()))), PROGRESS_SCALE * total)
 
-    with Workers(scheduler=run.scheduler, workers=run.workers, on_report=show) as pool:  # connects first: a bad
-        if existing is None:                                                     # scheduler writes nothing
-            create_measurement(out, plan, prov, fmu_parameters(info))
+    with Workers(scheduler=run.scheduler, workers=run.workers, on_report=show) as pool:  # connects first
+        if create is not None:
+            create()
         try:
             show()
             for _, result in pool.imap(run_experiment, jobs, resource=resource):
@@ -490,11 +467,9 @@ def measure(fmu: str | Path, output: str | Path, amplitudes: Sequence[float] | N
                     if warn is not None:
                         warn(text)
                     else:
-                        warnings.warn(text, ServofmuWarning, stacklevel=3)  # (past holds_outputs)
+                        warnings.warn(text, ServofmuWarning, stacklevel=4)  # (past measure and holds_outputs)
                 show()
         except BaseException:
-            if existing is None and done == 0:  # nothing measured: leave no empty file to trip over
+            if create is not None and done == 0:  # nothing measured: leave no empty file to trip over
                 out.unlink(missing_ok=True)
             raise
-    mark_complete(out)
-    return read_data_file(out)

@@ -6,45 +6,36 @@ date) and how it was exported (RESULT file and its SHA-256, command, date, packa
 
 The FMU comes from the same generator as the plant FMUs (servofmu.fmu.build_fmu: ME + CS, the same variables) with
 the identified values as parameter start values; the plant TOML is the file `servofmu build` reads back to an
-FMU that responds identically.  :func:`remeasure` closes the loop: it exports the FMU, measures it with the plan
-of the data the model was identified from, and reports how well it reproduces that data's first harmonics.
+FMU that responds identically.  Measuring the exported FMU again (the round trip) is servofmu.commands.roundtrip's.
 """
 from __future__ import annotations
 
 import io
 import json
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from ..display import json_safe
 from ..errors import UserError
-from ..fileio import atomic_write, check_output_path, claim_output, file_sha256, output_mode
+from ..fileio import atomic_write, claim_output, file_sha256, output_mode
 from ..identification.results import Result, read_result, to_json
 from ..model.laws.registry import base_law
 from ..model.plant import Friction, Load, Plant, plant_from_dict
-from ..runtime import RunOptions, optional_import, utc_now
+from ..runtime import optional_import, utc_now
 from ..version import __version__
 from .formats import FORMATS, SUFFIX_FORMATS
 
 __all__ = ["export_result", "export_fmu", "export_control", "export_mat", "export_json", "export_toml",
-           "load_control", "identified_plant", "remeasure", "RoundTrip", "format_of",
-           "toml_text", "linear_state_space", "ROUND_TRIP_TOLERANCE"]
+           "load_control", "identified_plant", "format_of",
+           "toml_text", "linear_state_space", "export_provenance"]
 
 CONTROL_FORMAT = "servofmu-control"   # the `control` file: JSON read by load_control
 EXPORT_FORMAT = "servofmu-export"     # the `json` file
 SCHEMA_VERSION = 1
 NAME_SUFFIX = "_identified"
-# A round trip reproduces the data when its residual is at most the identification's fitness plus this: the
-# FMU measurement and the identifier's batch simulator agree on first harmonics to <= 5e-10 relative and on the
-# fitness to <= 1.3e-10 (docs/bench-export.md), so 1e-8 leaves a margin of about 20 to 80.
-ROUND_TRIP_TOLERANCE = 1e-8
-# Measurement settings taken over from the data file's provenance for the re-measurement.
-_MEASURE_KEYS = ("tolerance", "samples_per_period", "settle_samples_per_period", "window_periods", "threshold",
-                 "consecutive", "min_periods", "max_time", "harmonics")
 
 
 # ---------------------------------------------------------------------------
@@ -305,66 +296,3 @@ def export_result(result_file: str | Path, output: str | Path, fmt: str | None =
         return export_fmu(result, output, fmi_version or 3, name, prov, overwrite=True), fmt
     writer = {"control": export_control, "mat": export_mat, "json": export_json, "toml": export_toml}[fmt]
     return writer(result, output, name, prov), fmt
-
-
-# ---------------------------------------------------------------------------
-# Round trip: measure the exported FMU with the plan of the data
-# ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class RoundTrip:
-    """The exported FMU measured with the plan of the data it was identified from.
-
-    ``residual_rms``: RMS of the identifier's residuals between the re-measurement and the data (what the
-    fitness measures); ``max_H_error``: max |H − H_data|/|H_data|; both over the ``compared`` experiments of the
-    data that reached a steady state; ``unsettled``: how many of those did not in the re-measurement.
-    """
-
-    fmu: Path
-    measured: object  # DataFile of the re-measurement
-    fitness: float
-    residual_rms: float
-    max_H_error: float
-    compared: int
-    unsettled: int
-
-    @property
-    def reproduces(self) -> bool:
-        """The exported model fits the data as well as the identification says (within ROUND_TRIP_TOLERANCE)."""
-        return self.unsettled == 0 and self.residual_rms <= self.fitness + ROUND_TRIP_TOLERANCE
-
-
-def remeasure(result: Result, data_file: str | Path, fmu_path: str | Path, measured_path: str | Path,
-              fmi_version: int = 3, name: str | None = None, result_file: str | Path | None = None,
-              command: str = "", workers: int | None = None, scheduler: str | None = None,
-              progress: Callable[[int, int], None] | None = None,
-              warn: Callable[[str], None] | None = None) -> RoundTrip:
-    """Export ``result`` as an FMU to ``fmu_path``, measure it into ``measured_path`` with the plan and the
-    measurement settings of ``data_file`` (the stepped-sine data it was identified from) and compare."""
-    from ..identification.criterion import sine_data, sine_residuals
-    from ..measurement.datafile import read_data_file
-    from ..measurement.measure import MeasureOptions, measure
-
-    ds = read_data_file(data_file)
-    if ds.kind != "measurement" or not ds.plan:
-        raise UserError(f"{data_file}: is a {ds.kind} file; the round trip needs stepped-sine measurements")
-    claimed = result.provenance.get("data_sha256")
-    if claimed and claimed != ds.sha256:
-        raise UserError(f"{data_file}: is not the data file the result was identified from "
-                        f"({result.provenance.get('data_file', 'SHA-256 ' + claimed[:12])})")
-    data = sine_data(ds)
-    check_output_path(fmu_path)
-    check_output_path(measured_path, overwrite=False)
-    fmu = export_fmu(result, fmu_path, fmi_version, name, export_provenance(result, result_file, command),
-                     overwrite=True)
-    options = MeasureOptions(**{k: ds.provenance[k] for k in _MEASURE_KEYS if k in ds.provenance})
-    measured = measure(fmu, measured_path, amplitudes=ds.plan.amplitudes, frequencies=ds.plan.frequencies,
-                       options=options, warn=warn,
-                       run=RunOptions(scheduler=scheduler, workers=workers, command=command, progress=progress))
-    again = [measured.experiment(m, f) for m, f in zip(data.amplitudes, data.frequencies)]
-    H = np.array([e.H for e in again], dtype=complex)
-    dc = np.array([e.dc for e in again], dtype=float)
-    r = sine_residuals(data, H, dc)
-    return RoundTrip(fmu=Path(fmu), measured=measured, fitness=result.fitness,
-                     residual_rms=float(np.sqrt(np.mean(r ** 2))),
-                     max_H_error=float(np.max(np.abs(H - data.H) / np.abs(data.H))), compared=len(again),
-                     unsettled=sum(not e.converged for e in again))

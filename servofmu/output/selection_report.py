@@ -1,25 +1,24 @@
 """The page of a structure selection (`servofmu select … --report select.html`): the ranking, the chosen structure,
-and the best candidates' fits on the validation data side by side (each simulated there as ``validate`` does)."""
+and the best candidates' fits on the validation data side by side (each simulated there as ``validate`` does).
+Writing it with the selection's files, all or none, is commands.select's."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
 
-from ..fileio import all_or_none, atomic_write, claim_outputs, holds_outputs, output_mode
 from ..measurement.datafile import read_data_file
-from ..runtime import RunOptions, utc_now
-from ..selection.run import Selection, select_files, selection_outputs
+from ..runtime import utc_now
+from ..selection.store import Selection
 from ..selection.summary import rough_warning
-from ..selection.select import STRONG_EVIDENCE, SelectOptions
+from ..selection.select import STRONG_EVIDENCE
 from ..selection.validation import VALIDATION_LEVEL
 from .html import escape, figure, number, page, png_bytes, table
 from .plots import figure_axes
 from ..validation.replay import Validation, validate
 
-__all__ = ["select_with_report", "selection_page", "plot_side_by_side", "SIDE_BY_SIDE"]
+__all__ = ["selection_page", "plot_side_by_side", "SIDE_BY_SIDE"]
 
 SIDE_BY_SIDE = 4  # candidates drawn beside each other (the best fitted ones)
 ROWS = 3          # records or experiments drawn per candidate
@@ -119,38 +118,3 @@ def selection_page(selection: Selection) -> str:
                             "data, side by side: measured and simulated output.", image, "candidates side by side"))
     parts.append(f'<p class="note">Made by servofmu on {escape(utc_now())}.</p>')
     return page(title, parts)
-
-
-@holds_outputs
-def select_with_report(data_files: Sequence[str | Path], validation_file: str | Path, output: str | Path,
-                       options: SelectOptions | None = None, run: RunOptions | None = None,
-                       plant_output: str | Path | None = None, result_output: str | Path | None = None,
-                       report: str | Path | None = None) -> Selection:
-    """Select a structure (:func:`servofmu.select_files`) and, with ``report``, write the selection's HTML page
-    (:func:`selection_page`): what `servofmu select` does.
-
-    Parameters
-    ----------
-    data_files, validation_file, output, options, run, plant_output, result_output
-        As for :func:`servofmu.select_files`.
-    report : str or Path, optional
-        The HTML page to write; claimed with the other outputs before any work.
-
-    Returns
-    -------
-    Selection
-        The ranked candidates and the outputs written.
-    """
-    from ..api_checks import check_arguments
-
-    check_arguments(select_with_report, locals())  # a wrong type: UserError naming it
-    run = run or RunOptions()
-    outputs = claim_outputs({**selection_outputs(output, plant_output, result_output), "report": report},
-                            output_mode(run.overwrite), inputs=(*data_files, validation_file,
-                                                                options.closed_loop if options else None))
-    with all_or_none(outputs.values()):  # the selection's files and its page, or none of them
-        selection = select_files(data_files, validation_file, output, options, run, plant_output, result_output)
-        if report is not None:
-            atomic_write(report, selection_page(selection))
-            selection = replace(selection, outputs={**selection.outputs, "report": str(report)})
-    return selection

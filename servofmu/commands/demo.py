@@ -28,16 +28,16 @@ from ..measurement.records import LoopChannels, import_records
 from ..runtime import Progress, RunOptions
 from ..model.plant import load_plant
 from ..control.compensation import compensate_files
-from .compensation_report import compensation_page, compensation_text
+from ..output.compensation_report import compensation_page, compensation_text
 from ..claims import refuse_package_data
 from ..fileio import OutputExists, atomic_write, file_sha256, staged_folder
-from .export import remeasure
-from .paper import COLUMNS, TABLES
-from .plots import bode_figure
-from .report import make_report
+from .roundtrip import remeasure
+from ..output.paper import COLUMNS, TABLES
+from ..output.plots import bode_figure
+from ..output.report import make_report
 from ..tuning.search import TuneOptions
 from ..tuning.run import tune_files
-from .tune_report import tune_html, tune_text
+from ..output.tune_report import tune_html, tune_text
 from ..validation.replay import validate
 
 __all__ = ["run_demo", "run_closed_loop_demo", "paper_comparison", "reference_trajectories", "demo_pulses",
