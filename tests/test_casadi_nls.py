@@ -90,6 +90,8 @@ def test_converges_to_the_truth_from_five_percent_off(g1_data, method):
     assert result.fitness < 1e-7 and result.names == ("pole1", "dc_gain", "fc_pos", "fc_neg")
 
 
+# long (SERVOFMU_FAULTS=all): 15-25 s; the first-order cases above check the same path
+@pytest.mark.long
 def test_g2_with_its_complex_pair_from_five_percent_off(built_fmu, tmp_path):
     """Third order, a lightly damped pair near 5 Hz; magnitudes and frequencies where g2 settles (no limit cycle)."""
     path = tmp_path / "g2.h5"

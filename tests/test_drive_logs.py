@@ -226,6 +226,8 @@ offset = -20.0
 DWELL = (0.002, 0.004, 0.007, 0.012, 0.02, 0.05, 0.1, 0.2)
 
 
+# long (SERVOFMU_FAULTS=all): 45-57 s of the default suite's 15 minutes; scripts/bench_closed_loop.py measures the same
+@pytest.mark.long
 def test_a_noisy_drive_log_with_its_encoder_is_identified_within_one_percent(tmp_path):
     """16 s logs (a friction run, then reversals, pulses and a fast move) with the 1 µm encoder and a force noise
     40 dB below the force command, from the generator; imported and identified with the CLI: every parameter within

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 import servofmu as sf
 from servofmu.identification.closed_loop import (ClosedLoopCriterion, ClosedLoopData, ClosedLoopSeries,
@@ -74,6 +75,8 @@ def quantised_run(plant, controller, t, r, force_noise: float, seed: int) -> Clo
                           encoder_resolution=q)
 
 
+# long (SERVOFMU_FAULTS=all): 20 s; scripts/bench_quantiser.py measures the coverage over many seeds
+@pytest.mark.long
 def test_a_quantised_encoder_in_the_loop_is_identified_with_intervals_that_cover_the_truth():
     """stribeck_axis with a 1 µm encoder and actuator noise 40 dB below the command: every parameter within 1 %,
     the 95 % intervals cover the truth (without the model of the quantiser the static friction levels are biased
