@@ -577,3 +577,18 @@ def test_a_library_built_for_this_processor_gives_the_portable_results_bit_for_b
     portable = BatchSimulator(plant, threads=1).steady_state(sets, amps, freqs)
     for name in ("H", "dc", "distortion", "converged", "settle_time", "steps", "orbit"):
         assert np.array_equal(getattr(native, name), getattr(portable, name), equal_nan=True), name
+
+
+def test_a_polish_that_starts_without_steady_state_takes_no_derivatives():
+    # every run of g2 at 0.6 N, 1 Hz has no steady state: the polish returns its start and a NaN Jacobian after
+    # one evaluation, instead of p more runs to the time limit for a Jacobian of NaN residuals
+    from servofmu.identification.polish import polish
+
+    plant = load_plant("g2")
+    sim = BatchSimulator(plant, threads=1)
+    data = SineData(amplitudes=np.array([0.6]), frequencies=np.array([1.0]), H=np.array([1.0 + 0j]),
+                    dc=np.zeros(1), noisy=False, source="test", skipped=0, noise=np.zeros(1))
+    crit = SineCriterion(plant, data, sim)
+    y0 = plant.parameter_vector()[identified_mask(plant)]
+    y, jac = polish(crit, lambda rows: rows, y0)
+    assert crit.evaluations == 1 and np.array_equal(y, y0) and np.isnan(jac).all()
