@@ -33,6 +33,7 @@ import numpy as np
 import servofmu as sf
 from servofmu.measurement.records import import_records
 from servofmu.identification.prior import identified_names
+from servofmu.model.laws.registry import default_laws
 from servofmu.model.plant import plant_from_dict
 from servofmu.runtime import RunOptions, cache_dir
 from servofmu.selection.candidates import default_candidates, supported_load_terms
@@ -80,6 +81,21 @@ if "ripple" in supported_load_terms():  # a ripple of 0.2 N and period 5 cm on g
         "name": "coulomb2_ripple", "linear": {"poles": [[-5.0, 0.0], [-40.0, 0.0]], "dc_gain": 2.0},
         "friction": {"model": "coulomb", "fc_pos": 0.3, "fc_neg": 0.25},
         "load": {"ripple_amplitude": 0.15, "ripple_period": 0.04, "ripple_phase": -1.1}}), "coulomb+ripple/2", 1.0)
+# The newer laws' example plants (docs/friction.md): direction-dependent viscous friction and the Stribeck curve's
+# shape exponent are friction terms of the default selection's second stage; Dahl and Maxwell-slip friction are
+# laws a user names (LAWS_NAMED: the default candidates and theirs).
+PLANTS.update({
+    "viscous_axis": (sf.load_plant("viscous_axis"), "coulomb+fv_asym/2", 1.0),
+    "stribeck_shaped": (sf.load_plant("stribeck_shaped"), "stribeck+delta/1", 1.0),
+    # δ = 0.7 on an axis whose slow half moves within its Stribeck velocity (stribeck_shaped's, 0.04 m/s, is a
+    # few percent of its speeds: the curve's shape shows only at the reversals)
+    "stribeck_delta": (_plant("stribeck_delta", [[-6.0, 0.0]], [], 1.5,
+                              {"model": "stribeck", "fc_pos": 0.3, "fc_neg": 0.25, "fs_pos": 0.6, "fs_neg": 0.5,
+                               "vs": 0.15, "delta": 0.7}), "stribeck+delta/1", 1.0),
+    "dahl_servo": (sf.load_plant("dahl_servo"), "dahl/1", 1.0),
+    "gms_servo": (sf.load_plant("gms_servo"), "gms/1", 1.0),
+})
+LAWS_NAMED = {"dahl_servo": "dahl", "gms_servo": "gms"}
 
 
 # Closed-loop plants: name -> (plant, true candidate name, controller); their records are the example drive's
@@ -172,7 +188,8 @@ def one(name: str, seed: int, folder: Path, workers: int, iterations: int | None
         plant, truth, scale = PLANTS[name]
         fit = record(plant, folder / f"{name}-{seed}-fit.h5", 1000 * seed + 1, scale)
         val = record(plant, folder / f"{name}-{seed}-val.h5", 1000 * seed + 2, scale)
-        options = sf.SelectOptions(seed=seed, iterations=iterations)
+        named = [*default_laws(), LAWS_NAMED[name]] if name in LAWS_NAMED else None
+        options = sf.SelectOptions(seed=seed, iterations=iterations, candidates=named)
     if "screen" in sf.SelectOptions.__dataclass_fields__:
         options = replace(options, screen=screen)
     libraries = _libraries()

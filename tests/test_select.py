@@ -14,8 +14,8 @@ import servofmu as sf
 from servofmu.errors import UserError
 from servofmu.measurement.records import import_records
 from servofmu.runtime import RunOptions
-from servofmu.selection.candidates import (Candidate, default_candidates, load_candidates, parse_candidates,
-                                           supported_load_terms)
+from servofmu.selection.candidates import (Candidate, default_candidates, parse_candidates, supported_load_terms,
+                                           term_candidates)
 from servofmu.selection.estimate import Series, estimate_linear
 from servofmu.selection.select import STRONG_EVIDENCE, CandidateScore, rank, validation_allowance, validation_margin
 from servofmu.simulation.batch import BatchSimulator
@@ -32,15 +32,43 @@ def test_candidate_names_expand_over_the_orders_with_and_without_a_zero():
     names = [c.name for c in parse_candidates(["coulomb", "lugre/2z"], orders=(1, 3))]
     assert names == ["coulomb/1", "coulomb/3", "coulomb/3z", "lugre/2z"]
     assert len(default_candidates((1, 2, 3))) == 3 * 5  # order 1 without a zero, 2 and 3 with and without
-    assert [c.name for c in load_candidates(Candidate("stribeck", 2, 1))] == \
-        [f"stribeck+{t}/2z" for t in supported_load_terms() if t != "offset"]  # the same as other levels
+    loads = [t for t in supported_load_terms() if t != "offset"]  # an offset: the same force as other levels
+    assert [c.name for c in term_candidates(Candidate("stribeck", 2, 1))] == \
+        [f"stribeck+{t}/2z" for t in (*loads, "delta", "fv_asym")]
+    assert [c.name for c in term_candidates(Candidate("coulomb", 1))] == \
+        [f"coulomb+{t}/1" for t in (*loads, "fv_asym")]  # Coulomb friction has no Stribeck curve to shape
     assert [c.name for c in parse_candidates(None, (2,))][:2] == ["coulomb/2", "coulomb/2z"]
+    assert [c.name for c in parse_candidates(["lugre+fv_asym+delta/2"])] == ["lugre+delta+fv_asym/2"]
+
+
+def test_friction_terms_start_where_they_change_nothing_and_leave_again():
+    """A friction term added to a fit starts at δ = 2 and fv_neg = fv_pos = fv — the same forces, so the same
+    response to rounding — and taken away again gives the plant it was added to; the structures nested in a term's
+    candidate keep the term where their law takes it."""
+    from servofmu.selection.starts import nested_structures, with_terms, without_terms
+
+    plant = sf.load_plant("lugre_servo")
+    both = Candidate("lugre", 1, 0, ("delta", "fv_asym"))
+    added = with_terms(plant, both)
+    values = added.friction.values()
+    assert values["delta"] == 2.0 and values["fv_pos"] == values["fv_neg"] == plant.friction.values()["fv"] != 0
+    assert "fv" not in values
+    t = np.arange(0.0, 3.0, 0.01)
+    u = 2.0 * np.sin(2 * np.pi * t) + 0.5 * np.sin(2 * np.pi * 4.3 * t)
+    runs = [BatchSimulator(p).simulate_record(p.parameter_vector()[None], t, u, rtol=1e-10).v[0]
+            for p in (plant, added)]
+    np.testing.assert_allclose(runs[1], runs[0], rtol=1e-12, atol=1e-15)
+    assert without_terms(added, {"delta", "fv_asym"}).friction == plant.friction
+    assert [c.name for c in nested_structures(Candidate("lugre", 2, 1, ("delta", "fv_asym")))] == [
+        "stribeck+delta+fv_asym/2z", "coulomb+fv_asym/2z", "lugre+delta+fv_asym/2", "stribeck+delta+fv_asym/2",
+        "coulomb+fv_asym/2"]
 
 
 @pytest.mark.parametrize("names, orders, fragment", [
     (["friction"], (1,), "unknown friction law 'friction'"),
     (["coulomb+fv"], (1,), "viscous friction fv is not told apart"),
-    (["coulomb+bump"], (1,), "unknown load term 'bump'"),
+    (["coulomb+bump"], (1,), "unknown term 'bump'"),
+    (["coulomb+delta"], (1,), "the coulomb law has no delta"),
     (["coulomb/1z"], (1,), "a zero needs G of order 2"),
     (["coulomb/x"], (1,), "must be a whole number"),
     (["coulomb"], (0,), "order 0 of G(s)"),
@@ -162,7 +190,7 @@ def test_the_first_hands_its_fit_to_the_fitted_candidates_nested_in_it():
     from types import SimpleNamespace
 
     from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.starts import with_law, with_load, within_first
+    from servofmu.selection.starts import with_law, with_terms, within_first
 
     lugre = plant_from_dict({"name": "l", "linear": {"poles": [[-5.0, 0.0], [-12.0, 0.0], [-40.0, 0.0]],
                                                      "zeros": [[-12.5, 0.0]], "dc_gain": 2.0},
@@ -183,7 +211,7 @@ def test_the_first_hands_its_fit_to_the_fitted_candidates_nested_in_it():
     assert within_first(failed, [failed, *fitted.values()], np.array([0.4])) == {}
     rippled = fitted[Candidate("stribeck", 2, 0, ("ripple",))]  # ranked first: the law and G without the ripple
     stribeck = with_law(replace(lugre, poles=(-5.0, -40.0), zeros=()), "stribeck", np.array([0.4, -0.4]))
-    rippled = replace(rippled, result=SimpleNamespace(plant=with_load(stribeck, rippled.candidate)))
+    rippled = replace(rippled, result=SimpleNamespace(plant=with_terms(stribeck, rippled.candidate)))
     starts = within_first(rippled, [rippled, *fitted.values()], np.array([0.4, -0.4]))
     assert set(starts) == {Candidate("stribeck", 2), Candidate("coulomb", 1)}
     assert starts[Candidate("stribeck", 2)] == replace(stribeck, name="candidate")
@@ -197,7 +225,7 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
     from types import SimpleNamespace
 
     from servofmu.model.plant import plant_from_dict
-    from servofmu.selection.starts import from_winner, load_leader, nested_structures
+    from servofmu.selection.starts import from_winner, term_leader, nested_structures
 
     winner = Candidate("stribeck", 2, 1, ("ripple",))
     assert [c.name for c in nested_structures(winner)] == ["coulomb+ripple/2z", "stribeck+ripple/2",
@@ -219,8 +247,8 @@ def test_a_load_term_winner_with_a_zero_hands_its_fit_to_the_structures_without_
     assert lower.poles == (-5.0,) and lower.zeros == () and lower.dc_gain == 2.0 and lower.load == plant.load
     plain = CandidateScore(Candidate("stribeck", 2, 1), "fitted", result=SimpleNamespace(plant=plant), bic=-90.0)
     screened = replace(first, bic=-80.0, screened=True, bic_bound=-120.0)
-    assert load_leader([plain, screened]).candidate == winner
-    assert load_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
+    assert term_leader([plain, screened]).candidate == winner
+    assert term_leader([plain, replace(screened, bic_bound=-60.0)]).candidate == plain.candidate
 
 
 def test_a_load_term_winner_of_a_higher_order_hands_its_fit_to_the_order_below_never_fitted():
@@ -673,7 +701,7 @@ def test_fits_are_sent_costliest_first():
 
     g1 = sf.load_plant("g1")
     searched = replace(g1, load=replace(g1.load, ripple_amplitude=0.0))  # a ripple at zero force: searched
-    jobs = [CandidateJob(c, searched if c.load else g1, None, None, sf.SelectOptions(), None, {})
+    jobs = [CandidateJob(c, searched if c.terms else g1, None, None, sf.SelectOptions(), None, {})
             for c in parse_candidates(["coulomb/1", "lugre/1", "coulomb/3z", "stribeck/2", "coulomb+ripple/1"])]
     order = [j.candidate.name for j in sorted(jobs, key=_expected_cost, reverse=True)]
     assert order == ["coulomb+ripple/1", "coulomb/3z", "stribeck/2", "lugre/1", "coulomb/1"]

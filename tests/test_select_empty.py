@@ -14,7 +14,7 @@ from servofmu.runtime import RunOptions
 from servofmu.selection import run as select_run
 from servofmu.selection.candidates import Candidate
 from servofmu.selection.select import SCREEN_MARGIN, CandidateScore, could_win, rank
-from servofmu.selection.starts import (from_winner, load_starts, nested_law_starts, reduced_starts, spring_starts,
+from servofmu.selection.starts import (from_winner, term_starts, nested_law_starts, reduced_starts, spring_starts,
                                        within_first)
 from servofmu.selection.summary import selection_json, selection_text
 
@@ -80,7 +80,7 @@ def test_the_helpers_that_pick_from_fits_take_lists_without_a_fit(scores):
     speeds = np.array([0.1, -0.1])
     assert rank(scores) == [] if not scores else all(s.flags == ("fit failed",) for s in rank(scores))
     assert reduced_starts(scores, [Candidate("coulomb", 1)], 10.0, speeds) == {}
-    assert spring_starts(scores) == {} and load_starts(failed) == {}
+    assert spring_starts(scores) == {} and term_starts(failed) == {}
     assert nested_law_starts(failed, scores, speeds) == {} and from_winner(failed, scores, speeds) == {}
     assert within_first(failed, scores, speeds) == {}
     assert math.isnan(select_run._roughness(None, None, scores))  # no fit to check: NaN, and the pool is not asked

@@ -1,10 +1,12 @@
-"""The candidate structures of a selection: a friction law, load terms (where the plant format has them), the
-order of G(s) and whether G has a zero; their names, the default set, and each one's plant (its structure and
-first values, from the linear estimate of servofmu.selection.estimate).
+"""The candidate structures of a selection: a friction law, terms added to it (load terms where the plant format
+has them, the friction terms its law has keys for), the order of G(s) and whether G has a zero; their names, the
+default set, and each one's plant (its structure and first values, from the linear estimate of
+servofmu.selection.estimate).
 
 A candidate's name reads ``LAW[+TERM…]/ORDER[z]``: ``coulomb/1``, ``stribeck/2z`` (second order with one zero),
-``lugre+offset/3``.  ``--candidates`` takes such names, or a law with terms alone (``stribeck``,
-``coulomb+offset``), which is tried at every order of ``--orders``, with and without a zero.
+``lugre+offset/3``, ``stribeck+delta/1`` (the Stribeck curve's shape exponent free), ``coulomb+fv_asym/2``
+(direction-dependent viscous friction).  ``--candidates`` takes such names, or a law with terms alone
+(``stribeck``, ``coulomb+offset``), which is tried at every order of ``--orders``, with and without a zero.
 
 Viscous friction is no candidate of its own: a viscous force fv·v in the feedback path turns G into G/(1 + fv·G),
 which has as many poles and zeros as G, so every input–output record of a plant with viscous friction is matched
@@ -19,11 +21,13 @@ import numpy as np
 
 from ..errors import UserError
 from ..model.laws.registry import base_law, default_laws, get_law, law_names
+from ..model.laws.viscous import VISCOUS_KEYS
 from ..model.plant import Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
-__all__ = ["Candidate", "parse_candidates", "default_candidates", "load_candidates", "candidate_plant",
-           "supported_load_terms", "spring_form", "LOAD_TERMS", "MAX_ORDER", "SPRING_ZERO"]
+__all__ = ["Candidate", "parse_candidates", "default_candidates", "term_candidates", "candidate_plant",
+           "supported_load_terms", "term_applies", "with_friction_term", "with_viscous_share", "without_friction_term",
+           "spring_form", "LOAD_TERMS", "FRICTION_TERMS", "TERMS", "MAX_ORDER", "SPRING_ZERO", "VISCOUS_SHARE"]
 
 # A real zero this close to the origin (relative to the smallest pole's magnitude) is read as a spring's
 # (spring_form): a fit of a plant without one puts its zeros where the response shows them, far from 0.
@@ -36,22 +40,92 @@ LOAD_TERMS = {
     "stiffness": {"stiffness": 0.0, "x0": 0.0},
     "ripple": {"ripple_amplitude": 0.0, "ripple_period": 1.0, "ripple_phase": 0.0},
 }
+# The friction terms a candidate may add to a law that has their keys, each at the values where it changes nothing:
+# the Stribeck curve's shape exponent (2: the Gaussian curve) and direction-dependent viscous friction (fv_pos and
+# fv_neg, both the common fv that the string names and that they replace; a fit keeps fv_pos, which G holds with the
+# common part, and the data decide fv_neg − fv_pos: servofmu.model.laws.viscous).
+FRICTION_TERMS = {
+    "delta": {"delta": 2.0},
+    "fv_asym": {"fv_pos": "fv", "fv_neg": "fv"},
+}
+TERMS = {**LOAD_TERMS, **FRICTION_TERMS}
+# Direction-dependent viscous friction starts with this share of the damping G holds at DC moved into the friction
+# (with_viscous_share): fv_neg then moves either way of the fixed fv_pos on its log-scaled prior, and both stay
+# positive for any asymmetry up to that share (at fv_pos = 0, fv_neg could only exceed it).
+VISCOUS_SHARE = 0.5
 
 
 @dataclass(frozen=True, order=True)
 class Candidate:
-    """One structure to try: ``law`` (a registered friction law's name), ``load`` terms (names of LOAD_TERMS), the
-    ``order`` of G(s) (its number of poles) and ``zeros`` (0 or 1)."""
+    """One structure to try: ``law`` (a registered friction law's name), ``terms`` added to it (names of TERMS, in
+    its order), the ``order`` of G(s) (its number of poles) and ``zeros`` (0 or 1)."""
 
     law: str
     order: int
     zeros: int = 0
-    load: tuple[str, ...] = ()
+    terms: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
         """``LAW[+TERM…]/ORDER[z]``."""
-        return "+".join((self.law, *self.load)) + f"/{self.order}" + ("z" if self.zeros else "")
+        return "+".join((self.law, *self.terms)) + f"/{self.order}" + ("z" if self.zeros else "")
+
+
+def _sorted_terms(terms) -> tuple[str, ...]:
+    return tuple(sorted(terms, key=list(TERMS).index))
+
+
+def term_applies(term: str, law: str) -> bool:
+    """Whether ``law`` takes ``term``: every load term, a friction term where the law has its keys."""
+    if term in LOAD_TERMS:
+        return True
+    return set(FRICTION_TERMS[term]) <= {k.name for k in (*get_law(law).keys, *VISCOUS_KEYS)}
+
+
+def with_friction_term(friction: dict, term: str, known: dict | None = None) -> dict:
+    """A plant file's friction table with ``term``'s keys added: at their values in ``known`` (another fit's
+    friction table) where it has them, else where they change nothing; the keys they replace removed."""
+    out, known = dict(friction), known or {}
+    for key, value in FRICTION_TERMS[term].items():
+        out.setdefault(key, known.get(key, friction.get(value, 0.0) if isinstance(value, str) else value))
+    for value in FRICTION_TERMS[term].values():
+        if isinstance(value, str):
+            out.pop(value, None)
+    return out
+
+
+def with_viscous_share(plant: Plant) -> Plant:
+    """``plant`` with direction-dependent viscous friction at zero (fv_pos = fv_neg = 0) given VISCOUS_SHARE of
+    the damping its G holds at DC, 1/G(0), as fv_pos = fv_neg = c, and G' = G/(1 − c·G) in its place: the same
+    response (G'/(1 + c·G') = G).  Unchanged where it has no such friction, G(0) is not positive and finite, or G'
+    would not be stable."""
+    values = plant.friction.values()
+    if values.get("fv_pos", 1.0) != 0.0 or values.get("fv_neg", 1.0) != 0.0:
+        return plant
+    num, den = plant.transfer_function()
+    if not (den[-1] > 0 and num[-1] > 0):
+        return plant
+    c = VISCOUS_SHARE * den[-1] / num[-1]
+    den = np.polysub(den, c * num)
+    poles = np.roots(den)
+    if not np.all(poles.real < 0):
+        return plant
+    gains = {"dc_gain": float(num[-1] / den[-1])} if plant.dc_gain is not None else {}
+    return replace(plant, poles=tuple(_distinct(poles, stable=False)), friction=plant.friction.with_values(
+        {"fv_pos": float(c), "fv_neg": float(c)}), **gains)
+
+
+def without_friction_term(friction: dict, term: str) -> dict:
+    """A plant file's friction table without ``term``'s keys; a key they replaced comes back at the first one's
+    value (fv = fv_pos: the part a fit keeps)."""
+    out = dict(friction)
+    keys = FRICTION_TERMS[term]
+    for key, value in keys.items():
+        if isinstance(value, str) and key in out:
+            out.setdefault(value, out[key])
+    for key in keys:
+        out.pop(key, None)
+    return out
 
 
 def supported_load_terms() -> tuple[str, ...]:
@@ -80,7 +154,7 @@ def _orders(orders) -> tuple[int, ...]:
 
 
 def _family(text: str) -> tuple[str, tuple[str, ...]]:
-    """(law, load terms) of ``LAW[+TERM…]``, checked."""
+    """(law, terms) of ``LAW[+TERM…]``, checked."""
     law, *terms = text.split("+")
     if get_law(law) is None:
         hint = (" (viscous friction is part of every candidate's G: docs/selection.md)" if law == "fv" or
@@ -91,18 +165,21 @@ def _family(text: str) -> tuple[str, tuple[str, ...]]:
     for term in terms:
         if term == "fv":
             raise UserError(f"candidate {text!r}: viscous friction fv is not told apart from G by any data; every "
-                            "candidate's G holds it (docs/selection.md)")
-        if term not in LOAD_TERMS:
-            raise UserError(f"candidate {text!r}: unknown load term {term!r} (choose {', '.join(LOAD_TERMS)})")
-        if term not in supported:
+                            "candidate's G holds it (docs/selection.md; fv_asym adds fv_neg − fv_pos)")
+        if term not in TERMS:
+            raise UserError(f"candidate {text!r}: unknown term {term!r} (choose {', '.join(TERMS)})")
+        if term in LOAD_TERMS and term not in supported:
             raise UserError(f"candidate {text!r}: this plant format has no load term {term!r} yet")
+        if not term_applies(term, law):
+            raise UserError(f"candidate {text!r}: the {law} law has no {term} (its keys: "
+                            f"{', '.join(FRICTION_TERMS[term])})")
     if len(set(terms)) != len(terms):
-        raise UserError(f"candidate {text!r}: a load term named twice")
-    return law, tuple(sorted(terms, key=list(LOAD_TERMS).index))
+        raise UserError(f"candidate {text!r}: a term named twice")
+    return law, _sorted_terms(terms)
 
 
-def _with_orders(law: str, load: tuple[str, ...], orders: tuple[int, ...]) -> list[Candidate]:
-    return [Candidate(law, n, z, load) for n in orders for z in ((0, 1) if n >= 2 else (0,))]
+def _with_orders(law: str, terms: tuple[str, ...], orders: tuple[int, ...]) -> list[Candidate]:
+    return [Candidate(law, n, z, terms) for n in orders for z in ((0, 1) if n >= 2 else (0,))]
 
 
 def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
@@ -119,7 +196,7 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
         text = str(text).strip()
         if "/" in text:
             family, _, order_text = text.partition("/")
-            law, load = _family(family)
+            law, terms = _family(family)
             zero = order_text.endswith("z")
             digits = order_text[:-1] if zero else order_text
             if not digits.isdigit():
@@ -128,10 +205,10 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
             (order,) = _orders([int(digits)])
             if zero and order < 2:
                 raise UserError(f"candidate {text!r}: a zero needs G of order 2 or more (G strictly proper)")
-            new = [Candidate(law, order, int(zero), load)]
+            new = [Candidate(law, order, int(zero), terms)]
         else:
-            law, load = _family(text)
-            new = _with_orders(law, load, orders)
+            law, terms = _family(text)
+            new = _with_orders(law, terms, orders)
         out += [c for c in new if c not in out]
     if not out:
         raise UserError("no candidates to try")
@@ -140,20 +217,21 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
 
 def default_candidates(orders=(1, 2, 3)) -> list[Candidate]:
     """Every friction law of the default set (servofmu.model.laws.registry.default_laws) at every order of
-    ``orders``, with and without a zero (orders ≥ 2).  Load terms are tried in a second stage, on the structure
-    this set ranks first (:func:`load_candidates`)."""
+    ``orders``, with and without a zero (orders ≥ 2).  Load and friction terms are tried in a second stage, on the
+    structure this set ranks first (:func:`term_candidates`)."""
     orders = _orders(orders)
     return [c for law in default_laws() for c in _with_orders(law, (), orders)]
 
 
-def load_candidates(chosen: Candidate) -> list[Candidate]:
-    """The second stage of a default selection: ``chosen`` with each load term the plant format supports
-    (supported_load_terms) that it does not have yet, but the offset: a constant force beside friction levels
-    free in each direction is the same force as other levels, in every motion and at rest (docs/selection.md), so
-    no data ranks it; it stays a term a user may name."""
-    return [Candidate(chosen.law, chosen.order, chosen.zeros, tuple(sorted((*chosen.load, term),
-                                                                          key=list(LOAD_TERMS).index)))
-            for term in supported_load_terms() if term not in chosen.load and term != "offset"]
+def term_candidates(chosen: Candidate) -> list[Candidate]:
+    """The second stage of a default selection: ``chosen`` with each term it does not have yet — every load term
+    the plant format supports (supported_load_terms) and every friction term its law takes — but the offset: a
+    constant force beside friction levels free in each direction is the same force as other levels, in every
+    motion and at rest (docs/selection.md), so no data ranks it; it stays a term a user may name."""
+    terms = [t for t in supported_load_terms() if t != "offset"] + [t for t in FRICTION_TERMS
+                                                                    if term_applies(t, chosen.law)]
+    return [Candidate(chosen.law, chosen.order, chosen.zeros, _sorted_terms((*chosen.terms, term)))
+            for term in terms if term not in chosen.terms]
 
 
 def _left(root: complex) -> complex:
@@ -198,11 +276,15 @@ def candidate_plant(candidate: Candidate, estimate: LinearEstimate) -> Plant:
     v_rms = max(estimate.v_rms, 1e-9)
     mass = 1.0 / max(abs(estimate.gain), 1e-12) if candidate.order - candidate.zeros == 1 else 0.1
     friction.update(get_law(candidate.law).start_values(fc_pos, fc_neg, v_rms, mass))
+    for term in candidate.terms:
+        if term in FRICTION_TERMS:
+            friction = with_friction_term(friction, term)
     data = {"name": "candidate", "linear": {"poles": pairs, "zeros": zpairs, "dc_gain": float(dc)},
             "friction": friction}
-    if candidate.load:
-        data["load"] = {k: v for term in candidate.load for k, v in LOAD_TERMS[term].items()}
-    return plant_from_dict(data, source=f"candidate {candidate.name}")
+    load = {k: v for term in candidate.terms if term in LOAD_TERMS for k, v in LOAD_TERMS[term].items()}
+    if load:
+        data["load"] = load
+    return with_viscous_share(plant_from_dict(data, source=f"candidate {candidate.name}"))
 
 
 def spring_form(candidate: Candidate, plant: Plant) -> tuple[Candidate, Plant] | None:
@@ -213,7 +295,7 @@ def spring_form(candidate: Candidate, plant: Plant) -> tuple[Candidate, Plant] |
     real zero lies within SPRING_ZERO of the origin, the candidate has a spring already, or the G left over is not
     a stable one with a positive k."""
     poles, zeros = plant.all_poles(), plant.all_zeros()
-    if "stiffness" in candidate.load or "stiffness" not in supported_load_terms() or not zeros or not poles:
+    if "stiffness" in candidate.terms or "stiffness" not in supported_load_terms() or not zeros or not poles:
         return None
     z0 = min(zeros, key=abs)
     if z0.imag != 0 or abs(z0) > SPRING_ZERO * min(abs(p) for p in poles):
@@ -227,8 +309,8 @@ def spring_form(candidate: Candidate, plant: Plant) -> tuple[Candidate, Plant] |
     new_poles = np.roots(den) if den.size > 1 else np.array([])
     if not (np.isfinite(k) and k > 0 and new_poles.size and np.all(new_poles.real < 0)):
         return None
-    load = tuple(sorted((*candidate.load, "stiffness"), key=list(LOAD_TERMS).index))
-    target = Candidate(candidate.law, candidate.order - 1, candidate.zeros - 1, load)
+    target = Candidate(candidate.law, candidate.order - 1, candidate.zeros - 1,
+                       _sorted_terms((*candidate.terms, "stiffness")))
     spring = replace(plant, poles=tuple(_distinct(new_poles, stable=False)),
                      zeros=tuple(_distinct(np.roots(num), stable=False)) if num.size > 1 else (),
                      dc_gain=float(num[-1] / den[-1]), gain=None,

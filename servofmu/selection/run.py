@@ -20,15 +20,15 @@ from ..measurement.datafile import DataFile, data_name
 from ..model.laws.registry import get_law
 from ..runtime import RunOptions, available_cores, check_work, utc_now
 from ..simulation.parallel import Workers
-from .candidates import Candidate, candidate_plant, load_candidates, parse_candidates
+from .candidates import FRICTION_TERMS, Candidate, candidate_plant, parse_candidates, term_candidates
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
                    load_selection_data)
 from .estimate import data_bandwidth, start_estimates
 from .store import SELECT_FORMAT, Selection, write_selection
 from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate,
                      rank, response_roughness, searches_ripple, start_neg2loglik)
-from .starts import (from_winner, load_leader, load_starts, nested_law_starts, reduced_starts, spring_starts,
-                     within_first)
+from .starts import (from_winner, nested_law_starts, reduced_starts, spring_starts, term_leader, term_starts,
+                     within_first, without_terms)
 
 __all__ = ["Selection", "select_files", "selection_outputs", "RANKED_SAMPLES", "SELECT_FORMAT"]
 
@@ -217,14 +217,53 @@ SHORTEST_SHARE = 1 / 8
 EARLY_ROUGH_RISE = 5 * ROUGH_RISE
 
 
-def _load_starts(first: CandidateScore, data) -> dict:
-    """The second stage's starts (starts.load_starts) the data can rank: on stepped sines none that depend on the
+def _more_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], data, run: RunOptions
+                         ) -> list[CandidateScore]:
+    """The forward selection of friction terms goes on while a structure with terms ranks first: its fit with each
+    friction term it lacks, until one ranks first that has been extended already (or has them all).  A term can
+    stand in for another in a richer law: on viscous_axis (Coulomb friction, fv_neg > fv_pos) the first stage
+    ranks stribeck/2 first, which the shape exponent fits better still; only with both terms does the Stribeck bump
+    leave, and coulomb+fv_asym/2 is nested in the winner (starts.nested_law_starts); _fewer_friction_terms takes
+    the step back once the nested structures are fitted.  Load terms are not combined (a ripple's search each
+    time)."""
+    extended = set()
+    while True:
+        first = rank(scores)[0]
+        if first.status != "fitted" or not first.candidate.terms or first.candidate in extended:
+            return scores
+        extended.add(first.candidate)
+        done = {s.candidate for s in scores}
+        starts = {c: p for c, p in _term_starts(first, data).items()
+                  if c not in done and set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)}
+        if not starts:
+            return scores
+        scores = _fit_all(pool, job, starts, run, scores)
+
+
+def _fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
+                          ) -> list[CandidateScore]:
+    """The backward step of the forward selection of friction terms: the structure ranked first without each of
+    its friction terms in turn, from its own fit without it (starts.without_terms), where no such structure was
+    fitted — a term added on the way may have been standing in for the one added after it."""
+    first = rank(scores)[0]
+    terms = [t for t in first.candidate.terms if t in FRICTION_TERMS] if first.status == "fitted" else []
+    done = {s.candidate for s in scores}
+    starts = {}
+    for term in terms if len(terms) > 1 else ():
+        fewer = replace(first.candidate, terms=tuple(t for t in first.candidate.terms if t != term))
+        if fewer not in done:
+            starts[fewer] = without_terms(first.result.plant, {term})
+    return _fit_all(pool, replace(job, polished=True), starts, run, scores) if starts else scores
+
+
+def _term_starts(first: CandidateScore, data) -> dict:
+    """The second stage's starts (starts.term_starts) the data can rank: on stepped sines none that depend on the
     position — at zero force a spring leaves the position drifting, with no periodic steady state to converge to
     (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
     selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
     searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
     (starts.spring_starts)."""
-    starts = load_starts(first)
+    starts = term_starts(first)
     if data_kind(data) == "sine":
         starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
     return starts
@@ -253,21 +292,22 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     leader = rank(scores)[0]
     reduced, loads = _fit_groups(pool, [
         (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
-        (seeded, _load_starts(leader, data) if default else {})], run, len(scores))
+        (seeded, _term_starts(leader, data) if default else {})], run, len(scores))
     scores = _keep_better(scores, reduced)
     springs = spring_starts(scores) if default else {}
     if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
         scores = _fit_all(pool, seeded, springs, run, scores)
     first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
     scores = _with_new(_keep_better(scores, loads), loads)
-    if default and first.status == "fitted" and load_candidates(first.candidate):
+    if default and first.status == "fitted" and term_candidates(first.candidate):
         if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
-            loads = _fit_all(pool, seeded, _load_starts(first, data), run, [])
+            loads = _fit_all(pool, seeded, _term_starts(first, data), run, [])
             scores = _with_new(_keep_better(scores, loads), loads)
-        laws = nested_law_starts(load_leader(scores), scores, speeds)
+        scores = _more_friction_terms(pool, seeded, scores, data, run)
+        laws = nested_law_starts(term_leader(scores), scores, speeds)
         if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
             scores = _fit_all(pool, seeded, laws, run, scores)
-        if stop_if_rough and "ripple" in rank(scores)[0].candidate.load:
+        if stop_if_rough and "ripple" in rank(scores)[0].candidate.terms:
             roughness = _roughness(pool, job, scores, checked)
             if roughness > EARLY_ROUGH_RISE:
                 return scores, roughness, True
@@ -280,6 +320,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
             scores = _with_new(_keep_better(scores, refitted), refitted)
             top = rank(scores)[0]
             again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
+        scores = _fewer_friction_terms(pool, seeded, scores, run)
     if screen:
         scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
     before = rank(scores)[0].candidate
@@ -444,4 +485,4 @@ def _expected_cost(job: CandidateJob) -> tuple:
     time), then the law's cost (FrictionLaw.cost: its states and parameters; LuGre's stiff bristles)."""
     c = job.candidate
     swarm = job.mode != "refit" and not job.polished
-    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, get_law(c.law).cost, len(c.load)
+    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, get_law(c.law).cost, len(c.terms)

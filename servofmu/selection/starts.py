@@ -1,7 +1,7 @@
 """Where the selection's later rounds start their candidates: from the fits of the rounds before — a larger
 candidate's fit without the roots beyond the data, a richer law's reduced to the law it contains, a zero at the
-origin read as a spring, the structure ranked first with each load term, and a load term's leader reduced to the
-structures nested in it (docs/selection.md, the candidates)."""
+origin read as a spring, the structure ranked first with each load or friction term, and a term's leader reduced to
+the structures nested in it (docs/selection.md, the candidates)."""
 from __future__ import annotations
 
 import math
@@ -14,12 +14,13 @@ from ..model.friction import steady_friction
 from ..model.laws.registry import contained_laws, get_law
 from ..model.laws.viscous import VISCOUS_KEYS
 from ..model.plant import Friction, plant_from_dict
-from .candidates import LOAD_TERMS, Candidate, load_candidates, spring_form
+from .candidates import (FRICTION_TERMS, LOAD_TERMS, Candidate, spring_form, term_applies, term_candidates,
+                         with_friction_term, with_viscous_share, without_friction_term)
 from .select import SCREEN_MARGIN, CandidateScore, cancels, rank
 
-__all__ = ["contained_laws", "with_load", "load_starts", "reduced_starts", "load_leader",
+__all__ = ["contained_laws", "with_terms", "term_starts", "reduced_starts", "term_leader",
            "nested_law_starts", "from_winner", "nested_structures", "reduced_to", "spring_starts", "with_law",
-           "without_cancelling", "within_first", "without_load"]
+           "without_cancelling", "within_first", "without_terms"]
 
 
 # The friction law each law contains as a limit (FrictionLaw.nested, servofmu.model.laws): Stribeck is LuGre with
@@ -27,27 +28,33 @@ __all__ = ["contained_laws", "with_load", "load_starts", "reduced_starts", "load
 SPEED_QUANTILES = 512  # the data's velocities a Coulomb level is averaged over (with_law)
 
 
-def with_load(plant, candidate: Candidate, found=None):
-    """``plant`` (a fitted candidate's) with the load terms of ``candidate`` it lacks: at their values in ``found``
-    (another candidate's fitted plant) where it has them, a ripple excepted, else at their starting values (zero
-    force) — the second stage starts where its parent fits, so that a load term can only lower its criterion, and
-    a ripple at zero force is searched from there (selection.period)."""
+def with_terms(plant, candidate: Candidate, found=None):
+    """``plant`` (a fitted candidate's) with the terms of ``candidate`` it lacks: at their values in ``found``
+    (another candidate's fitted plant) where it has them, a ripple excepted, else where they change nothing
+    (zero force, δ = 2, fv_neg = fv_pos: with a share of G's damping, candidates.with_viscous_share) — the second
+    stage starts where its parent fits, so that a term can only
+    lower its criterion, and a ripple at zero force is searched from there (selection.period)."""
     data = tomllib.loads(plant.to_toml())
-    known = tomllib.loads(found.to_toml()).get("load", {}) if found is not None else {}
+    known = tomllib.loads(found.to_toml()) if found is not None else {}
     load = data.setdefault("load", {})
-    for term in candidate.load:
+    for term in candidate.terms:
+        if term in FRICTION_TERMS:
+            data["friction"] = with_friction_term(data["friction"], term, known.get("friction"))
+            continue
         for key, value in LOAD_TERMS[term].items():
-            load.setdefault(key, value if term == "ripple" else known.get(key, value))
+            load.setdefault(key, value if term == "ripple" else known.get("load", {}).get(key, value))
+    if not load:
+        data.pop("load")
     data["name"] = "candidate"
-    return plant_from_dict(data, source=f"candidate {candidate.name}")
+    return with_viscous_share(plant_from_dict(data, source=f"candidate {candidate.name}"))
 
 
-def load_starts(first: CandidateScore) -> dict:
-    """The second stage's starts: the fit of ``first`` (the candidate ranked first) with each load term
-    (candidates.load_candidates) added at zero force; none when ``first`` was not fitted."""
+def term_starts(first: CandidateScore) -> dict:
+    """The second stage's starts: the fit of ``first`` (the candidate ranked first) with each term
+    (candidates.term_candidates) added where it changes nothing; none when ``first`` was not fitted."""
     if first.status != "fitted":
         return {}
-    return {c: with_load(first.result.plant, c) for c in load_candidates(first.candidate)}
+    return {c: with_terms(first.result.plant, c) for c in term_candidates(first.candidate)}
 
 
 def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], bandwidth: float,
@@ -67,28 +74,28 @@ def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], ba
                                            tuple(z for z in plant.zeros if abs(z) <= bandwidth))
         if poles and (poles, zeros) != (plant.poles, plant.zeros):
             smaller = replace(plant, poles=poles, zeros=zeros)
-            target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.load)
+            target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.terms)
             if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
                 out[target] = smaller
     best = fitted[0] if fitted else None
     law = get_law(best.candidate.law).nested if best else None
     if law:
         c = best.candidate
-        target = Candidate(law, c.order, c.zeros, c.load)
+        target = Candidate(law, c.order, c.zeros, tuple(t for t in c.terms if term_applies(t, law)))
         if target in candidates and target not in out and bic.get(target, math.inf) > best.bic:
             out[target] = with_law(best.result.plant, law, speeds)
     return out
 
 
-def load_leader(scores: list[CandidateScore]) -> CandidateScore:
-    """The candidate ranked first, or where it has no load terms, the screened candidate with load terms whose
+def term_leader(scores: list[CandidateScore]) -> CandidateScore:
+    """The candidate ranked first, or where it has no terms, the screened candidate with terms whose
     full polish could reach a BIC below its own (select.screen_bound, less SCREEN_MARGIN) — of several, the lowest
     bound: a ripple's screened fit can be far from its optimum (coulomb2_ripple seed 0: the screened
     stribeck+ripple/2z ranked below stribeck/2z, polished in full it was 400 lower)."""
     first = rank(scores)[0]
-    rivals = [s for s in scores if s.candidate.load and s.screened and s.status == "fitted"
+    rivals = [s for s in scores if s.candidate.terms and s.screened and s.status == "fitted"
               and s.bic_bound - SCREEN_MARGIN <= first.bic]
-    return first if first.candidate.load or not rivals else min(rivals, key=lambda s: s.bic_bound)
+    return first if first.candidate.terms or not rivals else min(rivals, key=lambda s: s.bic_bound)
 
 
 def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speeds: np.ndarray) -> dict:
@@ -96,15 +103,15 @@ def nested_law_starts(first: CandidateScore, scores: list[CandidateScore], speed
     and it and those without its zero) with its load terms, where ``first`` has load terms: the first stage chose
     its law, order and zero without them, and a force it could not explain (a ripple) may have been taken up by a
     richer friction law or a zero; none for a candidate already fitted."""
-    if first.status != "fitted" or not first.candidate.load:
+    if first.status != "fitted" or not first.candidate.terms:
         return {}
     fitted = {s.candidate: s.result.plant for s in scores if s.status == "fitted"}
     done, out = {s.candidate for s in scores}, {}
     for target in nested_structures(first.candidate):
-        own = replace(target, load=())
+        own = replace(target, terms=())
         if target not in done:  # its own first-stage fit, else the winner's G and levels; its load's values
             source = fitted[own] if own in fitted else reduced_to(first.result.plant, target, speeds)
-            out[target] = with_load(source, target, first.result.plant)
+            out[target] = with_terms(source, target, first.result.plant)
     return out
 
 
@@ -115,7 +122,7 @@ def from_winner(first: CandidateScore, scores: list[CandidateScore], speeds: np.
     values, a ripple's included (polished on growing shares of the records, then on all of them).  A ripple's
     output error is many-valleyed, and a nested structure whose fit ends a valley off — or whose ripple search
     started from a fit a valley off — is beaten by a richer one whose fit does not."""
-    if first.status != "fitted" or not first.candidate.load:
+    if first.status != "fitted" or not first.candidate.terms:
         return {}
     bic = {s.candidate: s.bic for s in scores if s.status == "fitted" and np.isfinite(s.bic)}
     return {target: reduced_to(first.result.plant, target, speeds)
@@ -136,21 +143,23 @@ def within_first(first: CandidateScore, scores: list[CandidateScore], speeds: np
     out = {}
     for s in scores:
         c = s.candidate
-        if (s.status == "fitted" and c != top and set(c.load) <= set(top.load) and c.law in laws
+        if (s.status == "fitted" and c != top and set(c.terms) <= set(top.terms) and c.law in laws
                 and c.order <= top.order and c.zeros <= top.zeros and s.parameters < first.parameters):
             source = bare if bare.order >= c.order and len(bare.all_zeros()) >= c.zeros else plant
-            out[c] = reduced_to(without_load(source, set(top.load) - set(c.load)), c, speeds)
+            out[c] = reduced_to(without_terms(source, set(top.terms) - set(c.terms)), c, speeds)
     return out
 
 
-def without_load(plant, terms):
-    """``plant`` without the load terms ``terms`` (their parameters removed)."""
+def without_terms(plant, terms):
+    """``plant`` without the load and friction terms ``terms`` (their parameters removed)."""
     if not terms:
         return plant
     data = tomllib.loads(plant.to_toml())
     load = data.get("load", {})
     for term in terms:
-        for key in LOAD_TERMS[term]:
+        if term in FRICTION_TERMS:
+            data["friction"] = without_friction_term(data["friction"], term)
+        for key in LOAD_TERMS.get(term, ()):
             load.pop(key, None)
     if not load:
         data.pop("load", None)
@@ -158,16 +167,19 @@ def without_load(plant, terms):
 
 
 def nested_structures(candidate: Candidate, orders=()):
-    """The candidates nested in ``candidate`` with its load terms: the laws its law contains (FrictionLaw.nested, all the
-    way down) at its order and zero, then, where it has a zero, its own law and those without the zero, then its
-    own law one order lower where ``orders`` has it (an order chosen without the load term may hold its force in
-    a pole)."""
+    """The candidates nested in ``candidate`` with its terms (those their law takes): the laws its law contains
+    (FrictionLaw.nested, all the way down) at its order and zero, then, where it has a zero, its own law and those
+    without the zero, then its own law one order lower where ``orders`` has it (an order chosen without the load
+    term may hold its force in a pole)."""
     laws = contained_laws(candidate.law)
+
+    def of(law):
+        return tuple(t for t in candidate.terms if term_applies(t, law))
     for law in laws[1:]:
-        yield replace(candidate, law=law)
+        yield replace(candidate, law=law, terms=of(law))
     if candidate.zeros:
         for law in laws:
-            yield replace(candidate, law=law, zeros=0)
+            yield replace(candidate, law=law, zeros=0, terms=of(law))
     if candidate.order - 1 in orders:
         yield replace(candidate, order=candidate.order - 1, zeros=min(candidate.zeros, candidate.order - 2))
 
