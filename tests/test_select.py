@@ -42,7 +42,8 @@ def test_candidate_names_expand_over_the_orders_with_and_without_a_zero():
 
 
 def test_friction_terms_start_where_they_change_nothing_and_leave_again():
-    """A friction term added to a fit starts at δ = 2 and fv_neg = fv_pos = fv — the same forces, so the same
+    """A friction term added to a fit starts at δ = 2 and fv_neg = fv_pos = fv (half of G's DC damping where fv is
+    0, G taking the rest) — the same forces, so the same
     response to rounding — and taken away again gives the plant it was added to; the structures nested in a term's
     candidate keep the term where their law takes it."""
     from servofmu.selection.starts import nested_structures, with_terms, without_terms
@@ -59,6 +60,16 @@ def test_friction_terms_start_where_they_change_nothing_and_leave_again():
             for p in (plant, added)]
     np.testing.assert_allclose(runs[1], runs[0], rtol=1e-12, atol=1e-15)
     assert without_terms(added, {"delta", "fv_asym"}).friction == plant.friction
+    # without viscous friction, half of the damping G holds at DC moves into fv_pos = fv_neg: the same response
+    g2 = sf.load_plant("g2")  # third order, a complex pair
+    shared = with_terms(g2, Candidate("coulomb", 3, 0, ("fv_asym",)))
+    num, den = g2.transfer_function()
+    c = 0.5 * den[-1] / num[-1]
+    assert shared.friction.values()["fv_pos"] == shared.friction.values()["fv_neg"] == pytest.approx(c, rel=1e-12)
+    assert all(p.real < 0 for p in shared.all_poles()) and shared.zeros == g2.zeros
+    runs = [BatchSimulator(p).simulate_record(p.parameter_vector()[None], t, u, rtol=1e-10).v[0]
+            for p in (g2, shared)]
+    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-7 * np.max(np.abs(runs[0])))
     assert [c.name for c in nested_structures(Candidate("lugre", 2, 1, ("delta", "fv_asym")))] == [
         "stribeck+delta+fv_asym/2z", "coulomb+fv_asym/2z", "lugre+delta+fv_asym/2", "stribeck+delta+fv_asym/2",
         "coulomb+fv_asym/2"]

@@ -45,9 +45,10 @@ def register(sub) -> None:
     p.add_argument("--closed-loop", metavar="CTRL.toml", role="input",
                    help="the records are closed-loop logs of this controller")
     laws, default = law_names(), default_laws()
-    p.add_argument("--candidates", metavar="LIST", help=f"comma-separated: a law with load terms ({', '.join(laws)}, "
-                   f"{laws[0]}+offset, …; tried at every order, with and without a zero) or LAW/ORDER[z] "
-                   f"({laws[-1]}/2z); default: the laws {', '.join(default)} at every order")
+    p.add_argument("--candidates", metavar="LIST", help=f"comma-separated: a law with terms ({', '.join(laws)}, "
+                   f"{laws[0]}+offset, stribeck+delta, {laws[0]}+fv_asym, …; tried at every order, with and without a "
+                   f"zero) or LAW[+TERM…]/ORDER[z] ({laws[-1]}/2z); default: the laws {', '.join(default)} at every "
+                   "order, then the load and friction terms on the one ranked first")
     p.add_argument("--orders", type=_orders, default=(1, 2, 3), metavar="1,2,3",
                    help="orders of G(s) tried (default 1,2,3)")
     p.add_argument("--skip", type=float, default=0.0, metavar="SECONDS",
