@@ -180,6 +180,7 @@ RUNS_A_COMMAND = {"servofmu.tuning.run", "servofmu.tuning.search", "servofmu.tun
                   "servofmu.control.compensation", "servofmu.control.cosim", "servofmu.simulation.closed_loop",
                   "servofmu.simulation.fmpy_runs", "servofmu.validation.run", "servofmu.identification.run",
                   "servofmu.identification.identifier", "servofmu.identification.search", "servofmu.selection.run",
+                  "servofmu.selection.fitting", "servofmu.selection.terms",
                   "servofmu.measurement.measure", "servofmu.commands.select", "servofmu.commands.demo",
                   "servofmu.commands.roundtrip"}
 def runtime_imports(path: Path, root: Path = ROOT) -> set[str]:

@@ -683,17 +683,19 @@ def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_st
     """A default selection at order 1 on g1: the load terms of the structure the first round ranks first are
     fitted in the round of the refits (two rounds and the screened candidates' polish, not three), each candidate
     once, and coulomb/1 is chosen; the round's costliest fits are sent first."""
+    import servofmu.selection.fitting as fitting
     import servofmu.selection.run as selection_run
 
     rounds, polished = [], []
-    fit_groups = selection_run._fit_groups
+    fit_groups = fitting.fit_groups
 
     def spy(pool, groups, run, done):
         rounds.append([c.name for _, g in groups for c in g])
         polished.append([job.polished for job, _ in groups])
         return fit_groups(pool, groups, run, done)
 
-    monkeypatch.setattr(selection_run, "_fit_groups", spy)
+    monkeypatch.setattr(selection_run, "fit_groups", spy)  # the first rounds'
+    monkeypatch.setattr(fitting, "fit_groups", spy)  # every later one's (fit_all)
     selection = sf.select_files([g1_records["fit"]], g1_records["val"], tmp_path / "s.h5",
                                 sf.SelectOptions(orders=(1,), iterations=15), RunOptions(workers=0))
     names = [s.name for s in selection.scores]
@@ -707,14 +709,14 @@ def test_the_load_terms_are_fitted_beside_the_refits_when_the_first_structure_st
 
 def test_fits_are_sent_costliest_first():
     """A ripple's search first, then the higher order and zero, then the richer law."""
-    from servofmu.selection.run import _expected_cost
+    from servofmu.selection.fitting import expected_cost
     from servofmu.selection.select import CandidateJob
 
     g1 = sf.load_plant("g1")
     searched = replace(g1, load=replace(g1.load, ripple_amplitude=0.0))  # a ripple at zero force: searched
     jobs = [CandidateJob(c, searched if c.terms else g1, None, None, sf.SelectOptions(), None, {})
             for c in parse_candidates(["coulomb/1", "lugre/1", "coulomb/3z", "stribeck/2", "coulomb+ripple/1"])]
-    order = [j.candidate.name for j in sorted(jobs, key=_expected_cost, reverse=True)]
+    order = [j.candidate.name for j in sorted(jobs, key=expected_cost, reverse=True)]
     assert order == ["coulomb+ripple/1", "coulomb/3z", "stribeck/2", "lugre/1", "coulomb/1"]
 
 
@@ -767,11 +769,11 @@ def test_docs_selection_example_runs_on_stepped_sine_data(tmp_path):
 def test_a_round_of_fewer_fits_than_local_workers_gives_each_fit_the_idle_cores(monkeypatch):
     """Two local workers on two cores: one fit gets both cores' threads, two fits one each; a Dask cluster's or
     this process's fits keep theirs (a remote worker's cores are not this machine's)."""
-    from servofmu.selection import run as selection_run
+    from servofmu.selection import fitting
     from servofmu.simulation.parallel import Workers
 
-    monkeypatch.setattr(selection_run, "available_cores", lambda: 2)
-    per_job = selection_run._threads_per_job
+    monkeypatch.setattr(fitting, "available_cores", lambda: 2)
+    per_job = fitting.threads_per_job
     assert [per_job(Workers(workers=2), n) for n in (1, 2, 5)] == [2, 1, 1]
     assert per_job(Workers(workers=8), 1) == 2  # no more threads than cores
     assert per_job(Workers(workers=0), 1) == 1

@@ -11,6 +11,7 @@ import pytest
 
 import servofmu as sf
 from servofmu.runtime import RunOptions
+from servofmu.selection import fitting
 from servofmu.selection import run as select_run
 from servofmu.selection.candidates import Candidate
 from servofmu.selection.select import SCREEN_MARGIN, CandidateScore, could_win, rank
@@ -31,11 +32,11 @@ def records(tmp_path_factory):
 
 
 def _patched_fit(monkeypatch, change):
-    real = select_run.fit_candidate
+    real = fitting.fit_candidate
 
     def fit(worker, job):
         return change(real(worker, job))
-    monkeypatch.setattr(select_run, "fit_candidate", fit)
+    monkeypatch.setattr(fitting, "fit_candidate", fit)
 
 
 def _select(records, tmp_path, **options):

@@ -196,9 +196,9 @@ def test_a_ripple_search_or_a_fit_on_shares_takes_every_local_core(monkeypatch):
     a Dask cluster every fit keeps one."""
     from types import SimpleNamespace
 
-    from servofmu.selection import run as select_run
+    from servofmu.selection import fitting
 
-    monkeypatch.setattr(select_run, "available_cores", lambda: 2)
+    monkeypatch.setattr(fitting, "available_cores", lambda: 2)
     g1 = sf.load_plant("g1")
     rippled = plant_from_dict({"name": "r", "linear": {"poles": [[-10.0, 0.0]], "dc_gain": 1.0},
                                "friction": {"model": "coulomb", "fc_pos": 0.5, "fc_neg": 0.4},
@@ -217,7 +217,7 @@ def test_a_ripple_search_or_a_fit_on_shares_takes_every_local_core(monkeypatch):
                 yield i, CandidateScore(j.candidate, "failed")
 
         pool = SimpleNamespace(scheduler=scheduler, workers=2, imap=imap)
-        select_run._fit_groups(pool, groups, RunOptions(), 0)
+        fitting.fit_groups(pool, groups, RunOptions(), 0)
         assert sent == expected, scheduler
 
 

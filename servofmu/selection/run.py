@@ -17,18 +17,18 @@ from ..identification.shortening import fitted_total, shortened
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
 from ..measurement.datafile import DataFile, data_name
-from ..model.laws.registry import get_law
-from ..runtime import RunOptions, available_cores, check_work, utc_now
+from ..runtime import RunOptions, check_work, utc_now
 from ..simulation.parallel import Workers
-from .candidates import FRICTION_TERMS, Candidate, candidate_plant, parse_candidates, term_candidates
+from .candidates import Candidate, candidate_plant, parse_candidates, term_candidates
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
                    load_selection_data)
 from .estimate import data_bandwidth, start_estimates
 from .store import SELECT_FORMAT, Selection, write_selection
-from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, fit_candidate,
-                     rank, response_roughness, searches_ripple, start_neg2loglik)
-from .starts import (from_winner, nested_law_starts, reduced_starts, spring_starts, term_leader, term_starts,
-                     within_first, without_terms)
+from .fitting import SAME_FIT, fit_all, fit_groups, keep_better, threads_per_job, with_new
+from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions, could_win, rank,
+                     response_roughness, start_neg2loglik)
+from .starts import from_winner, nested_law_starts, reduced_starts, spring_starts, term_leader, within_first
+from .terms import fewer_friction_terms, friction_terms_on_final, more_friction_terms, ranked_term_starts
 
 __all__ = ["Selection", "select_files", "selection_outputs", "RANKED_SAMPLES", "SELECT_FORMAT"]
 
@@ -202,7 +202,7 @@ def _final_fit(pool: Workers, job: CandidateJob, scores: list[CandidateScore], r
     first = scores[0] if scores else None
     if first is None or first.status != "fitted" or first.result is None:
         return None
-    again = _fit_all(pool, replace(job, mode="refit"), {first.candidate: first.result.plant}, run, [])
+    again = fit_all(pool, replace(job, mode="refit"), {first.candidate: first.result.plant}, run, [])
     return again[0] if again and again[0].status == "fitted" else None
 
 
@@ -215,58 +215,6 @@ SHORTEST_SHARE = 1 / 8
 # `lugre+ripple/1` rose by 358 where the final fits of the same records rise by 1.2; coulomb2_ripple's whole
 # records by 280–3 500 at the end of their rounds.
 EARLY_ROUGH_RISE = 5 * ROUGH_RISE
-
-
-def _more_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], data, run: RunOptions
-                         ) -> list[CandidateScore]:
-    """The forward selection of friction terms goes on while a structure with terms ranks first: its fit with each
-    friction term it lacks, until one ranks first that has been extended already (or has them all).  A term can
-    stand in for another in a richer law: on viscous_axis (Coulomb friction, fv_neg > fv_pos) the first stage
-    ranks stribeck/2 first, which the shape exponent fits better still; only with both terms does the Stribeck bump
-    leave, and coulomb+fv_asym/2 is nested in the winner (starts.nested_law_starts); _fewer_friction_terms takes
-    the step back once the nested structures are fitted.  Load terms are not combined (a ripple's search each
-    time)."""
-    extended = set()
-    while True:
-        first = rank(scores)[0]
-        if first.status != "fitted" or not first.candidate.terms or first.candidate in extended:
-            return scores
-        extended.add(first.candidate)
-        done = {s.candidate for s in scores}
-        starts = {c: p for c, p in _term_starts(first, data).items()
-                  if c not in done and set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)}
-        if not starts:
-            return scores
-        scores = _fit_all(pool, job, starts, run, scores)
-
-
-def _fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
-                          ) -> list[CandidateScore]:
-    """The backward step of the forward selection of friction terms: the structure ranked first without each of
-    its friction terms in turn, from its own fit without it (starts.without_terms), where no such structure was
-    fitted — a term added on the way may have been standing in for the one added after it."""
-    first = rank(scores)[0]
-    terms = [t for t in first.candidate.terms if t in FRICTION_TERMS] if first.status == "fitted" else []
-    done = {s.candidate for s in scores}
-    starts = {}
-    for term in terms if len(terms) > 1 else ():
-        fewer = replace(first.candidate, terms=tuple(t for t in first.candidate.terms if t != term))
-        if fewer not in done:
-            starts[fewer] = without_terms(first.result.plant, {term})
-    return _fit_all(pool, replace(job, polished=True), starts, run, scores) if starts else scores
-
-
-def _term_starts(first: CandidateScore, data) -> dict:
-    """The second stage's starts (starts.term_starts) the data can rank: on stepped sines none that depend on the
-    position — at zero force a spring leaves the position drifting, with no periodic steady state to converge to
-    (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
-    selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
-    searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
-    (starts.spring_starts)."""
-    starts = term_starts(first)
-    if data_kind(data) == "sine":
-        starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
-    return starts
 
 
 def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files, run: RunOptions,
@@ -282,7 +230,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     data, options = job.data, job.options
     screen = job.mode == "screen"
     checked = {}  # the roughness of the fits checked: the end's check repeats none the early one made
-    scores = _fit_all(pool, job, _starts(candidates, data, files), run, [])
+    scores = fit_all(pool, job, _starts(candidates, data, files), run, [])
     series = estimation_series(data, files)
     speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
     default, seeded = options.candidates is None, replace(job, seeded=True)
@@ -290,23 +238,23 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
     # again below where it does not stay first)
     leader = rank(scores)[0]
-    reduced, loads = _fit_groups(pool, [
+    reduced, loads = fit_groups(pool, [
         (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
-        (seeded, _term_starts(leader, data) if default else {})], run, len(scores))
-    scores = _keep_better(scores, reduced)
+        (seeded, ranked_term_starts(leader, data) if default else {})], run, len(scores))
+    scores = keep_better(scores, reduced)
     springs = spring_starts(scores) if default else {}
     if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
-        scores = _fit_all(pool, seeded, springs, run, scores)
+        scores = fit_all(pool, seeded, springs, run, scores)
     first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
-    scores = _with_new(_keep_better(scores, loads), loads)
+    scores = with_new(keep_better(scores, loads), loads)
     if default and first.status == "fitted" and term_candidates(first.candidate):
         if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
-            loads = _fit_all(pool, seeded, _term_starts(first, data), run, [])
-            scores = _with_new(_keep_better(scores, loads), loads)
-        scores = _more_friction_terms(pool, seeded, scores, data, run)
+            loads = fit_all(pool, seeded, ranked_term_starts(first, data), run, [])
+            scores = with_new(keep_better(scores, loads), loads)
+        scores = more_friction_terms(pool, seeded, scores, data, run)
         laws = nested_law_starts(term_leader(scores), scores, speeds)
         if laws:  # a load term leads: the structures its own contains, with the term (chosen without it)
-            scores = _fit_all(pool, seeded, laws, run, scores)
+            scores = fit_all(pool, seeded, laws, run, scores)
         if stop_if_rough and "ripple" in rank(scores)[0].candidate.terms:
             roughness = _roughness(pool, job, scores, checked)
             if roughness > EARLY_ROUGH_RISE:
@@ -316,13 +264,15 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
         # from a nested one that then ranks first (each time a smaller structure: it ends)
         again = from_winner(rank(scores)[0], scores, speeds, options.orders)
         while again:
-            refitted = _fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
-            scores = _with_new(_keep_better(scores, refitted), refitted)
+            refitted = fit_all(pool, replace(job, mode="refit", continued=True), again, run, [])
+            scores = with_new(keep_better(scores, refitted), refitted)
             top = rank(scores)[0]
             again = from_winner(top, scores, speeds, options.orders) if top.candidate in again else {}
-        scores = _fewer_friction_terms(pool, seeded, scores, run)
+        scores = fewer_friction_terms(pool, seeded, scores, run)
     if screen:
         scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
+    if default:
+        scores = friction_terms_on_final(pool, replace(job, mode="refit"), scores, data, speeds, run)
     before = rank(scores)[0].candidate
     scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
     if screen and rank(scores)[0].candidate != before:
@@ -349,7 +299,7 @@ def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore], c
     picks = {s.candidate: s for s in [fitted[0], min(determined, key=lambda s: s.bic, default=fitted[0])]}
     checked = {} if checked is None else checked
     new = [s for s in picks.values() if id(s.result) not in checked]
-    threads = _threads_per_job(pool, len(new))
+    threads = threads_per_job(pool, len(new))
     checks = [replace(job, candidate=s.candidate, start=s.result.plant, threads=threads,
                       covariance=finite_covariance(s.result.covariance, s.result.intervals),
                       information=s.information) for s in new]
@@ -357,11 +307,6 @@ def _roughness(pool: Workers, job: CandidateJob, scores: list[CandidateScore], c
         checked[id(new[i].result)] = (new[i].result, value)  # the result held: its id is not given to another
     values = [checked[id(s.result)][1] for s in picks.values()]
     return max((v for v in values if np.isfinite(v)), default=math.nan)
-
-
-# A structure ranked first whose BIC moved by less than this between two rounds still has the same fit (a polish
-# stops when a step gains less than a noise variance, ~1 in −2·ln L): load terms started from its earlier fit stand.
-SAME_FIT = 2.0
 
 
 def _same_fit(now: CandidateScore, before: CandidateScore) -> bool:
@@ -382,7 +327,7 @@ def _refit_contenders(pool: Workers, job: CandidateJob, scores: list[CandidateSc
         todo = {s.candidate: s for s in ranked if could_win(s, first)}
         if not todo:
             return scores
-        again = {s.candidate: s for s in _fit_all(pool, job, {c: s.result.plant for c, s in todo.items()}, run, [])}
+        again = {s.candidate: s for s in fit_all(pool, job, {c: s.result.plant for c, s in todo.items()}, run, [])}
         scores = [_refitted(s, again[s.candidate]) if s.candidate in again else s for s in scores]
 
 
@@ -407,7 +352,7 @@ def _within_first(pool: Workers, job: CandidateJob, scores: list[CandidateScore]
                 todo[j.candidate] = j.start
         if not todo:
             return scores
-        scores = _keep_better(scores, _fit_all(pool, job, todo, run, []))
+        scores = keep_better(scores, fit_all(pool, job, todo, run, []))
         if rank(scores)[0].candidate == first.candidate:
             return scores
 
@@ -424,65 +369,3 @@ def _refitted(screened: CandidateScore, again: CandidateScore) -> CandidateScore
                      evaluations=old.evaluations + new.evaluations, history=old.history)
     message = "; ".join(m for m in (screened.message, again.message) if m)
     return replace(again, result=result, seconds=screened.seconds + again.seconds, message=message)
-
-
-def _keep_better(scores: list[CandidateScore], again: list[CandidateScore]) -> list[CandidateScore]:
-    """``scores`` with each candidate of ``again`` replaced where its new fit has the lower BIC."""
-    better = {s.candidate: s for s in again if s.status == "fitted" and
-              not any(o.candidate == s.candidate and o.status == "fitted" and o.bic <= s.bic for o in scores)}
-    return [better.get(s.candidate, s) for s in scores]
-
-
-def _with_new(scores: list[CandidateScore], more: list[CandidateScore]) -> list[CandidateScore]:
-    """``scores`` and the scores of ``more`` of candidates it does not have."""
-    known = {s.candidate for s in scores}
-    return scores + [s for s in more if s.candidate not in known]
-
-
-def _fit_all(pool: Workers, job: CandidateJob, starts: dict, run: RunOptions, done: list) -> list[CandidateScore]:
-    """``done`` and the scores of the candidates of ``starts`` (a candidate without a start fails at once)."""
-    return list(done) + _fit_groups(pool, [(job, starts)], run, len(done))[0]
-
-
-def _fit_groups(pool: Workers, groups: list[tuple[CandidateJob, dict]], run: RunOptions, done: int
-                ) -> list[list[CandidateScore]]:
-    """The scores of the candidates of every (job, dict of starts) in ``groups``, each fitted as its group's job
-    says, in one round (a candidate without a start fails at once), the costliest first (_expected_cost) so that no
-    long fit starts last; ``done`` candidates were fitted before (for the progress)."""
-    out = [[CandidateScore(c, "failed", message=str(s)) for c, s in starts.items() if isinstance(s, Exception)]
-           for _, starts in groups]
-    jobs = [(g, replace(job, candidate=c, start=s)) for g, (job, starts) in enumerate(groups)
-            for c, s in starts.items() if not isinstance(s, Exception)]
-    spare = _threads_per_job(pool, len(jobs))
-    local = _threads_per_job(pool, 1)
-    # fewer fits than local workers: each fit's simulations on the idle cores too; a ripple's search (the longest
-    # fit of its round, which mostly ends alone) on all of them from the start
-    if local > 1:
-        jobs = [(g, replace(j, threads=local if searches_ripple(j) or j.continued else spare)) for g, j in jobs]
-    jobs.sort(key=lambda gj: _expected_cost(gj[1]), reverse=True)
-    total = done + sum(len(starts) for _, starts in groups)
-    count = done + sum(map(len, out))
-    run.report(count, total)
-    for i, score in pool.imap(fit_candidate, [j for _, j in jobs]):
-        out[jobs[i][0]].append(score)
-        count += 1
-        run.report(count, total)
-    return out
-
-
-def _threads_per_job(pool: Workers, jobs: int) -> int:
-    """The cores each of ``jobs`` fits may use on a local pool with more workers than fits (a round of one or two
-    late candidates would leave cores idle: the batch simulator runs a swarm's particles and a Jacobian's columns
-    on threads, with results that do not depend on their number); 1 otherwise, and on a Dask cluster."""
-    if pool.scheduler is not None or pool.workers == 0 or jobs == 0:
-        return 1
-    return max(1, min(pool.workers, available_cores()) // jobs)
-
-
-def _expected_cost(job: CandidateJob) -> tuple:
-    """A key that orders fits by their expected time: a ripple's search first, then a swarm before a polish
-    alone, then by the order of G and its zeros (third-order fits with a zero take ten times a first-order one's
-    time), then the law's cost (FrictionLaw.cost: its states and parameters; LuGre's stiff bristles)."""
-    c = job.candidate
-    swarm = job.mode != "refit" and not job.polished
-    return searches_ripple(job), job.continued, swarm, c.order + c.zeros, get_law(c.law).cost, len(c.terms)

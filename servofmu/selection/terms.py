@@ -1,0 +1,97 @@
+"""The second stage's terms in a selection's rounds: the starts of the structure ranked first with each term the
+data can rank, and the forward and backward steps of the friction terms (docs/selection.md, the candidates)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..runtime import RunOptions
+from ..simulation.parallel import Workers
+from .candidates import FRICTION_TERMS
+from .data import data_kind
+from .fitting import SAME_FIT, fit_all, keep_better, with_new
+from .select import CandidateJob, CandidateScore, rank
+from .starts import nested_law_starts, term_starts, without_terms
+
+__all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "fewer_friction_terms"]
+
+
+def ranked_term_starts(first: CandidateScore, data) -> dict:
+    """The second stage's starts (starts.term_starts) the data can rank: on stepped sines none that depend on the
+    position — at zero force a spring leaves the position drifting, with no periodic steady state to converge to
+    (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
+    selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
+    searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
+    (starts.spring_starts)."""
+    starts = term_starts(first)
+    if data_kind(data) == "sine":
+        starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
+    return starts
+
+
+def more_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], data, run: RunOptions
+                         ) -> list[CandidateScore]:
+    """The forward selection of friction terms goes on while a structure with terms ranks first: its fit with each
+    friction term it lacks, until one ranks first that has been extended already (or has them all).  A term can
+    stand in for another in a richer law: on viscous_axis (Coulomb friction, fv_neg > fv_pos) the first stage
+    ranks stribeck/2 first, which the shape exponent fits better still; only with both terms does the Stribeck bump
+    leave, and coulomb+fv_asym/2 is nested in the winner (starts.nested_law_starts); fewer_friction_terms takes
+    the step back once the nested structures are fitted.  Load terms are not combined (a ripple's search each
+    time)."""
+    extended = set()
+    while True:
+        first = rank(scores)[0]
+        if first.status != "fitted" or not first.candidate.terms or first.candidate in extended:
+            return scores
+        extended.add(first.candidate)
+        done = {s.candidate for s in scores}
+        starts = {c: p for c, p in ranked_term_starts(first, data).items()
+                  if c not in done and set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)}
+        if not starts:
+            return scores
+        scores = fit_all(pool, job, starts, run, scores)
+
+
+def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[CandidateScore], data,
+                             speeds: np.ndarray, run: RunOptions) -> list[CandidateScore]:
+    """The friction terms again on the structure ranked first once the screened contenders are polished in full,
+    where their fits started from another fit of it: the second stage starts from the first stage's screened
+    leader, whose full polish can end far from there (stribeck_delta seed 0: lugre/1 screened 3 900 above its full
+    polish, and lugre+delta/1, started from the screened fit, never reached it).  A term's structure is fitted
+    again from the first's fit (polished alone) where it was not fitted or fits worse than the first (−2·ln L more
+    than SAME_FIT above: a term added where it changes nothing only lowers it); where one then ranks first, the
+    forward and backward steps and the structures nested in it follow as in the second stage."""
+    first = rank(scores)[0]
+    if first.status != "fitted":
+        return scores
+    fitted = {s.candidate: s for s in scores if s.status == "fitted" and np.isfinite(s.neg2loglik)}
+    starts = {c: p for c, p in ranked_term_starts(first, data).items()
+              if set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)
+              and (c not in fitted or fitted[c].neg2loglik > first.neg2loglik + SAME_FIT)}
+    if not starts:
+        return scores
+    again = fit_all(pool, job, starts, run, [])
+    scores = with_new(keep_better(scores, again), again)
+    if not rank(scores)[0].candidate.terms or rank(scores)[0].candidate == first.candidate:
+        return scores
+    scores = more_friction_terms(pool, job, scores, data, run)
+    laws = nested_law_starts(rank(scores)[0], scores, speeds)
+    scores = fit_all(pool, job, laws, run, scores) if laws else scores
+    return fewer_friction_terms(pool, job, scores, run)
+
+
+def fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
+                          ) -> list[CandidateScore]:
+    """The backward step of the forward selection of friction terms: the structure ranked first without each of
+    its friction terms in turn, from its own fit without it (starts.without_terms), where no such structure was
+    fitted — a term added on the way may have been standing in for the one added after it."""
+    first = rank(scores)[0]
+    terms = [t for t in first.candidate.terms if t in FRICTION_TERMS] if first.status == "fitted" else []
+    done = {s.candidate for s in scores}
+    starts = {}
+    for term in terms if len(terms) > 1 else ():
+        fewer = replace(first.candidate, terms=tuple(t for t in first.candidate.terms if t != term))
+        if fewer not in done:
+            starts[fewer] = without_terms(first.result.plant, {term})
+    return fit_all(pool, replace(job, polished=True), starts, run, scores) if starts else scores
