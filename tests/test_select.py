@@ -15,7 +15,7 @@ from servofmu.errors import UserError
 from servofmu.measurement.records import import_records
 from servofmu.runtime import RunOptions
 from servofmu.selection.candidates import (Candidate, default_candidates, parse_candidates, supported_load_terms,
-                                           term_candidates)
+                                           term_candidates, with_second_stage)
 from servofmu.selection.estimate import Series, estimate_linear
 from servofmu.selection.select import STRONG_EVIDENCE, CandidateScore, rank, validation_allowance, validation_margin
 from servofmu.simulation.batch import BatchSimulator
@@ -39,6 +39,9 @@ def test_candidate_names_expand_over_the_orders_with_and_without_a_zero():
         [f"coulomb+{t}/1" for t in (*loads, "fv_asym")]  # Coulomb friction has no Stribeck curve to shape
     assert [c.name for c in parse_candidates(None, (2,))][:2] == ["coulomb/2", "coulomb/2z"]
     assert [c.name for c in parse_candidates(["lugre+fv_asym+delta/2"])] == ["lugre+delta+fv_asym/2"]
+    # laws named alone leave the structure to the data: the default set's second stage; a term or an order, none
+    assert with_second_stage(None) and with_second_stage(["coulomb", "dahl"])
+    assert not with_second_stage(["coulomb", "stribeck/1"]) and not with_second_stage(["coulomb+delta"])
 
 
 def test_friction_terms_start_where_they_change_nothing_and_leave_again():

@@ -25,7 +25,8 @@ from ..model.laws.viscous import VISCOUS_KEYS
 from ..model.plant import Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
-__all__ = ["Candidate", "parse_candidates", "default_candidates", "term_candidates", "candidate_plant",
+__all__ = ["Candidate", "parse_candidates", "default_candidates", "term_candidates", "with_second_stage",
+           "candidate_plant",
            "supported_load_terms", "term_applies", "with_friction_term", "with_viscous_share", "without_friction_term",
            "spring_form", "LOAD_TERMS", "FRICTION_TERMS", "TERMS", "MAX_ORDER", "SPRING_ZERO", "VISCOUS_SHARE"]
 
@@ -221,6 +222,13 @@ def default_candidates(orders=(1, 2, 3)) -> list[Candidate]:
     structure this set ranks first (:func:`term_candidates`)."""
     orders = _orders(orders)
     return [c for law in default_laws() for c in _with_orders(law, (), orders)]
+
+
+def with_second_stage(names) -> bool:
+    """Whether a selection over the candidate names ``names`` has the second stage (springs, the load and friction
+    terms on the structure ranked first): the default set (None), or laws named alone — the user chose laws and
+    left the structure to the data (``coulomb,stribeck,lugre,dahl``); not where a name gives terms or an order."""
+    return names is None or all("/" not in str(n) and "+" not in str(n) for n in names)
 
 
 def term_candidates(chosen: Candidate) -> list[Candidate]:

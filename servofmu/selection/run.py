@@ -19,7 +19,7 @@ from ..identification.roughness import ROUGH_RISE, finite_covariance
 from ..measurement.datafile import DataFile, data_name
 from ..runtime import RunOptions, check_work, utc_now
 from ..simulation.parallel import Workers
-from .candidates import Candidate, candidate_plant, parse_candidates, term_candidates
+from .candidates import Candidate, candidate_plant, parse_candidates, term_candidates, with_second_stage
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
                    load_selection_data)
 from .estimate import data_bandwidth, start_estimates
@@ -233,21 +233,21 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     scores = fit_all(pool, job, _starts(candidates, data, files), run, [])
     series = estimation_series(data, files)
     speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
-    default, seeded = options.candidates is None, replace(job, seeded=True)
+    second_stage, seeded = with_second_stage(options.candidates), replace(job, seeded=True)
     # one round: smaller candidates again from larger ones' fits without their roots beyond the data, and, on
     # the guess that the structure ranked first stays first, the second stage: the load terms on it (fitted
     # again below where it does not stay first)
     leader = rank(scores)[0]
     reduced, loads = fit_groups(pool, [
         (replace(job, polished=True), reduced_starts(scores, candidates, data_bandwidth(series), speeds)),
-        (seeded, ranked_term_starts(leader, data) if default else {})], run, len(scores))
+        (seeded, ranked_term_starts(leader, data) if second_stage else {})], run, len(scores))
     scores = keep_better(scores, reduced)
-    springs = spring_starts(scores) if default else {}
+    springs = spring_starts(scores) if second_stage else {}
     if springs:  # a zero at the origin is a spring's: the structure with the spring instead, from the best fit
         scores = fit_all(pool, seeded, springs, run, scores)
     first = rank(scores)[0]  # the second stage's structure, ranked without its own load terms
     scores = with_new(keep_better(scores, loads), loads)
-    if default and first.status == "fitted" and term_candidates(first.candidate):
+    if second_stage and first.status == "fitted" and term_candidates(first.candidate):
         if not _same_fit(first, leader):  # the guess was wrong: the load terms on the one ranked first now
             loads = fit_all(pool, seeded, ranked_term_starts(first, data), run, [])
             scores = with_new(keep_better(scores, loads), loads)
@@ -271,7 +271,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
         scores = fewer_friction_terms(pool, seeded, scores, run)
     if screen:
         scores = _refit_contenders(pool, replace(job, mode="refit"), scores, run)
-    if default:
+    if second_stage:
         scores = friction_terms_on_final(pool, replace(job, mode="refit"), scores, data, speeds, run)
     before = rank(scores)[0].candidate
     scores = _within_first(pool, replace(job, mode="refit"), scores, speeds, run)
