@@ -14,6 +14,7 @@ import pytest
 from scipy import signal
 from scipy.integrate import solve_ivp
 
+from servofmu.errors import UserError
 from servofmu.model.plant import PlantError, load_plant, plant_from_dict
 
 MODELS = Path(__file__).resolve().parent.parent / "fmu_models"
@@ -316,6 +317,20 @@ def test_gms_is_a_candidate_when_named_but_not_by_default():
     plant = candidate_plant(candidate, LinearEstimate((-8.0 + 0j,), (), 12.0, 0.3, 0.25, 0.1))
     assert plant.friction.structure() == {"elements": 4} and len(plant.friction.states()) == 4
     assert plant.friction.sigma0 == 0.275 / 1e-4 and plant.friction.attraction == 50.0
+    # a candidate's name chooses N (gms:2); the laws nested in it have no such choice, its own law keeps it
+    from servofmu.selection.starts import nested_structures
+
+    (two,) = parse_candidates(["gms:2+delta/2z"])
+    assert two.name == "gms:2+delta/2z" and two.choices == (2,)
+    plant = candidate_plant(two, LinearEstimate((-8.0 + 0j, -30.0 + 0j), (-20.0 + 0j,), 12.0, 0.3, 0.25, 0.1))
+    assert plant.friction.structure() == {"elements": 2} and len(plant.friction.states()) == 2
+    assert [c.name for c in nested_structures(two)] == ["stribeck+delta/2z", "coulomb/2z", "gms:2+delta/2",
+                                                         "stribeck+delta/2", "coulomb/2"]
+    for bad, fragment in (("gms:0/1", "elements must be a whole number from 1 to 16"),
+                          ("gms:x/1", "elements must be a whole number"), ("gms:2:3/1", "takes 1 structure"),
+                          ("coulomb:2/1", "the coulomb law has no structure choice")):
+        with pytest.raises(UserError, match=fragment):
+            parse_candidates([bad])
 
 
 @pytest.mark.long

@@ -3,9 +3,9 @@ has them, the friction terms its law has keys for), the order of G(s) and whethe
 default set, and each one's plant (its structure and first values, from the linear estimate of
 servofmu.selection.estimate).
 
-A candidate's name reads ``LAW[+TERM…]/ORDER[z]``: ``coulomb/1``, ``stribeck/2z`` (second order with one zero),
-``lugre+offset/3``, ``stribeck+delta/1`` (the Stribeck curve's shape exponent free), ``coulomb+fv_asym/2``
-(direction-dependent viscous friction).  ``--candidates`` takes such names, or a law with terms alone
+A candidate's name reads ``LAW[:CHOICE…][+TERM…]/ORDER[z]``: ``coulomb/1``, ``stribeck/2z`` (second order with one
+zero), ``lugre+offset/3``, ``stribeck+delta/1`` (the Stribeck curve's shape exponent free), ``coulomb+fv_asym/2``
+(direction-dependent viscous friction), ``gms:2/1`` (a law's structure choice: two Maxwell-slip elements).  ``--candidates`` takes such names, or a law with terms alone
 (``stribeck``, ``coulomb+offset``), which is tried at every order of ``--orders``, with and without a zero.
 
 Viscous friction is no candidate of its own: a viscous force fv·v in the feedback path turns G into G/(1 + fv·G),
@@ -59,17 +59,20 @@ VISCOUS_SHARE = 0.5
 @dataclass(frozen=True, order=True)
 class Candidate:
     """One structure to try: ``law`` (a registered friction law's name), ``terms`` added to it (names of TERMS, in
-    its order), the ``order`` of G(s) (its number of poles) and ``zeros`` (0 or 1)."""
+    its order), the ``order`` of G(s) (its number of poles), ``zeros`` (0 or 1) and ``choices``, the law's structure
+    choices (FrictionLaw.structure, e.g. the Maxwell-slip elements N; none: the law's starting values)."""
 
     law: str
     order: int
     zeros: int = 0
     terms: tuple[str, ...] = ()
+    choices: tuple[int, ...] = ()
 
     @property
     def name(self) -> str:
-        """``LAW[+TERM…]/ORDER[z]``."""
-        return "+".join((self.law, *self.terms)) + f"/{self.order}" + ("z" if self.zeros else "")
+        """``LAW[:CHOICE…][+TERM…]/ORDER[z]``."""
+        law = self.law + "".join(f":{c}" for c in self.choices)
+        return "+".join((law, *self.terms)) + f"/{self.order}" + ("z" if self.zeros else "")
 
 
 def _sorted_terms(terms) -> tuple[str, ...]:
@@ -154,9 +157,29 @@ def _orders(orders) -> tuple[int, ...]:
     return tuple(sorted(set(out)))
 
 
-def _family(text: str) -> tuple[str, tuple[str, ...]]:
-    """(law, terms) of ``LAW[+TERM…]``, checked."""
+def _choices(text: str, law: str, given: list[str]) -> tuple[int, ...]:
+    """The structure choices ``given`` after the law's name (``gms:2``), checked against the law's keys."""
+    keys = get_law(law).structure
+    if not given:
+        return ()
+    if not keys:
+        raise UserError(f"candidate {text!r}: the {law} law has no structure choice to give after ':'")
+    if len(given) != len(keys):
+        raise UserError(f"candidate {text!r}: the {law} law takes {len(keys)} structure choice(s) after ':' "
+                        f"({', '.join(k.name for k in keys)})")
+    out = []
+    for key, value in zip(keys, given):
+        low, high = key.whole
+        if not value.isdigit() or not low <= int(value) <= high:
+            raise UserError(f"candidate {text!r}: {key.name} must be a whole number from {low} to {high}")
+        out.append(int(value))
+    return tuple(out)
+
+
+def _family(text: str) -> tuple[str, tuple[str, ...], tuple[int, ...]]:
+    """(law, terms, structure choices) of ``LAW[:CHOICE…][+TERM…]``, checked."""
     law, *terms = text.split("+")
+    law, *given = law.split(":")
     if get_law(law) is None:
         hint = (" (viscous friction is part of every candidate's G: docs/selection.md)" if law == "fv" or
                 "fv" in terms else "")
@@ -176,11 +199,11 @@ def _family(text: str) -> tuple[str, tuple[str, ...]]:
                             f"{', '.join(FRICTION_TERMS[term])})")
     if len(set(terms)) != len(terms):
         raise UserError(f"candidate {text!r}: a term named twice")
-    return law, _sorted_terms(terms)
+    return law, _sorted_terms(terms), _choices(text, law, given)
 
 
-def _with_orders(law: str, terms: tuple[str, ...], orders: tuple[int, ...]) -> list[Candidate]:
-    return [Candidate(law, n, z, terms) for n in orders for z in ((0, 1) if n >= 2 else (0,))]
+def _with_orders(law: str, terms: tuple[str, ...], orders: tuple[int, ...], choices=()) -> list[Candidate]:
+    return [Candidate(law, n, z, terms, choices) for n in orders for z in ((0, 1) if n >= 2 else (0,))]
 
 
 def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
@@ -197,7 +220,7 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
         text = str(text).strip()
         if "/" in text:
             family, _, order_text = text.partition("/")
-            law, terms = _family(family)
+            law, terms, choices = _family(family)
             zero = order_text.endswith("z")
             digits = order_text[:-1] if zero else order_text
             if not digits.isdigit():
@@ -206,10 +229,10 @@ def parse_candidates(names, orders=(1, 2, 3)) -> list[Candidate]:
             (order,) = _orders([int(digits)])
             if zero and order < 2:
                 raise UserError(f"candidate {text!r}: a zero needs G of order 2 or more (G strictly proper)")
-            new = [Candidate(law, order, int(zero), terms)]
+            new = [Candidate(law, order, int(zero), terms, choices)]
         else:
-            law, terms = _family(text)
-            new = _with_orders(law, terms, orders)
+            law, terms, choices = _family(text)
+            new = _with_orders(law, terms, orders, choices)
         out += [c for c in new if c not in out]
     if not out:
         raise UserError("no candidates to try")
@@ -238,7 +261,7 @@ def term_candidates(chosen: Candidate) -> list[Candidate]:
     motion and at rest (docs/selection.md), so no data ranks it; it stays a term a user may name."""
     terms = [t for t in supported_load_terms() if t != "offset"] + [t for t in FRICTION_TERMS
                                                                     if term_applies(t, chosen.law)]
-    return [Candidate(chosen.law, chosen.order, chosen.zeros, _sorted_terms((*chosen.terms, term)))
+    return [replace(chosen, terms=_sorted_terms((*chosen.terms, term)))
             for term in terms if term not in chosen.terms]
 
 
@@ -283,7 +306,9 @@ def candidate_plant(candidate: Candidate, estimate: LinearEstimate) -> Plant:
     friction = {"model": candidate.law, "fc_pos": fc_pos, "fc_neg": fc_neg}
     v_rms = max(estimate.v_rms, 1e-9)
     mass = 1.0 / max(abs(estimate.gain), 1e-12) if candidate.order - candidate.zeros == 1 else 0.1
-    friction.update(get_law(candidate.law).start_values(fc_pos, fc_neg, v_rms, mass))
+    law = get_law(candidate.law)
+    friction.update(law.start_values(fc_pos, fc_neg, v_rms, mass))
+    friction.update({key.name: value for key, value in zip(law.structure, candidate.choices)})
     for term in candidate.terms:
         if term in FRICTION_TERMS:
             friction = with_friction_term(friction, term)
@@ -317,8 +342,8 @@ def spring_form(candidate: Candidate, plant: Plant) -> tuple[Candidate, Plant] |
     new_poles = np.roots(den) if den.size > 1 else np.array([])
     if not (np.isfinite(k) and k > 0 and new_poles.size and np.all(new_poles.real < 0)):
         return None
-    target = Candidate(candidate.law, candidate.order - 1, candidate.zeros - 1,
-                       _sorted_terms((*candidate.terms, "stiffness")))
+    target = replace(candidate, order=candidate.order - 1, zeros=candidate.zeros - 1,
+                     terms=_sorted_terms((*candidate.terms, "stiffness")))
     spring = replace(plant, poles=tuple(_distinct(new_poles, stable=False)),
                      zeros=tuple(_distinct(np.roots(num), stable=False)) if num.size > 1 else (),
                      dc_gain=float(num[-1] / den[-1]), gain=None,

@@ -74,7 +74,7 @@ def reduced_starts(scores: list[CandidateScore], candidates: list[Candidate], ba
                                            tuple(z for z in plant.zeros if abs(z) <= bandwidth))
         if poles and (poles, zeros) != (plant.poles, plant.zeros):
             smaller = replace(plant, poles=poles, zeros=zeros)
-            target = Candidate(c.law, smaller.order, len(smaller.all_zeros()), c.terms)
+            target = replace(c, order=smaller.order, zeros=len(smaller.all_zeros()))
             if target in candidates and len(smaller.all_zeros()) < smaller.order and target not in out:
                 out[target] = smaller
     best = fitted[0] if fitted else None
@@ -176,10 +176,11 @@ def nested_structures(candidate: Candidate, orders=()):
     def of(law):
         return tuple(t for t in candidate.terms if term_applies(t, law))
     for law in laws[1:]:
-        yield replace(candidate, law=law, terms=of(law))
+        yield replace(candidate, law=law, terms=of(law), choices=())
     if candidate.zeros:
         for law in laws:
-            yield replace(candidate, law=law, zeros=0, terms=of(law))
+            yield replace(candidate, law=law, zeros=0, terms=of(law),
+                          choices=candidate.choices if law == candidate.law else ())
     if candidate.order - 1 in orders:
         yield replace(candidate, order=candidate.order - 1, zeros=min(candidate.zeros, candidate.order - 2))
 
