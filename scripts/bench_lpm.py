@@ -7,7 +7,8 @@ docs/broadband.md ("The local polynomial method").
    median relative error below 2·f_n of the LPM and of H1 (256-sample Welch segments), the mean σ²_V over N·σ².
 2. Noise-free: the LPM's relative error (median, 95th percentile, worst) for R = 2 and 3, and H1's.
 3. Closed loop: G = 1/(s + 10), u = 30·(r − y), white reference, coloured output noise the loop feeds back, 20 000
-   samples, 20 seeds: the share within the band from the reference (1–200 Hz, and below 5 Hz), the mean relative
+   samples, 20 seeds: the share within the first-order band from the reference and within Fieller's (1–200 Hz,
+   and below 5 Hz; LpmEstimate.band), the share of lines Fieller's leaves unbounded, the mean relative
    error below 5 Hz of the LPM from the reference and of the direct (open-loop) LPM.
 4. Time of one LPM (R = 2) on 10⁶ samples.
 
@@ -72,18 +73,30 @@ def main(seeds: int) -> None:
     h1 = np.concatenate([np.abs((h := h1_estimate(*record(s, 0.0), RATE, 256)).G / g_plant(h.frequencies) - 1)
                          for s in range(seeds)])
     print(f"noise-free, H1: relative error median {np.median(h1):.2g}")
-    inside, low_in, cl_bias, d_bias = [], [], [], []
+    inside, low_in, cl_bias, d_bias, fieller, low_fieller, unbounded, low_unbounded = [], [], [], [], [], [], [], []
+    bounded_low = []  # (held, lines) of the bounded lines below 5 Hz
     for s in range(seeds):
         r, u, y = loop_log(20000, s)  # the test's loop (tests/test_closed_loop_frf.py)
         cl, d = (lpm_estimate(u, y, RATE, band=(1.0, 200.0), reference=ref) for ref in (r, None))
         g = g_loop(cl.frequencies)
-        ok = np.abs(cl.G - g) <= cl.band_factor() * cl.std
+        ok = np.abs(cl.G - g) <= cl.band_factor() * cl.std  # the first-order band
+        centre, radius = cl.band()  # Fieller's (LpmEstimate.band)
+        held = np.abs(centre - g) <= radius
         low = cl.frequencies < 5
         inside.append(ok.mean()), low_in.append(ok[low].mean())
+        fieller.append(held.mean()), low_fieller.append(held[low].mean()), unbounded.append(np.isinf(radius).mean())
+        low_unbounded.append(np.isinf(radius[low]).mean())
+        finite = low & np.isfinite(radius)
+        bounded_low.append((held[finite].sum(), finite.sum()))
         cl_bias.append(abs(np.mean(cl.G[low] / g[low] - 1))), d_bias.append(abs(np.mean(d.G[low] / g[low] - 1)))
-    print(f"closed loop: within the band from the reference {100 * np.mean(inside):.1f} % of the lines 1–200 Hz "
-          f"(seeds {100 * min(inside):.0f}–{100 * max(inside):.0f} %), {100 * np.mean(low_in):.1f} % below 5 Hz; mean "
-          f"relative error below 5 Hz: from the reference {np.mean(cl_bias):.2f}, direct {np.mean(d_bias):.2f}")
+    print(f"closed loop: within the first-order band from the reference {100 * np.mean(inside):.1f} % of the lines "
+          f"1–200 Hz (seeds {100 * min(inside):.0f}–{100 * max(inside):.0f} %), {100 * np.mean(low_in):.1f} % below "
+          f"5 Hz; within Fieller's band {100 * np.mean(fieller):.1f} % (seeds {100 * min(fieller):.0f}–"
+          f"{100 * max(fieller):.0f} %), {100 * np.mean(low_fieller):.1f} % below 5 Hz, unbounded at "
+          f"{100 * np.mean(unbounded):.1f} % of the lines ({100 * np.mean(low_unbounded):.1f} % below 5 Hz, where "
+          f"it held G at {100 * sum(h for h, _ in bounded_low) / sum(n for _, n in bounded_low):.1f} % of the "
+          f"{sum(n for _, n in bounded_low)} lines it bounded); mean relative error below 5 Hz: from the reference "
+          f"{np.mean(cl_bias):.2f}, direct {np.mean(d_bias):.2f}")
     rng = np.random.default_rng(0)
     u = rng.standard_normal(10 ** 6)
     y = signal.lfilter(B, A, u)

@@ -16,7 +16,13 @@ Removing T is what H1 (Welch, windowed) cannot do: its leakage and transient bia
 
 Closed loop (a reference r, independent of the noise): the same fit of Z = [Y; U] on R(k+r), G_zr = [G_yr; G_ur]
 and T_z, a 2×2 residual covariance C_z; G = G_yr/G_ur, its variance to first order
-[(KᴴK)⁻¹]₀₀·(C_yy − 2 Re(G*·C_yu) + |G|²·C_uu)/|G_ur|².
+[(KᴴK)⁻¹]₀₀·(C_yy − 2 Re(G*·C_yu) + |G|²·C_uu)/|G_ur|².  That first order fails where the reference barely moves
+u on a line (G_ur about its own noise): the ratio is then biased and the band ±k·σ too narrow (86 % coverage
+below 5 Hz in scripts/bench_lpm.py's loop).  The band of a closed-loop estimate is Fieller's instead, exact for
+the ratio of two Gaussian estimates: the G for which the residual G_yr − G·G_ur is within k of its own standard
+deviation, |G_yr − G·G_ur|² ≤ k²·[(KᴴK)⁻¹]₀₀·(C_yy − 2 Re(G*·C_yu) + |G|²·C_uu) — a quadratic inequality in G,
+a disc where |G_ur|² > k²·[(KᴴK)⁻¹]₀₀·C_uu (G_ur stands out of its noise) and unbounded where not: there the data
+do not bound G at all (:meth:`LpmEstimate.band`).
 """
 from __future__ import annotations
 
@@ -59,6 +65,8 @@ class LpmEstimate:
         As above.
     closed_loop : bool
         True when G = G_yr/G_ur from a reference.
+    ratio : ndarray, optional
+        Closed loop: per line G_ur, [(KᴴK)⁻¹]₀₀, C_yy, C_uu and C_yu (columns; complex) — Fieller's band.
     """
 
     frequencies: np.ndarray
@@ -70,6 +78,7 @@ class LpmEstimate:
     half_width: int
     closed_loop: bool
     samples: int
+    ratio: np.ndarray | None = None
 
     __repr__, _repr_html_ = shown_repr, shown_html
 
@@ -96,6 +105,24 @@ class LpmEstimate:
         from scipy.stats import f
 
         return float(np.sqrt(f.ppf(level, 2, 2 * self.dof)))
+
+    def band(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+        """(centre, radius) per line of the disc that holds the true G with probability ``level``: open loop
+        G ± k·σ (:meth:`band_factor`); closed loop Fieller's (module docstring), radius inf where the data do not
+        bound G (the reference's effect on u within its noise on that line)."""
+        k2 = self.band_factor(level) ** 2
+        if self.ratio is None:
+            return self.G, np.sqrt(k2 * self.var)
+        gur, p00, c_yy, c_uu, c_yu = self.ratio.T
+        q = k2 * p00.real
+        gyr = self.G * gur
+        a = np.abs(gur) ** 2 - q * c_uu.real
+        b = gyr * np.conj(gur) - q * c_yu
+        c = np.abs(gyr) ** 2 - q * c_yy.real
+        with np.errstate(divide="ignore", invalid="ignore"):
+            centre = np.where(a > 0, b / a, self.G)
+            radius = np.where(a > 0, np.sqrt(np.clip(np.abs(b) ** 2 - a * c, 0.0, None)) / a, np.inf)
+        return centre, radius
 
 
 def _lines(n: int, rate: float, band, width: int) -> np.ndarray:
@@ -181,6 +208,7 @@ def lpm_estimate(u: np.ndarray, y: np.ndarray, rate: float, order: int = 2, half
     U, Y = np.fft.fft(u)[lines], np.fft.fft(y)[lines]
     X, Z = (U, Y[:, None]) if r is None else (np.fft.fft(r)[lines], np.column_stack([Y, U]))
     G, var, noise = (np.empty(lines.size, complex), np.empty(lines.size), np.empty(lines.size))
+    ratio = None if r is None else np.empty((lines.size, 5), complex)
     for start in range(0, lines.size, _CHUNK):
         # each chunk is fitted with the band's lines around it so the windows see their true neighbours
         lo, hi = max(0, start - 2 * half), min(lines.size, start + _CHUNK + 2 * half)
@@ -196,6 +224,7 @@ def lpm_estimate(u: np.ndarray, y: np.ndarray, rate: float, order: int = 2, half
             G[start:start + g.shape[0]], v = Gk, C[:, 0, 0].real
             ee = C[:, 0, 0].real - 2 * np.real(np.conj(Gk) * C[:, 1, 0]) + np.abs(Gk) ** 2 * C[:, 1, 1].real
             var[start:start + g.shape[0]] = p00 * np.clip(ee, 0.0, None) / np.abs(gur) ** 2
+            ratio[start:start + g.shape[0]] = np.column_stack([gur, p00, C[:, 0, 0], C[:, 1, 1], C[:, 1, 0]])
         noise[start:start + g.shape[0]] = v
     return LpmEstimate(frequencies=lines * rate / n, G=G, var=var, noise_var=noise, dof=dof, order=order,
-                       half_width=half, closed_loop=r is not None, samples=n)
+                       half_width=half, closed_loop=r is not None, samples=n, ratio=ratio)

@@ -119,7 +119,11 @@ def records_frf_json(data: DataFile, estimates: list[RecordFrf]) -> dict:
 
 
 def _lpm_json(e: LpmEstimate) -> dict:
-    """The LPM's part of a record's ``--json`` entry."""
+    """The LPM's part of a record's ``--json`` entry: with its 95 % band as a disc per line (LpmEstimate.band; the
+    radius null where the data do not bound G)."""
+    centre, radius = e.band()
     return {"frequency": e.frequencies.tolist(), "re": e.G.real.tolist(), "im": e.G.imag.tolist(), "std": _std(e.var),
             "noise_std": _std(e.noise_var), "dof": e.dof, "band_factor": e.band_factor(), "order": e.order,
-            "half_width": e.half_width, "closed_loop": e.closed_loop}
+            "half_width": e.half_width, "closed_loop": e.closed_loop, "band_centre_re": centre.real.tolist(),
+            "band_centre_im": centre.imag.tolist(),
+            "band_radius": [float(x) if math.isfinite(x) else None for x in radius]}

@@ -65,19 +65,23 @@ def _label(ax_mag, ax_ph, name: str, unit: str, title: str) -> None:
     ax_mag.set_title(title)
 
 
-def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker, factor=2.0, lw=1.0):
-    """G (magnitude and wrapped phase) and its band ±factor·std, shaded."""
-    mag = np.abs(G)
+def _with_band(ax_mag, ax_ph, f, G, std, color, label, marker, factor=2.0, lw=1.0, centre=None):
+    """G (magnitude and wrapped phase) and its band ±factor·std, shaded: a disc about G, or about ``centre`` where
+    given (Fieller's band of a ratio); none on the lines where it is infinite."""
     ax_mag.semilogx(f, _db(G), marker, color=color, ms=3, lw=lw, label=label)
-    ok = np.isfinite(std)
+    centre = G if centre is None else centre
+    mag, radius = np.abs(centre), factor * std
+    ok = np.isfinite(radius)
     if ok.any():
-        ax_mag.fill_between(f[ok], _db(np.maximum(mag - factor * std, mag * 1e-3)[ok]),
-                            _db((mag + factor * std)[ok]), color=color, alpha=0.2, lw=0)
+        ax_mag.fill_between(f, np.where(ok, _db(np.maximum(mag - radius, mag * 1e-3)), np.nan),
+                            np.where(ok, _db(mag + radius), np.nan), color=color, alpha=0.2, lw=0)
     phase = np.degrees(np.angle(G))  # wrapped: noisy lines would carry an unwrapped phase off by turns
     ax_ph.semilogx(f, phase, marker, color=color, ms=3, lw=lw)
     if ok.any():
-        half = np.degrees(np.arcsin(np.clip(factor * std / mag, 0, 1)))
-        ax_ph.fill_between(f[ok], (phase - half)[ok], (phase + half)[ok], color=color, alpha=0.2, lw=0)
+        middle = np.degrees(np.angle(centre))
+        half = np.degrees(np.arcsin(np.clip(radius / mag, 0, 1)))
+        ax_ph.fill_between(f, np.where(ok, middle - half, np.nan), np.where(ok, middle + half, np.nan),
+                           color=color, alpha=0.2, lw=0)
 
 
 def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: bool = False,
@@ -89,7 +93,8 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
 def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None):
     """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the reference
     S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band, and the local polynomial method's estimate with
-    its 95 % band ±k·σ (k = √F⁻¹(0.95; 2, 2·dof), LpmEstimate.band_factor: σ comes from dof residuals).
+    its 95 % band (LpmEstimate.band: ±k·σ, k = √F⁻¹(0.95; 2, 2·dof), open loop; Fieller's from the reference, left
+    out where the data do not bound G).
 
     ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
     """
@@ -98,9 +103,11 @@ def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None
         if e.lpm is not None:  # first: every DFT line, beneath the Welch estimates' coarser grid
             m = e.lpm
             how = "from the reference" if m.closed_loop else "u → v"
-            _with_band(ax_mag, ax_ph, m.frequencies, m.G, m.std, "0.45",
-                       f"{e.name}: LPM {how} (R = {m.order}, {2 * m.half_width + 1} lines), ±{m.band_factor():.2f}σ",
-                       "-", m.band_factor(), 0.6)
+            centre, radius = m.band()
+            band = "Fieller's 95 % band" if m.closed_loop else f"±{m.band_factor():.2f}σ"
+            _with_band(ax_mag, ax_ph, m.frequencies, m.G, radius, "0.45",
+                       f"{e.name}: LPM {how} (R = {m.order}, {2 * m.half_width + 1} lines), {band}", "-", 1.0, 0.6,
+                       centre)
         d = e.direct
         _with_band(ax_mag, ax_ph, d.frequencies, d.G, np.sqrt(d.var), f"C{2 * k}", f"{e.name}: direct S_uy/S_uu",
                    "-")
