@@ -69,6 +69,12 @@ def test_frf_closed_loop_of_an_imported_log_and_its_refusal_without_a_reference(
     f, G = np.array(lpm["frequency"]), np.array(lpm["re"]) + 1j * np.array(lpm["im"])
     assert f.size == r.size // 2 - 1 and f[0] == pytest.approx(RATE / r.size)
     assert np.mean(np.abs(G - true_g(f)) <= lpm["band_factor"] * np.array(lpm["std"])) >= 0.9
+    # and Fieller's band as a disc per line, null where unbounded: it holds the plant at least as often
+    radius = np.array([np.inf if x is None else x for x in lpm["band_radius"]])
+    centre = np.array(lpm["band_centre_re"]) + 1j * np.array(lpm["band_centre_im"])
+    assert radius.size == f.size and np.isfinite(radius).mean() > 0.5
+    assert np.mean(np.abs(centre - true_g(f)) <= radius) >= np.mean(np.abs(G - true_g(f)) <= lpm["band_factor"]
+                                                                     * np.array(lpm["std"]))
     plain = tmp_path / "plain.h5"
     assert run("import", log, "--time", "t", "--input", "u", "--output-variable", "v", "-o", plain).returncode == 0
     proc = run("frf", plain, "--closed-loop", "-o", tmp_path / "f.png")
