@@ -129,7 +129,8 @@ def test_fiellers_band_is_the_set_of_g_the_ratio_leaves_within_its_noise():
     step = np.where(np.isfinite(radius), radius, np.abs(cl.G))
     for _ in range(20):
         G = centre + 2 * step * (rng.uniform(-1, 1, centre.size) + 1j * rng.uniform(-1, 1, centre.size))
-        holds = np.abs(gyr - G * gur) ** 2 <= q * (c_yy.real - 2 * np.real(np.conj(G) * c_yu) + np.abs(G) ** 2 * c_uu.real)
+        holds = (np.abs(gyr - G * gur) ** 2
+                 <= q * (c_yy.real - 2 * np.real(np.conj(G) * c_yu) + np.abs(G) ** 2 * c_uu.real))
         in_disc = np.abs(G - centre) <= radius
         edge = np.abs(np.abs(G - centre) - radius) <= 1e-9 * np.maximum(radius, 1.0)  # rounding on the circle
         assert np.array_equal(holds[~edge], in_disc[~edge])

@@ -5,8 +5,9 @@ servofmu.selection.estimate).
 
 A candidate's name reads ``LAW[:CHOICE…][+TERM…]/ORDER[z]``: ``coulomb/1``, ``stribeck/2z`` (second order with one
 zero), ``lugre+offset/3``, ``stribeck+delta/1`` (the Stribeck curve's shape exponent free), ``coulomb+fv_asym/2``
-(direction-dependent viscous friction), ``gms:2/1`` (a law's structure choice: two Maxwell-slip elements).  ``--candidates`` takes such names, or a law with terms alone
-(``stribeck``, ``coulomb+offset``), which is tried at every order of ``--orders``, with and without a zero.
+(direction-dependent viscous friction), ``gms:2/1`` (a law's structure choice: two Maxwell-slip elements).
+``--candidates`` takes such names, or a law with terms alone (``stribeck``, ``coulomb+offset``), which is tried at
+every order of ``--orders``, with and without a zero.
 
 Viscous friction is no candidate of its own: a viscous force fv·v in the feedback path turns G into G/(1 + fv·G),
 which has as many poles and zeros as G, so every input–output record of a plant with viscous friction is matched
@@ -26,9 +27,9 @@ from ..model.plant import Plant, PlantError, plant_from_dict
 from .estimate import LinearEstimate
 
 __all__ = ["Candidate", "parse_candidates", "default_candidates", "term_candidates", "with_second_stage",
-           "candidate_plant",
-           "supported_load_terms", "term_applies", "with_friction_term", "with_viscous_share", "without_friction_term",
-           "spring_form", "LOAD_TERMS", "FRICTION_TERMS", "TERMS", "MAX_ORDER", "SPRING_ZERO", "VISCOUS_SHARE"]
+           "candidate_plant", "supported_load_terms", "term_applies", "with_friction_term", "with_viscous_share",
+           "without_friction_term", "spring_form", "LOAD_TERMS", "FRICTION_TERMS", "TERMS", "MAX_ORDER",
+           "SPRING_ZERO", "VISCOUS_SHARE"]
 
 # A real zero this close to the origin (relative to the smallest pole's magnitude) is read as a spring's
 # (spring_form): a fit of a plant without one puts its zeros where the response shows them, far from 0.
