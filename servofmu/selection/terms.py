@@ -18,13 +18,14 @@ __all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final
 
 
 def ranked_term_starts(first: CandidateScore, data) -> dict:
-    """The second stage's starts (starts.term_starts) the data can rank: on stepped sines none that depend on the
-    position — at zero force a spring leaves the position drifting, with no periodic steady state to converge to
-    (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
+    """The second stage's starts (starts.term_starts) the data can rank, load and friction terms not combined: on
+    stepped sines none that depend on the position — at zero force a spring leaves the position drifting, with no
+    periodic steady state to converge to (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
     selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
     searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
     (starts.spring_starts)."""
-    starts = term_starts(first)
+    starts = {c: p for c, p in term_starts(first).items()  # the two kinds not combined (more_friction_terms)
+              if set(c.terms) <= set(FRICTION_TERMS) or not set(c.terms) & set(FRICTION_TERMS)}
     if data_kind(data) == "sine":
         starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
     return starts
@@ -37,12 +38,14 @@ def more_friction_terms(pool: Workers, job: CandidateJob, scores: list[Candidate
     stand in for another in a richer law: on viscous_axis (Coulomb friction, fv_neg > fv_pos) the first stage
     ranks stribeck/2 first, which the shape exponent fits better still; only with both terms does the Stribeck bump
     leave, and coulomb+fv_asym/2 is nested in the winner (starts.nested_law_starts); fewer_friction_terms takes
-    the step back once the nested structures are fitted.  Load terms are not combined (a ripple's search each
-    time)."""
+    the step back once the nested structures are fitted.  Load terms are combined neither with each other (a
+    ripple's search each time) nor with friction terms: a ripple's fit is a lottery among its period's valleys,
+    and an added parameter can win one by chance (coulomb1_ripple seed 1 chose coulomb+ripple+fv_asym/1, and took
+    2.4 times as long)."""
     extended = set()
     while True:
         first = rank(scores)[0]
-        if first.status != "fitted" or not first.candidate.terms or first.candidate in extended:
+        if not _extensible(first) or first.candidate in extended:
             return scores
         extended.add(first.candidate)
         done = {s.candidate for s in scores}
@@ -51,6 +54,12 @@ def more_friction_terms(pool: Workers, job: CandidateJob, scores: list[Candidate
         if not starts:
             return scores
         scores = fit_all(pool, job, starts, run, scores)
+
+
+def _extensible(first: CandidateScore) -> bool:
+    """Whether friction terms are tried on ``first``: fitted, with friction terms and no load term."""
+    terms = set(first.candidate.terms)
+    return first.status == "fitted" and bool(terms) and terms <= set(FRICTION_TERMS)
 
 
 def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[CandidateScore], data,
@@ -63,7 +72,7 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     than SAME_FIT above: a term added where it changes nothing only lowers it); where one then ranks first, the
     forward and backward steps and the structures nested in it follow as in the second stage."""
     first = rank(scores)[0]
-    if first.status != "fitted":
+    if first.status != "fitted" or not set(first.candidate.terms) <= set(FRICTION_TERMS):
         return scores
     fitted = {s.candidate: s for s in scores if s.status == "fitted" and np.isfinite(s.neg2loglik)}
     starts = {c: p for c, p in ranked_term_starts(first, data).items()
@@ -83,11 +92,11 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
 
 def fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
                           ) -> list[CandidateScore]:
-    """The backward step of the forward selection of friction terms: the structure ranked first without each of
-    its friction terms in turn, from its own fit without it (starts.without_terms), where no such structure was
-    fitted — a term added on the way may have been standing in for the one added after it."""
+    """The backward step of the forward selection of friction terms: the structure ranked first (with friction
+    terms alone) without each of them in turn, from its own fit without it (starts.without_terms), where no such
+    structure was fitted — a term added on the way may have been standing in for the one added after it."""
     first = rank(scores)[0]
-    terms = [t for t in first.candidate.terms if t in FRICTION_TERMS] if first.status == "fitted" else []
+    terms = first.candidate.terms if _extensible(first) else ()
     done = {s.candidate for s in scores}
     starts = {}
     for term in terms if len(terms) > 1 else ():
