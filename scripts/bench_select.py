@@ -11,7 +11,9 @@ to validate on, white noise on the velocity at 40 dB; `select` over the default 
 orders 1-3, with and without a zero; where the plant format has load terms, the second stage adds each to the
 structure ranked first, and a plant with a constant load offset is benchmarked too: its truth is Coulomb at order
 1, whose levels fc+ − offset and fc− + offset are the same forces — docs/selection.md — one with a spring and
-two with a position ripple, of order 1 and 2).  One plant in closed loop: a cogging axis in the example drive's
+two with a position ripple, of order 1 and 2).  The newer laws' plants: direction-dependent viscous friction and
+the Stribeck curve's shape exponent δ (friction terms of the second stage), Dahl and Maxwell-slip friction (laws
+named with the default ones, LAWS_NAMED).  One plant in closed loop: a cogging axis in the example drive's
 loop, 8 s records of strokes with position and command noise, selected with --closed-loop.
 
     python scripts/bench_select.py --seeds 20              # the full benchmark
