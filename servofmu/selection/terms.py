@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..identification.residuals import EXACT
 from ..runtime import RunOptions
 from ..simulation.parallel import Workers
 from .candidates import FRICTION_TERMS
@@ -14,18 +15,26 @@ from .fitting import SAME_FIT, fit_all, keep_better, with_new
 from .select import CandidateJob, CandidateScore, rank
 from .starts import nested_law_starts, term_starts, without_terms
 
-__all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "fewer_friction_terms"]
+__all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "fewer_friction_terms",
+           "SCREENED_EXACT"]
+
+# A screened fit is polished at the screening's coarser tolerance, whose floor lies above EXACT (noise-free g1's
+# coulomb/1 stopped at 1.2e-7); 40 dB of noise leaves an RMS relative error near 1e-2, 80 dB near 1e-4.
+SCREENED_EXACT = 100 * EXACT
 
 
 def ranked_term_starts(first: CandidateScore, data) -> dict:
-    """The second stage's starts (starts.term_starts) the data can rank, load and friction terms not combined: on
-    stepped sines none that depend on the position — at zero force a spring leaves the position drifting, with no
+    """The second stage's starts (starts.term_starts) the data can rank, load and friction terms not combined, and
+    no friction term where ``first`` reproduces the data exactly (its RMS relative error below EXACT: noise-free
+    data, where a term can only move residuals at the simulation's precision, and a BIC of those picks at random:
+    noise-free g1 chose coulomb+fv_asym/1 by 2.3); on stepped sines none that depend on the position — at zero force a spring leaves the position drifting, with no
     periodic steady state to converge to (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
     selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
     searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
     (starts.spring_starts)."""
+    exact = first.status == "fitted" and first.result.fitness <= (SCREENED_EXACT if first.screened else EXACT)
     starts = {c: p for c, p in term_starts(first).items()  # the two kinds not combined (more_friction_terms)
-              if set(c.terms) <= set(FRICTION_TERMS) or not set(c.terms) & set(FRICTION_TERMS)}
+              if not set(c.terms) & set(FRICTION_TERMS) or (set(c.terms) <= set(FRICTION_TERMS) and not exact)}
     if data_kind(data) == "sine":
         starts = {c: p for c, p in starts.items() if not p.load.depends_on_position()}
     return starts
