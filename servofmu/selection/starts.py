@@ -32,8 +32,8 @@ def with_terms(plant, candidate: Candidate, found=None):
     """``plant`` (a fitted candidate's) with the terms of ``candidate`` it lacks: at their values in ``found``
     (another candidate's fitted plant) where it has them, a ripple excepted, else where they change nothing
     (zero force, δ = 2, fv_neg = fv_pos: with a share of G's damping, candidates.with_viscous_share) — the second
-    stage starts where its parent fits, so that a term can only
-    lower its criterion, and a ripple at zero force is searched from there (selection.period)."""
+    stage starts where its parent fits, so that a term can only lower its criterion, and a ripple at zero force is
+    searched from there (selection.period)."""
     data = tomllib.loads(plant.to_toml())
     known = tomllib.loads(found.to_toml()) if found is not None else {}
     load = data.setdefault("load", {})
