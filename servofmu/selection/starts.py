@@ -177,10 +177,9 @@ def nested_structures(candidate: Candidate, orders=()):
         return tuple(t for t in candidate.terms if term_applies(t, law))
     for law in laws[1:]:
         yield replace(candidate, law=law, terms=of(law), choices=())
-    if candidate.zeros:
-        for law in laws:
-            yield replace(candidate, law=law, zeros=0, terms=of(law),
-                          choices=candidate.choices if law == candidate.law else ())
+    if candidate.zeros:  # laws[0] is its own: it keeps its structure choices
+        for i, law in enumerate(laws):
+            yield replace(candidate, law=law, zeros=0, terms=of(law), choices=() if i else candidate.choices)
     if candidate.order - 1 in orders:
         yield replace(candidate, order=candidate.order - 1, zeros=min(candidate.zeros, candidate.order - 2))
 
