@@ -58,11 +58,16 @@ def more_friction_terms(pool: Workers, job: CandidateJob, scores: list[Candidate
             return scores
         extended.add(first.candidate)
         done = {s.candidate for s in scores}
-        starts = {c: p for c, p in ranked_term_starts(first, data).items()
-                  if c not in done and set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)}
+        starts = {c: p for c, p in _friction_starts(first, data).items() if c not in done}
         if not starts:
             return scores
         scores = fit_all(pool, job, starts, run, scores)
+
+
+def _friction_starts(first: CandidateScore, data) -> dict:
+    """ranked_term_starts of ``first`` that add a friction term only."""
+    return {c: p for c, p in ranked_term_starts(first, data).items()
+            if set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)}
 
 
 def _extensible(first: CandidateScore) -> bool:
@@ -84,9 +89,8 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     if first.status != "fitted" or not set(first.candidate.terms) <= set(FRICTION_TERMS):
         return scores
     fitted = {s.candidate: s for s in scores if s.status == "fitted" and np.isfinite(s.neg2loglik)}
-    starts = {c: p for c, p in ranked_term_starts(first, data).items()
-              if set(c.terms) - set(first.candidate.terms) <= set(FRICTION_TERMS)
-              and (c not in fitted or fitted[c].neg2loglik > first.neg2loglik + SAME_FIT)}
+    starts = {c: p for c, p in _friction_starts(first, data).items()
+              if c not in fitted or fitted[c].neg2loglik > first.neg2loglik + SAME_FIT}
     if not starts:
         return scores
     again = fit_all(pool, job, starts, run, [])
@@ -105,10 +109,11 @@ def fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[Candidat
     terms alone) without each of them in turn, from its own fit without it (starts.without_terms), where no such
     structure was fitted — a term added on the way may have been standing in for the one added after it."""
     first = rank(scores)[0]
-    terms = first.candidate.terms if _extensible(first) else ()
+    if not _extensible(first) or len(first.candidate.terms) < 2:
+        return scores  # with one term, the structure without it is the first stage's
     done = {s.candidate for s in scores}
     starts = {}
-    for term in terms if len(terms) > 1 else ():
+    for term in first.candidate.terms:
         fewer = replace(first.candidate, terms=tuple(t for t in first.candidate.terms if t != term))
         if fewer not in done:
             starts[fewer] = without_terms(first.result.plant, {term})
