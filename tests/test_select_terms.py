@@ -21,12 +21,13 @@ RECORDS = RecordData((RecordSeries("v", np.arange(3.0), np.zeros(3), np.zeros(3)
                      "records")
 
 
-def _score(name: str, bic: float, fitness: float = 1e-2, screened: bool = False) -> CandidateScore:
+def _score(name: str, bic: float, fitness: float = 1e-2, screened: bool = False,
+           undetermined: tuple = ()) -> CandidateScore:
     candidate = parse_candidates([name])[0]
     plant = sf.load_plant("stribeck_servo")  # a Stribeck plant: the law whose terms are scripted here
     return CandidateScore(candidate, "fitted", result=SimpleNamespace(plant=plant, fitness=fitness),
                           parameters=10, samples=2000, neg2loglik=bic, bic=bic, validation_neg2loglik=bic,
-                          screened=screened)
+                          screened=screened, undetermined=undetermined)
 
 
 @pytest.fixture
@@ -99,3 +100,18 @@ def test_friction_terms_are_ranked_only_where_the_first_does_not_reproduce_the_d
     assert {"stribeck+stiffness/2", "stribeck+ripple/2"} <= names  # the load terms either way
     assert ({"stribeck+delta/2", "stribeck+fv_asym/2"} <= names) == friction_terms
     assert not any("+delta+" in n or "+fv_asym+" in n or n.count("+") > 1 for n in names)  # never combined
+
+
+def test_the_structures_nested_in_the_lowest_bic_are_started_where_it_ranks_below_the_first():
+    # the structure with every term fits best, but its bump is undetermined: the Coulomb law with its viscous
+    # term is nested in it, and is not nested in the first (coulomb/2 is, and is fitted)
+    scores = [_score("coulomb/2", 0.0), _score("stribeck+delta/2", -20.0),
+              _score("stribeck+delta+fv_asym/2", -30.0, undetermined=("vs",))]
+    assert rank(scores)[0].name == "stribeck+delta/2"
+    starts = terms.nested_in_leaders(scores, np.linspace(-0.5, 0.5, 101))
+    assert sorted(c.name for c in starts) == ["coulomb+fv_asym/2"]
+
+
+def test_nothing_is_nested_in_leaders_without_friction_terms():
+    scores = [_score("coulomb/2", -5.0), _score("stribeck/2", 0.0)]
+    assert terms.nested_in_leaders(scores, np.linspace(-0.5, 0.5, 101)) == {}

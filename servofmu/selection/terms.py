@@ -15,8 +15,8 @@ from .fitting import SAME_FIT, fit_all, keep_better, with_new
 from .select import CandidateJob, CandidateScore, rank
 from .starts import nested_law_starts, term_starts, without_terms
 
-__all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "fewer_friction_terms",
-           "SCREENED_EXACT"]
+__all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "nested_in_leaders",
+           "fewer_friction_terms", "SCREENED_EXACT"]
 
 # A screened fit is polished at the screening's coarser tolerance, whose floor lies above EXACT (noise-free g1's
 # coulomb/1 stopped at 1.2e-7); 40 dB of noise leaves an RMS relative error near 1e-2, 80 dB near 1e-4.
@@ -84,23 +84,37 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     polish, and lugre+delta/1, started from the screened fit, never reached it).  A term's structure is fitted
     again from the first's fit (polished alone) where it was not fitted or fits worse than the first (−2·ln L more
     than SAME_FIT above: a term added where it changes nothing only lowers it); where one then ranks first, the
-    forward and backward steps and the structures nested in it follow as in the second stage."""
+    forward steps follow.  Then the structures nested in the leaders with friction terms (nested_in_leaders) and
+    the backward step, as in the second stage."""
     first = rank(scores)[0]
     if first.status != "fitted" or not set(first.candidate.terms) <= set(FRICTION_TERMS):
         return scores
     fitted = {s.candidate: s for s in scores if s.status == "fitted" and np.isfinite(s.neg2loglik)}
     starts = {c: p for c, p in _friction_starts(first, data).items()
               if c not in fitted or fitted[c].neg2loglik > first.neg2loglik + SAME_FIT}
-    if not starts:
-        return scores
-    again = fit_all(pool, job, starts, run, [])
-    scores = with_new(keep_better(scores, again), again)
-    if not rank(scores)[0].candidate.terms or rank(scores)[0].candidate == first.candidate:
-        return scores
-    scores = more_friction_terms(pool, job, scores, data, run)
-    laws = nested_law_starts(rank(scores)[0], scores, speeds)
+    if starts:
+        again = fit_all(pool, job, starts, run, [])
+        scores = with_new(keep_better(scores, again), again)
+        if rank(scores)[0].candidate.terms and rank(scores)[0].candidate != first.candidate:
+            scores = more_friction_terms(pool, job, scores, data, run)
+    laws = nested_in_leaders(scores, speeds)
     scores = fit_all(pool, job, laws, run, scores) if laws else scores
     return fewer_friction_terms(pool, job, scores, run)
+
+
+def nested_in_leaders(scores: list[CandidateScore], speeds: np.ndarray) -> dict:
+    """Starts of the structures nested in the candidate ranked first and in the one of the lowest BIC, where they
+    have friction terms (starts.nested_law_starts), not fitted yet.  The lowest BIC's too: a term can stand in for
+    another in a richer law, and the structure with every term may fit best and yet rank below a smaller one for
+    a parameter the data do not determine — its Stribeck bump, where the truth is the Coulomb law with that term
+    (viscous_axis seeds 1–4: stribeck+delta+fv_asym/2 lowest, undetermined, and coulomb+fv_asym/2 never fitted)."""
+    fitted = [s for s in scores if s.status == "fitted" and np.isfinite(s.bic)]
+    leaders = [rank(scores)[0], *sorted(fitted, key=lambda s: s.bic)[:1]]
+    out = {}
+    for leader in leaders:
+        if _extensible(leader):
+            out.update({c: p for c, p in nested_law_starts(leader, scores, speeds).items() if c not in out})
+    return out
 
 
 def fewer_friction_terms(pool: Workers, job: CandidateJob, scores: list[CandidateScore], run: RunOptions
