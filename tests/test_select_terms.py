@@ -115,3 +115,15 @@ def test_the_structures_nested_in_the_lowest_bic_are_started_where_it_ranks_belo
 def test_nothing_is_nested_in_leaders_without_friction_terms():
     scores = [_score("coulomb/2", -5.0), _score("stribeck/2", 0.0)]
     assert terms.nested_in_leaders(scores, np.linspace(-0.5, 0.5, 101)) == {}
+
+
+def test_the_backward_step_refits_a_structure_whose_earlier_fit_ranks_below_the_first(landscape, monkeypatch):
+    table, rounds = landscape
+    monkeypatch.setattr(terms, "without_terms", lambda plant, removed: plant)
+    table.update({"stribeck+delta/2": -40.0, "stribeck+fv_asym/2": -12.0})
+    scores = [_score("stribeck/2", 0.0), _score("stribeck+delta/2", -10.0),  # fitted before fv_asym was added
+              _score("stribeck+delta+fv_asym/2", -30.0)]
+    out = terms.fewer_friction_terms(None, _job(), scores, RunOptions())
+    assert rounds == [["stribeck+delta/2", "stribeck+fv_asym/2"]]
+    assert [s.name for s in out].count("stribeck+delta/2") == 1  # its better fit kept, not a second row
+    assert rank(out)[0].name == "stribeck+delta/2" and rank(out)[0].bic == -40.0
