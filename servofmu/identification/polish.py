@@ -26,11 +26,10 @@ def polish(crit, to_theta, y0: np.ndarray, iterations: int = MAX_POLISH_ITERATIO
     features' noise floor further steps only wander; a damped step is short where the damping is high, and a
     parameter seen through a flat stretch of its effect stopped there a third of the way to its optimum), or when
     the best step lowers the residual norm by less than 1 % and Σr² by less than POLISH_MIN_DROP noise variances.
-    The forward-difference Jacobian
-    is one batch call; a perturbed candidate without steady state is stepped the other way, and a column that
-    fails both ways ends the polish (NaN intervals rather than false ones), as does a start without a steady state
-    (its derivatives would be taken between runs that ran to their time limit: a noise-free stribeck_servo
-    selection spent a tenth of its time on them)."""
+    The forward-difference Jacobian is one batch call; a perturbed candidate without steady state is stepped the
+    other way, and a column that fails both ways ends the polish (NaN intervals rather than false ones), as does a
+    start without a steady state (its derivatives would be taken between runs that ran to their time limit: a
+    noise-free stribeck_servo selection spent a tenth of its time on them)."""
 
     def residual(y):
         r = crit.residuals(to_theta(y[None]), POLISH_RTOL)[0]
