@@ -26,7 +26,8 @@ def _grid_minimum(crit):
     centre, half = 2.0, 4.0
     for _ in range(3):
         grid = np.linspace(centre - half, centre + half, 801)[:, None]
-        cost = np.concatenate([np.sum(crit.residuals(g, 0.0) ** 2, axis=1) for g in np.array_split(grid, 20)])
+        cost = np.concatenate([np.sum(crit.residuals(g, 0.0) ** 2, axis=1)
+                               for g in np.array_split(grid, 20)])
         centre, half = float(grid[np.argmin(cost), 0]), half / 100
     return centre
 

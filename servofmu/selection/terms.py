@@ -28,11 +28,11 @@ def ranked_term_starts(first: CandidateScore, data) -> dict:
     """The second stage's starts (starts.term_starts) the data can rank, load and friction terms not combined, and
     no friction term where ``first`` reproduces the data exactly (its RMS relative error below EXACT: noise-free
     data, where a term can only move residuals at the simulation's precision, and a BIC of those picks at random:
-    noise-free g1 chose coulomb+fv_asym/1 by 2.3); on stepped sines none that depend on the position — at zero force a spring leaves the position drifting, with no
-    periodic steady state to converge to (each evaluation ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the
-    selection's 264 CPU seconds and was never fitted), and a ripple's period has no measured position to be
-    searched along; a spring still enters a stepped-sine selection as the zero at the origin it puts in G
-    (starts.spring_starts)."""
+    noise-free g1 chose coulomb+fv_asym/1 by 2.3); on stepped sines none that depend on the position — at zero
+    force a spring leaves the position drifting, with no periodic steady state to converge to (each evaluation
+    ran to the steady state's time limit: on noise-free g1 `coulomb+stiffness/1` took 118 of the selection's 264
+    CPU seconds and was never fitted), and a ripple's period has no measured position to be searched along; a
+    spring still enters a stepped-sine selection as the zero at the origin it puts in G (starts.spring_starts)."""
     exact = first.status == "fitted" and first.result.fitness <= (SCREENED_EXACT if first.screened else EXACT)
     starts = {c: p for c, p in term_starts(first).items()  # the two kinds not combined (more_friction_terms)
               if not set(c.terms) & set(FRICTION_TERMS) or (set(c.terms) <= set(FRICTION_TERMS) and not exact)}
