@@ -7,6 +7,7 @@ through a path entry (not its .pth files, so the editable install of the checkou
 """
 import os
 import re
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -23,8 +24,13 @@ ROOT = Path(__file__).resolve().parent.parent
 def installed(tmp_path_factory):
     base = tmp_path_factory.mktemp("wheel")
     wheels = base / "dist"
+    # built from a copy: setuptools writes build/ and the egg-info into the tree it builds, and the test workers
+    # that each hold this module's fixture would race there in one checkout
+    source = base / "source"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".venv", ".git", "build", "*.egg-info", "__pycache__",
+                                                                  ".pytest_cache", "demo-output"))
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
-                    "-w", str(wheels), str(ROOT)], check=True, capture_output=True, cwd=base)
+                    "-w", str(wheels), str(source)], check=True, capture_output=True, cwd=base)
     (wheel,) = wheels.glob("servofmu-*.whl")
     env_dir = base / "fresh"
     venv.create(env_dir, with_pip=True)
