@@ -127,3 +127,27 @@ def test_the_backward_step_refits_a_structure_whose_earlier_fit_ranks_below_the_
     assert rounds == [["stribeck+delta/2", "stribeck+fv_asym/2"]]
     assert [s.name for s in out].count("stribeck+delta/2") == 1  # its better fit kept, not a second row
     assert rank(out)[0].name == "stribeck+delta/2" and rank(out)[0].bic == -40.0
+
+
+def test_the_friction_terms_go_on_the_laws_nested_in_the_first_too(landscape):
+    # LuGre's bristle dynamics lent lugre/1 the shape of the curve, and the shape exponent added to it changed
+    # nothing; the Stribeck law it contains takes the exponent, ranks first, and is extended in turn
+    table, rounds = landscape
+    table.update({"stribeck+delta/1": -80.0, "stribeck+fv_asym/1": -28.0, "coulomb+fv_asym/1": -1.0,
+                  "stribeck+delta+fv_asym/1": -72.0, "lugre+delta/1": -45.0, "lugre+fv_asym/1": -44.0})
+    scores = [_score("lugre/1", -50.0), _score("lugre+delta/1", -45.0), _score("lugre+fv_asym/1", -44.0),
+              _score("stribeck/1", -30.0), _score("coulomb/1", 0.0)]
+    out = terms.friction_terms_on_final(None, _job(), scores, RECORDS, np.linspace(-0.5, 0.5, 101), RunOptions())
+    # the first's own terms fitted again (their fits lie above the first's), the nested laws' first, then the
+    # forward step on the one that ranks first
+    assert rounds == [["coulomb+fv_asym/1", "lugre+delta/1", "lugre+fv_asym/1", "stribeck+delta/1",
+                       "stribeck+fv_asym/1"], ["stribeck+delta+fv_asym/1"]]
+    assert rank(out)[0].name == "stribeck+delta/1"
+
+
+def test_the_nested_laws_are_not_extended_at_another_order(landscape):
+    table, rounds = landscape
+    table.update({"lugre+delta/1": -45.0, "lugre+fv_asym/1": -44.0})
+    scores = [_score("lugre/1", -50.0), _score("stribeck/2", -30.0)]
+    terms.friction_terms_on_final(None, _job(), scores, RECORDS, np.linspace(-0.5, 0.5, 101), RunOptions())
+    assert rounds == [["lugre+delta/1", "lugre+fv_asym/1"]]

@@ -14,7 +14,7 @@ from .candidates import FRICTION_TERMS
 from .data import data_kind
 from .fitting import SAME_FIT, fit_all, keep_better, with_new
 from .select import CandidateJob, CandidateScore, rank
-from .starts import nested_law_starts, term_starts, without_terms
+from .starts import nested_law_starts, nested_structures, term_starts, without_terms
 
 __all__ = ["ranked_term_starts", "more_friction_terms", "friction_terms_on_final", "nested_in_leaders",
            "fewer_friction_terms", "SCREENED_EXACT"]
@@ -85,8 +85,9 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     polish, and lugre+delta/1, started from the screened fit, never reached it).  A term's structure is fitted
     again from the first's fit (polished alone) where it was not fitted or fits worse than the first (−2·ln L more
     than SAME_FIT above: a term added where it changes nothing only lowers it); where one then ranks first, the
-    forward steps follow.  Then the structures nested in the leaders with friction terms (nested_in_leaders) and
-    the backward step, as in the second stage.  Where a structure with a load term ranks first, the friction
+    forward steps follow; the terms go on the structures of the first with the laws its law contains too
+    (_nested_laws).  Then the structures nested in the leaders with friction terms (nested_in_leaders) and the
+    backward step, as in the second stage.  Where a structure with a load term ranks first, the friction
     terms go on the first without one, where none was fitted on it: the second stage may have run on a law
     whose full polish then failed (stribeck_delta seed 6: every lugre refit without a steady state, and
     stribeck+ripple/1 first with stribeck+delta/1, the truth, never fitted)."""
@@ -98,6 +99,8 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     worse = first.neg2loglik + SAME_FIT if first is ranked[0] else math.inf  # else: only those never fitted
     starts = {c: p for c, p in _friction_starts(first, data).items()
               if c not in fitted or fitted[c].neg2loglik > worse}
+    for nested in _nested_laws(first, fitted):
+        starts.update({c: p for c, p in _friction_starts(nested, data).items() if c not in fitted and c not in starts})
     if starts:
         again = fit_all(pool, job, starts, run, [])
         scores = with_new(keep_better(scores, again), again)
@@ -106,6 +109,15 @@ def friction_terms_on_final(pool: Workers, job: CandidateJob, scores: list[Candi
     laws = nested_in_leaders(scores, speeds)
     scores = fit_all(pool, job, laws, run, scores) if laws else scores
     return fewer_friction_terms(pool, job, scores, run)
+
+
+def _nested_laws(first: CandidateScore, fitted: dict) -> list[CandidateScore]:
+    """The fits of the structures of ``first`` (its order, zeros and terms) with each law its law contains: a richer
+    law's own parameters can stand in for a friction term of the law it contains (stribeck_delta seeds 7, 13, 18:
+    lugre/1 ranked above stribeck/1 by the shape its bristle dynamics lent it, the shape exponent added to LuGre
+    changed nothing, and stribeck+delta/1, the truth, was never fitted)."""
+    top = first.candidate
+    return [fitted[c] for c in nested_structures(top) if c in fitted and (c.order, c.zeros) == (top.order, top.zeros)]
 
 
 def nested_in_leaders(scores: list[CandidateScore], speeds: np.ndarray) -> dict:
