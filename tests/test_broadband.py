@@ -183,3 +183,69 @@ def test_bad_plans_are_refused_naming_the_option(kw, fragment):
 def test_a_record_of_another_length_than_whole_periods_is_refused():
     with pytest.raises(UserError, match="1001 samples is not 1 \\+ 2 periods of 500 samples"):
         split_periods(np.zeros(1001), 500, 2, 1)
+
+
+def relay_loop(u: np.ndarray, friction: float, rate=RATE) -> np.ndarray:
+    """A third-order G (poles −2.5 ± 31.5j and −10 1/s, G(0) = 1) with Coulomb friction Fc·sign(v) fed back from its
+    output: G's phase crosses −180°, so the friction closes a relay loop that oscillates on its own unless the
+    force drives it through."""
+    poles = [-2.5 + 31.5j, -2.5 - 31.5j, -10.0]
+    den = np.real(np.poly(poles))
+    a, b, c, d, _ = signal.cont2discrete(signal.tf2ss([den[-1]], den), 1 / rate, "zoh")
+    state, out = np.zeros(a.shape[0]), np.empty_like(u)
+    for k, uk in enumerate(u):
+        out[k] = (c @ state)[0]
+        state = a @ state + b[:, 0] * (uk - friction * np.sign(out[k]))
+    return out
+
+
+def test_a_periodic_response_is_found_periodic_with_or_without_noise_and_friction():
+    p = plan(band=(1.0, 40.0), periods=2, transient_periods=2, realisations=4)
+    u = p.signals()[0]
+    linear = plan(realisations=4, periods=3)
+    x = linear.signals()[0]
+    y = np.stack([periodic_response(second_order(), row, linear.samples) for row in x])
+    for seed in range(40):  # noise alone between the lines: no false report
+        noisy = y + 0.02 * np.random.default_rng(200 + seed).standard_normal(y.shape)
+        b = estimate_bla(*(split_periods(z, linear.samples, 3, 1) for z in (x, noisy)), linear.lines, RATE)
+        assert b.periodic, (seed, b.nonsynchronous_frequency, b.nonsynchronous_over_floor_db)
+    assert run_linear(plan())[0].periodic  # noise-free
+    y = np.stack([coulomb_loop(x, 0.5) for x in u]) + 1e-5 * np.random.default_rng(5).standard_normal(u.shape)
+    b = estimate_bla(split_periods(u, p.samples, 2, 2), split_periods(y, p.samples, 2, 2), p.lines, RATE)
+    assert b.distortion_to_noise_db > 20 and b.periodic  # friction's distortions are synchronous
+
+
+def test_a_component_between_the_lines_is_reported_with_its_frequency_and_level():
+    p = plan(periods=4, realisations=4)
+    b, _ = run_linear(p, noise=0.001)
+    t = np.arange((p.periods + p.transient_periods) * p.samples) / RATE
+    y_extra = 0.05 * np.sin(2 * np.pi * 7.3 * t)  # 7.3 Hz: between the 1 Hz period's lines
+    u = p.signals()[0]
+    y = np.stack([periodic_response(second_order(), x, p.samples) for x in u]) + y_extra
+    y = y + 0.001 * np.random.default_rng(1).standard_normal(y.shape)
+    cut = [split_periods(x, p.samples, p.periods, p.transient_periods) for x in (u, y)]
+    found = estimate_bla(*cut, p.lines, RATE)
+    assert b.periodic and not found.periodic
+    assert abs(found.nonsynchronous_frequency - 7.3) <= RATE / (p.periods * p.samples)  # within one bin (0.25 Hz)
+    response = np.mean(np.sum(np.abs(np.fft.rfft(cut[1], axis=-1)[..., p.lines].mean(axis=1) * 2 / p.samples) ** 2,
+                              axis=-1))
+    # the strongest bin holds most of a sinusoid 0.05 Hz off its centre (a fifth of a bin: sinc² ≈ 0.88)
+    expected = 10 * np.log10(0.05 ** 2 / response)
+    assert expected - 1.5 <= found.nonsynchronous_re_response_db <= expected + 0.1
+    assert found.nonsynchronous_over_floor_db > 40
+
+
+def test_a_friction_limit_cycle_is_reported_not_taken_for_noise():
+    # at a small force the friction's relay loop oscillates on its own; at a large one the force drives it through
+    p = plan(band=(0.5, 40.0), periods=4, transient_periods=3, realisations=2, levels=(1.0,))
+    u = p.signals()[0]
+    rng = np.random.default_rng(2)
+    found = {}
+    for level in (0.3, 30.0):
+        y = np.stack([relay_loop(level * x, 1.0) for x in u])
+        y = y + 1e-4 * np.std(y) * rng.standard_normal(y.shape)
+        cut = [split_periods(x, p.samples, p.periods, p.transient_periods) for x in (level * u, y)]
+        found[level] = estimate_bla(*cut, p.lines, RATE)
+    small = found[0.3]
+    assert not small.periodic and small.nonsynchronous_re_response_db > -20, small.nonsynchronous_re_response_db
+    assert found[30.0].periodic

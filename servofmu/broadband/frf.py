@@ -48,6 +48,9 @@ def frf_json(data: BroadbandData, levels: list[tuple[float, BLA]]) -> dict:
             "total_to_noise_db": _finite(b.total_to_noise_db),
             "even_detection_to_noise_db": _finite(b.detection_to_noise_db("even")),
             "odd_detection_to_noise_db": _finite(b.detection_to_noise_db("odd")),
+            "nonsynchronous": None if b.periodic else {
+                "frequency": b.nonsynchronous_frequency, "re_response_db": b.nonsynchronous_re_response_db,
+                "over_floor_db": b.nonsynchronous_over_floor_db},
             "periods": b.periods, "realisations": b.realisations})
     return doc
 

@@ -7,6 +7,7 @@ The signal of a plan is played in one go: level after level, realisation after r
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +29,10 @@ BLA_UNITS = {"frequencies": "Hz", "G": "output unit per N (m/(N.s) for v)", "var
              "var_distortion": "(G's unit)^2", "var_total": "(G's unit)^2", "coherence": "1", "U": "N",
              "detection_frequencies": "Hz", "detection_level": "output unit (m/s)",
              "detection_noise": "output unit (m/s)", "detection_lines": "1"}
+
+# the strongest component between the period's lines (bla.nonsynchronous_components): root attributes of a BLA group,
+# NaN where the response is periodic
+NONSYNCHRONOUS = ("nonsynchronous_frequency", "nonsynchronous_re_response_db", "nonsynchronous_over_floor_db")
 
 
 def excitation_csv_text(plan: BroadbandPlan) -> str:
@@ -100,12 +105,17 @@ def write_bla(g, bla: BLA) -> None:
         g.attrs[name] = getattr(bla, name)
     g.attrs["even_detection_to_noise_db"] = bla.detection_to_noise_db("even")
     g.attrs["odd_detection_to_noise_db"] = bla.detection_to_noise_db("odd")
+    for name in NONSYNCHRONOUS:
+        g.attrs[name] = getattr(bla, name)
     g.attrs["units"] = json.dumps(BLA_UNITS)
 
 
 def _read_bla(g) -> BLA:
     values = {name: np.asarray(g[name][()]) for name in BLA_UNITS}
-    return BLA(**values, periods=int(hdf5_attr(g, "periods")), realisations=int(hdf5_attr(g, "realisations")))
+    # files written before the check have no such attributes: NaN, as for a periodic response
+    found = {name: float(g.attrs.get(name, math.nan)) for name in NONSYNCHRONOUS}
+    return BLA(**values, periods=int(hdf5_attr(g, "periods")), realisations=int(hdf5_attr(g, "realisations")),
+               **found)
 
 
 def write_broadband(path: str | Path, plan: BroadbandPlan, levels: list[BroadbandLevel], provenance: dict,

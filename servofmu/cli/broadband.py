@@ -129,7 +129,12 @@ def _frf_line(level: float, b) -> str:
             f"Hz, min coherence {np.min(b.coherence):.4f}; distortion {b.relative_distortion_db:.1f} dB re the linear "
             f"part, {b.distortion_to_noise_db:.1f} dB (total "
             f"{b.total_to_noise_db:.1f} dB) over the noise; odd/even detection lines "
-            f"{b.detection_to_noise_db('odd'):.1f}/{b.detection_to_noise_db('even'):.1f} dB over the noise")
+            f"{b.detection_to_noise_db('odd'):.1f}/{b.detection_to_noise_db('even'):.1f} dB over the noise"
+            + ("" if b.periodic else
+               f"\n  not periodic: a component at {b.nonsynchronous_frequency:.4g} Hz between the period's lines, "
+               f"{b.nonsynchronous_re_response_db:.1f} dB re the response and {b.nonsynchronous_over_floor_db:.1f} dB "
+               "over the noise floor there (a limit cycle, an unfinished transient or a disturbance): the noise level "
+               "above holds it, and the distortion level is not the friction's alone"))
 
 
 def cmd_import_broadband(args) -> None:
