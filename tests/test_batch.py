@@ -280,6 +280,19 @@ def test_warm_starts_begin_each_experiment_on_the_nearest_converged_orbit():
     np.testing.assert_array_equal(warm.start([[1.0, 0.0]])[0, 0], orbits[1, 0])
 
 
+def test_the_steps_expected_at_a_tighter_tolerance_grow_as_the_integrators_order_says():
+    # RODAS4's error is of order 4 in the step: a run at rtol 1e-5 takes (1e-5/1e-10)^(1/4) ≈ 17.8 times fewer
+    # steps than one at 1e-10 (the polish's budget is a multiple of the run it begins on)
+    nan = np.full((1, 2), np.nan)
+    warm = WarmStarts()
+    warm.add([[1.0, 0.0]], SteadyStateFeatures(H=nan, dc=nan, distortion=nan, converged=np.ones((1, 2), bool),
+                                               settle_time=nan, steps=np.array([[100, 400]]),
+                                               orbit=np.zeros((1, 2, 3))), rtol=1e-5)
+    np.testing.assert_allclose(warm.nearest([[1.0, 0.0]], 1e-10)[1], [[100 * 10 ** 1.25, 400 * 10 ** 1.25]])
+    np.testing.assert_array_equal(warm.nearest([[1.0, 0.0]], 1e-3)[1], [[100, 400]])  # never fewer
+    np.testing.assert_array_equal(warm.nearest([[1.0, 0.0]])[1], [[100, 400]])  # no tolerance: as taken
+
+
 def test_a_polish_run_far_stiffer_than_the_run_it_begins_on_is_cut_at_its_step_budget():
     # lugre_servo with a rest stiffness 1e5 times its own settles from rest in ~2.4e5 steps per experiment; begun
     # on the orbit of its own plant (~6000 steps), a polish's run may take 20 times that: it counts as without

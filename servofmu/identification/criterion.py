@@ -277,7 +277,7 @@ class SineCriterion:
         theta = np.atleast_2d(theta)
         self.evaluations += theta.shape[0]
         full = full_vectors(self.structure, theta)
-        start, steps = self.warm_starts.nearest(full)
+        start, steps = self.warm_starts.nearest(full, rtol)
         # a candidate is compared only where every experiment settles: one without steady state ends its others
         options = replace(steady_state_options(rtol), whole_sets=True)
         if rtol < SEARCH_RTOL and steps is not None and np.all(np.isfinite(steps)):
@@ -287,7 +287,7 @@ class SineCriterion:
                                             start=None if start is None else start[:, order])
         feats = feats.experiments(np.argsort(order))
         self.failures += feats.failed().sum(axis=0)
-        self.warm_starts.add(full, feats)
+        self.warm_starts.add(full, feats, rtol)
         r = sine_residuals(self.data, feats.H, feats.dc)
         r[~np.all(feats.converged, axis=1)] = np.nan  # a candidate without steady state cannot be compared
         return r

@@ -20,6 +20,7 @@ tolerance: docs/bench-batch.md.
 from __future__ import annotations
 
 import ctypes
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -272,11 +273,12 @@ class WarmStarts:
         # A ring of the latest `capacity` sets, filled in place (a search adds ten sets per call, and copying the
         # whole memory on every call cost a tenth of a fit): params (capacity, n_params), orbits (capacity, n_exp,
         # orbit) with NaN where the run did not converge; `size` rows hold sets, `next` is where the next goes.
-        self.params = self.orbits = self.steps = None
+        self.params = self.orbits = self.steps = self.rtols = None
         self.size = self.next = 0
 
-    def add(self, params, features: SteadyStateFeatures) -> None:
-        """Remember the runs of ``features`` (of the parameter sets ``params``) that converged."""
+    def add(self, params, features: SteadyStateFeatures, rtol: float = math.nan) -> None:
+        """Remember the runs of ``features`` (of the parameter sets ``params``, simulated at ``rtol``) that
+        converged."""
         params = np.atleast_2d(np.asarray(params, dtype=float))
         some = np.any(features.converged, axis=1)
         params = params[some][-self.capacity:]
@@ -286,8 +288,9 @@ class WarmStarts:
             self.params = np.empty((self.capacity,) + params.shape[1:])
             self.orbits = np.empty((self.capacity,) + orbits.shape[1:])
             self.steps = np.zeros((self.capacity,) + steps.shape[1:], dtype=np.int64)
+            self.rtols = np.full(self.capacity, math.nan)
         rows = (self.next + np.arange(len(params))) % self.capacity
-        self.params[rows], self.orbits[rows], self.steps[rows] = params, orbits, steps
+        self.params[rows], self.orbits[rows], self.steps[rows], self.rtols[rows] = params, orbits, steps, rtol
         self.next = (self.next + len(params)) % self.capacity
         self.size = min(self.size + len(params), self.capacity)
 
@@ -296,9 +299,12 @@ class WarmStarts:
         run converged in an experiment; None before anything converged."""
         return self.nearest(params)[0]
 
-    def nearest(self, params) -> tuple[np.ndarray | None, np.ndarray | None]:
+    def nearest(self, params, rtol: float = math.nan) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(``start``, as :meth:`start` gives it; the integrator steps the runs begun there took, shape (N, n_exp),
-        NaN where there is no start): what a run from each start may be expected to cost."""
+        NaN where there is no start): what a run from each start may be expected to cost — at ``rtol``, where the
+        run was at a looser one: (its rtol / ``rtol``)^(1/4) times its steps (RODAS4's error is of order 4: a polish
+        at 1e-10 from a search's run at 1e-5 takes about 18 times the steps; with a budget of 20 times the search's
+        steps, a gms_servo polish found no steady state at the search's best and ended there)."""
         if self.size == 0:
             return None, None
         known, orbits = self.params[:self.size], self.orbits[:self.size]
@@ -312,13 +318,15 @@ class WarmStarts:
             nearest = np.argmin(distance, axis=1)
             start, steps = orbits[nearest], self.steps[nearest].astype(float)
             far = ~np.isfinite(distance[np.arange(len(nearest)), nearest])
-            start[far], steps[far] = np.nan, np.nan
-            return start, steps
-        distance = np.where(usable.T[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
-        nearest = np.argmin(distance, axis=2)
-        start = orbits[nearest, np.arange(usable.shape[1])]
-        steps = self.steps[:self.size][nearest, np.arange(usable.shape[1])].astype(float)
-        far = ~np.isfinite(np.min(distance, axis=2))
+            nearest = nearest[:, None]
+        else:
+            distance = np.where(usable.T[None], distance[:, None, :], np.inf)  # (N, n_exp, M)
+            nearest = np.argmin(distance, axis=2)
+            start = orbits[nearest, np.arange(usable.shape[1])]
+            steps = self.steps[:self.size][nearest, np.arange(usable.shape[1])].astype(float)
+            far = ~np.isfinite(np.min(distance, axis=2))
+        with np.errstate(invalid="ignore"):
+            steps = steps * np.maximum(1.0, np.nan_to_num((self.rtols[nearest] / rtol) ** 0.25, nan=1.0))
         start[far], steps[far] = np.nan, np.nan
         return start, steps
 
