@@ -80,3 +80,41 @@ def test_frf_closed_loop_of_an_imported_log_and_its_refusal_without_a_reference(
     proc = run("frf", plain, "--closed-loop", "-o", tmp_path / "f.png")
     assert_one_line_error(proc, "no reference", "--reference")
     assert not (tmp_path / "f.png").exists()
+
+
+def test_frf_from_an_injected_test_signal_where_the_reference_drives_nothing(tmp_path):
+    # a slow reference and a white test force injected at the drive's output: from the reference no frequency is
+    # trusted, from the test signal the plant lies within the band where its coherence is high
+    n, rng = 20000, np.random.default_rng(4)
+    t = np.arange(n) / RATE
+    r = 0.05 * np.sin(2 * np.pi * 0.2 * t)
+    d = 2.0 * rng.standard_normal(n)
+    noise = signal.lfilter([1.0], [1.0, -0.9], 0.02 * rng.standard_normal(n))
+    x, u, y = 0.0, np.zeros(n), np.zeros(n)
+    for k in range(n):
+        y[k] = x + noise[k]
+        u[k] = 30.0 * (r[k] - y[k]) + d[k]
+        x = POLE * x + GAIN * u[k]
+    log = tmp_path / "log.csv"
+    np.savetxt(log, np.column_stack([t, u, y, r, d]), delimiter=",", header="t,u,v,r,d", comments="")
+    data = tmp_path / "log.h5"
+    assert run("import", log, "--time", "t", "--input", "u", "--output-variable", "v", "--reference", "r",
+               "--disturbance", "d", "-o", data).returncode == 0
+    found = {}
+    for external in ("reference", "disturbance"):
+        proc = run("frf", data, "--closed-loop", "--external", external, "--json")
+        assert proc.returncode == 0, proc.stderr
+        found[external] = json.loads(proc.stdout)["records"][0]["closed_loop"]
+        assert found[external]["external"] == external
+    assert max(found["reference"]["coherence_ru"]) < 0.9
+    cl = found["disturbance"]
+    f, G = np.array(cl["frequency"]), np.array(cl["re"]) + 1j * np.array(cl["im"])
+    good = np.array(cl["coherence_ru"]) >= 0.9
+    assert good.mean() > 0.5
+    assert np.mean(np.abs(G - true_g(f))[good] <= 2 * np.array(cl["std"])[good]) >= 0.9
+    assert_one_line_error(run("frf", data, "--external", "disturbance"), "--external", "--closed-loop")
+    plain = tmp_path / "plain.h5"
+    assert run("import", log, "--time", "t", "--input", "u", "--output-variable", "v", "--reference", "r",
+               "-o", plain).returncode == 0
+    assert_one_line_error(run("frf", plain, "--closed-loop", "--external", "disturbance"), "no disturbance",
+                          "--disturbance")

@@ -17,8 +17,10 @@ from ..measurement.datafile import DataFile, as_data_file, data_name
 from .bla import ClosedLoopEstimate, H1Estimate, closed_loop_estimate, h1_estimate
 from .lpm import LpmEstimate, default_half_width, lpm_estimate
 
-__all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", "SEGMENTS"]
+__all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", "SEGMENTS", "EXTERNAL_SIGNALS"]
 
+# the external signals of a drive's log that the estimate in its loop may be taken from: independent of the noise
+EXTERNAL_SIGNALS = ("reference", "disturbance")
 TRUSTED_COHERENCE = 0.9  # γ²_ru at or above which the estimate from the reference is reported as usable
 # a record is cut into this many Welch segments (at least 256 samples each): 63 averages with half overlap, a
 # standard deviation of G about a tenth of its size where the coherence is 0.5
@@ -37,6 +39,7 @@ class RecordFrf:
     direct: H1Estimate
     closed_loop: ClosedLoopEstimate | None
     lpm: LpmEstimate | None = None
+    external: str | None = None  # the external signal of ``closed_loop``: "reference" or "disturbance"
 
     __repr__, _repr_html_ = shown_repr, shown_html
 
@@ -66,29 +69,34 @@ class RecordFrf:
 
 
 def records_frf(path: str | Path | DataFile, closed_loop: bool = False, segment: int | None = None,
-                lpm_order: int = 2) -> tuple[DataFile, list[RecordFrf]]:
+                lpm_order: int = 2, external: str = "reference") -> tuple[DataFile, list[RecordFrf]]:
     """The estimates of every record of a records file (or a DataFile held in memory); with ``closed_loop`` every
-    record must have a reference (a UserError names the first without).  The LPM's polynomials have the degree
-    ``lpm_order`` (its window the default of servofmu.broadband.lpm.default_half_width)."""
+    record must have the ``external`` signal — its ``reference``, or the ``disturbance`` injected into the drive's
+    output (a test signal, as drives inject for their own frequency response) — and a UserError names the first
+    without.  The LPM's polynomials have the degree ``lpm_order`` (its window the default of
+    servofmu.broadband.lpm.default_half_width)."""
     data, path = as_data_file(path), data_name(path)
     if data.kind != "records" or not data.records:
         raise UserError(f"{path}: is a {data.kind} file without records; frf takes broadband data or records")
+    if external not in EXTERNAL_SIGNALS:
+        raise UserError(f"--external {external}: give one of {', '.join(EXTERNAL_SIGNALS)}")
     out = []
     for rec in data.records:
         s = rec.series
-        if closed_loop and s.reference is None:
-            raise UserError(f"{path}: record {rec.name} has no reference: --closed-loop needs a drive's log imported "
-                            "with --reference (or co-simulated in its loop)")
+        r = getattr(s, external) if closed_loop else None
+        if closed_loop and r is None:
+            raise UserError(f"{path}: record {rec.name} has no {external}: --closed-loop needs a drive's log "
+                            f"imported with --{external} (or co-simulated in its loop)")
         rate = float(rec.sample_rate)
         n = s.u.size
         seg = min(n, int(segment or max(256, n // SEGMENTS)))
         band = (rate / seg, rate / 2)
         direct = h1_estimate(s.u, s.v, rate, seg, band)
-        cl = closed_loop_estimate(s.reference, s.u, s.v, rate, seg, band) if closed_loop else None
+        cl = closed_loop_estimate(r, s.u, s.v, rate, seg, band) if closed_loop else None
         lpm = None
         if n >= 4 * default_half_width(lpm_order) + 8:  # the window fits into the record's lines, DC left out
-            lpm = lpm_estimate(s.u, s.v, rate, lpm_order, reference=s.reference if closed_loop else None)
-        out.append(RecordFrf(rec.name, n, rate, direct, cl, lpm))
+            lpm = lpm_estimate(s.u, s.v, rate, lpm_order, reference=r)
+        out.append(RecordFrf(rec.name, n, rate, direct, cl, lpm, external if closed_loop else None))
     return data, out
 
 
@@ -108,7 +116,7 @@ def records_frf_json(data: DataFile, estimates: list[RecordFrf]) -> dict:
         if e.closed_loop is not None:
             c = e.closed_loop
             dev = e.direct_deviation()
-            entry["closed_loop"] = {"frequency": c.frequencies.tolist(), "re": c.G.real.tolist(),
+            entry["closed_loop"] = {"external": e.external, "frequency": c.frequencies.tolist(), "re": c.G.real.tolist(),
                                     "im": c.G.imag.tolist(), "std": _std(c.var),
                                     "coherence_ru": c.coherence_ru.tolist(), "coherence_ry": c.coherence_ry.tolist(),
                                     "segments": c.segments,

@@ -100,7 +100,9 @@ def _frf_of_records(args, suffix) -> None:
     if suffix in FRF_SUFFIXES:
         raise UserError(f"-o {args.output}: records give --json or a figure ({', '.join(FIGURE_SUFFIXES)}), not an "
                         "FRF file")
-    data, estimates = records_frf(args.data, args.closed_loop)
+    if args.external is not None and not args.closed_loop:
+        raise UserError(f"--external {args.external}: the external signal of a log in its loop; add --closed-loop")
+    data, estimates = records_frf(args.data, args.closed_loop, external=args.external or "reference")
     if suffix is not None:
         from ..output.bla_plots import records_frf_figure
         records_frf_figure(estimates, args.output, f"{Path(args.data).name}: frequency response, bands shaded",
@@ -114,7 +116,7 @@ def _frf_of_records(args, suffix) -> None:
         if e.closed_loop is not None:
             good = int((e.closed_loop.coherence_ru >= TRUSTED_COHERENCE).sum())
             dev = e.direct_deviation()
-            line += (f"; from the reference S_ry/S_ru: {good} of {e.closed_loop.frequencies.size} frequencies with "
+            line += (f"; from the {e.external} S_ry/S_ru: {good} of {e.closed_loop.frequencies.size} frequencies with "
                      f"γ²_ru ≥ {TRUSTED_COHERENCE}" + (f", where the direct estimate is off by "
                                                       f"{100 * dev:.3g} % (median)" if math.isfinite(dev) else ""))
         print(line)
@@ -219,6 +221,9 @@ def register(sub) -> None:
                    "(or `import --excitation`), or a records file")
     p.add_argument("--closed-loop", action="store_true", help="records of a drive's log with its reference: the "
                    "plant's response from the reference (S_ry/S_ru) beside the direct estimate")
+    p.add_argument("--external", choices=("reference", "disturbance"), help="with --closed-loop: the external "
+                   "signal r of S_ry/S_ru, the log's reference (default) or the disturbance injected into the drive's "
+                   "output (a test signal)")
     p.add_argument("--json", action="store_true", help="print the BLA per level as JSON (docs/broadband.md)")
     p.add_argument("-o", "--output", metavar="FRF.h5|FIG.png", help="write the BLA (HDF5) or its Bode plot")
     p.set_defaults(func=cmd_frf)

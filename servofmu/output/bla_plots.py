@@ -91,8 +91,8 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
 
 
 def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None):
-    """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the reference
-    S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band, and the local polynomial method's estimate with
+    """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the external signal
+    r (the reference, or the injected disturbance) S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band, and the local polynomial method's estimate with
     its 95 % band (LpmEstimate.band: ±k·σ, k = √F⁻¹(0.95; 2, 2·dof), open loop; Fieller's from the reference, left
     out where the data do not bound G).
 
@@ -102,7 +102,7 @@ def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None
     for k, e in enumerate(estimates):
         if e.lpm is not None:  # first: every DFT line, beneath the Welch estimates' coarser grid
             m = e.lpm
-            how = "from the reference" if m.closed_loop else "u → v"
+            how = f"from the {e.external}" if m.closed_loop else "u → v"
             centre, radius = m.band()
             band = "Fieller's 95 % band" if m.closed_loop else f"±{m.band_factor():.2f}σ"
             _with_band(ax_mag, ax_ph, m.frequencies, m.G, radius, "0.45",
@@ -114,7 +114,7 @@ def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None
         if e.closed_loop is not None:
             c = e.closed_loop
             _with_band(ax_mag, ax_ph, c.frequencies, c.G, np.sqrt(c.var), f"C{2 * k + 1}",
-                       f"{e.name}: from the reference S_ry/S_ru", "-")
+                       f"{e.name}: from the {e.external} S_ry/S_ru", "-")
             good = c.coherence_ru >= 0.9
             ax_mag.semilogx(c.frequencies[good], _db(c.G[good]), ".", color=f"C{2 * k + 1}", ms=4,
                             label=f"{e.name}: γ²_ru ≥ 0.9")
