@@ -3,12 +3,13 @@ noise-free truth: the demo's axis (linear_axis on an incline, axis_controller, t
 on libcosim as `servofmu demo` does, once with the drive's actuator noise (1.5 N RMS, about 40 dB below the force
 command) and once without, each logged as the drive would and imported.
 
-The truth is the noise-free log's own estimate from the reference, G_r0 = S_ry/S_ru: the BLA of the axis in this
-loop for this reference (friction makes it depend on the signal; the noise is what the band must cover).  On the
-noisy log, at every Welch frequency where γ²_ru ≥ 0.9 (TRUSTED_COHERENCE), this counts where |G_r − G_r0| ≤ 2σ_r
-(the estimate from the reference and its own standard deviation) and gives the direct estimate's (S_uy/S_uu) error
-beside it, which the noise fed back through the controller biases; and the same for the local polynomial method
-from the reference (its 95 % band, where it bounds G).  A Bode figure goes to docs/figures/frf-closed-loop-demo.png.
+For each external signal r — the reference, and the injected test pulses (`--external disturbance`) — the truth is
+the noise-free log's own estimate G_r0 = S_ry/S_ru: the BLA of the axis in this loop for this excitation (friction
+makes it depend on the signal; the noise is what the band must cover).  On the noisy log, at every Welch frequency
+where γ²_ru ≥ 0.9 (TRUSTED_COHERENCE), this counts where |G_r − G_r0| ≤ 2σ_r (the estimate from r and its own
+standard deviation), gives the direct estimate's (S_uy/S_uu) error beside it, which the noise fed back through the
+controller biases, and the same for the local polynomial method from r (its 95 % band, where it bounds G).  A Bode
+figure of the estimate from the pulses goes to docs/figures/frf-closed-loop-demo.png.
 
 Usage: python scripts/bench_frf_loop.py [--seeds 5] [--figure docs/figures/frf-closed-loop-demo.png]
 """
@@ -128,8 +129,8 @@ def main() -> None:
                              overwrite=True)
         t0 = time.perf_counter()
         truth = logged(folder, "noise-free", 0.0, 0)
-        print("| external signal r | noise seed | frequencies with γ²_ru ≥ 0.9 | their band (Hz) | within ±2σ of the "
-              "truth | median error from r | median error direct | LPM from r: share bounded / within its band |")
+        print("| external signal r | noise seed | frequencies with γ²_ru ≥ 0.9 | their band (Hz) | within ±2σ of "
+              "the truth | median error from r | median error direct | LPM from r: share bounded / within its band |")
         print("|---|---|---|---|---|---|---|---|")
         pooled = {external: [0, 0] for external in EXTERNAL_SIGNALS}  # lines within ±2σ, lines trusted
         for seed in range(args.seeds):
@@ -141,7 +142,8 @@ def main() -> None:
                 if not c["trusted"]:
                     print(f"| {external} | {seed} | 0 of {c['of']} | – | – | – | – | – |", flush=True)
                     continue
-                print(f"| {external} | {seed} | {c['trusted']} of {c['of']} | {c['band'][0]:.3g}–{c['band'][1]:.3g} | "
+                print(f"| {external} | {seed} | {c['trusted']} of {c['of']} | "
+                      f"{c['band'][0]:.3g}–{c['band'][1]:.3g} | "
                       f"{100 * c['within']:.1f} % | {c['error_reference']:.3g} | {c['error_direct']:.3g} | "
                       f"{100 * c.get('lpm_bounded', float('nan')):.0f} % / "
                       f"{100 * c.get('lpm_within', float('nan')):.0f} % |", flush=True)
@@ -150,7 +152,8 @@ def main() -> None:
         for external, (within, trusted) in pooled.items():
             print(f"\n{external}: {within} of {trusted} trusted lines over the seeds within ±2σ of the truth"
                   + (f" ({100 * within / trusted:.1f} %)" if trusted else ""))
-        print(f"\n{args.seeds + 1} co-simulations and estimates: {time.perf_counter() - t0:.0f} s; figure {args.figure}")
+        print(f"\n{args.seeds + 1} co-simulations and estimates: {time.perf_counter() - t0:.0f} s; "
+              f"figure {args.figure}")
 
 
 if __name__ == "__main__":

@@ -186,9 +186,9 @@ def test_a_record_of_another_length_than_whole_periods_is_refused():
 
 
 def relay_loop(u: np.ndarray, friction: float, rate=RATE) -> np.ndarray:
-    """A third-order G (poles −2.5 ± 31.5j and −10 1/s, G(0) = 1) with Coulomb friction Fc·sign(v) fed back from its
-    output: G's phase crosses −180°, so the friction closes a relay loop that oscillates on its own unless the
-    force drives it through."""
+    """A third-order G (poles −2.5 ± 31.5j and −10 1/s, G(0) = 1) with Coulomb friction Fc·sign(v) fed back from
+    its output: G's phase crosses −180°, so the friction closes a relay loop that oscillates on its own unless
+    the force drives it through."""
     poles = [-2.5 + 31.5j, -2.5 - 31.5j, -10.0]
     den = np.real(np.poly(poles))
     a, b, c, d, _ = signal.cont2discrete(signal.tf2ss([den[-1]], den), 1 / rate, "zoh")

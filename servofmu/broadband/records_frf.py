@@ -21,7 +21,7 @@ __all__ = ["RecordFrf", "records_frf", "records_frf_json", "TRUSTED_COHERENCE", 
 
 # the external signals of a drive's log that the estimate in its loop may be taken from: independent of the noise
 EXTERNAL_SIGNALS = ("reference", "disturbance")
-TRUSTED_COHERENCE = 0.9  # γ²_ru at or above which the estimate from the reference is reported as usable
+TRUSTED_COHERENCE = 0.9  # γ²_ru at or above which the estimate from the external signal is reported as usable
 # a record is cut into this many Welch segments (at least 256 samples each): 63 averages with half overlap, a
 # standard deviation of G about a tenth of its size where the coherence is 0.5
 SEGMENTS = 32
@@ -116,8 +116,8 @@ def records_frf_json(data: DataFile, estimates: list[RecordFrf]) -> dict:
         if e.closed_loop is not None:
             c = e.closed_loop
             dev = e.direct_deviation()
-            entry["closed_loop"] = {"external": e.external, "frequency": c.frequencies.tolist(), "re": c.G.real.tolist(),
-                                    "im": c.G.imag.tolist(), "std": _std(c.var),
+            entry["closed_loop"] = {"external": e.external, "frequency": c.frequencies.tolist(),
+                                    "re": c.G.real.tolist(), "im": c.G.imag.tolist(), "std": _std(c.var),
                                     "coherence_ru": c.coherence_ru.tolist(), "coherence_ry": c.coherence_ry.tolist(),
                                     "segments": c.segments,
                                     "direct_deviation": dev if math.isfinite(dev) else None}

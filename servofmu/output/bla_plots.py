@@ -91,10 +91,10 @@ def records_frf_figure(estimates, path: str | Path, title: str = "", overwrite: 
 
 
 def plot_records_frf(estimates, title: str = "", unit: str = "m/(N·s)", ax=None):
-    """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate from the external signal
-    r (the reference, or the injected disturbance) S_ry/S_ru (marked where γ²_ru ≥ 0.9), each with its ±2σ band, and the local polynomial method's estimate with
-    its 95 % band (LpmEstimate.band: ±k·σ, k = √F⁻¹(0.95; 2, 2·dof), open loop; Fieller's from the reference, left
-    out where the data do not bound G).
+    """Per record the direct estimate S_uy/S_uu and, for closed-loop records, the estimate S_ry/S_ru from the
+    external signal r (the reference, or the injected disturbance; marked where γ²_ru ≥ 0.9), each with its ±2σ
+    band, and the local polynomial method's estimate with its 95 % band (LpmEstimate.band: ±k·σ,
+    k = √F⁻¹(0.95; 2, 2·dof), open loop; Fieller's from r, left out where the data do not bound G).
 
     ``ax``: (magnitude, phase) matplotlib Axes to draw into, else a new Figure.  Returns the Figure.
     """
