@@ -52,17 +52,22 @@ def logged(folder: Path, name: str, noise: float, seed: int) -> dict:
     return {external: records_frf(data, closed_loop=True, external=external)[1][0] for external in EXTERNAL_SIGNALS}
 
 
+def at(frequencies, estimate) -> np.ndarray:
+    """``estimate``'s G interpolated (real and imaginary parts) at ``frequencies``: two logs' grids may differ by a
+    line."""
+    return np.interp(frequencies, estimate.frequencies, estimate.G.real) + 1j * np.interp(
+        frequencies, estimate.frequencies, estimate.G.imag)
+
+
 def compare(noisy, truth) -> dict:
     """Shares and errors on the noisy log's trusted frequencies (module docstring)."""
     cl, cl0 = noisy.closed_loop, truth.closed_loop
     good = cl.coherence_ru >= TRUSTED_COHERENCE
     if not good.any():
         return {"trusted": 0, "of": int(good.size)}
-    on = cl.frequencies[good]  # the truth where the noisy log's estimate is (their grids may differ by a line)
-    g0 = np.interp(on, cl0.frequencies, cl0.G.real) + 1j * np.interp(on, cl0.frequencies, cl0.G.imag)
+    g0 = at(cl.frequencies[good], cl0)
     within = np.abs(cl.G[good] - g0) <= 2 * np.sqrt(cl.var[good])
-    direct = np.interp(cl.frequencies, noisy.direct.frequencies, noisy.direct.G.real) + 1j * np.interp(
-        cl.frequencies, noisy.direct.frequencies, noisy.direct.G.imag)
+    direct = at(cl.frequencies, noisy.direct)
     out = {"trusted": int(good.sum()), "of": int(good.size), "band": (float(cl.frequencies[good].min()),
                                                                          float(cl.frequencies[good].max())),
            "within": float(np.mean(within)), "error_reference": float(np.median(np.abs(cl.G[good] / g0 - 1))),
@@ -73,8 +78,7 @@ def compare(noisy, truth) -> dict:
         bounded = np.isfinite(radius)
         lines = bounded & (lpm.frequencies <= out["band"][1])
         out["lpm_bounded"] = float(np.mean(bounded[lpm.frequencies <= out["band"][1]]))
-        truth_lpm = np.interp(lpm.frequencies, lpm0.frequencies, lpm0.G.real) + 1j * np.interp(
-            lpm.frequencies, lpm0.frequencies, lpm0.G.imag)
+        truth_lpm = at(lpm.frequencies, lpm0)
         out["lpm_within"] = float(np.mean(np.abs(centre[lines] - truth_lpm[lines]) <= radius[lines])) \
             if lines.any() else float("nan")
     return out

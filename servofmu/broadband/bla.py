@@ -247,16 +247,15 @@ def nonsynchronous_components(y: np.ndarray, rate: float, response_power: float)
     usable = between.size // block * block
     if usable == 0:
         return nan
-    between = between[:usable]
-    floor = np.median(power[:, between].reshape(m, -1, block), axis=-1) / math.log(2)  # (M, blocks)
-    ratio = power[:, between].reshape(m, -1, block) / np.maximum(floor, 1e-300)[..., None]
-    top = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-    strongest = float(ratio[top])
-    share = float(power[top[0], between[top[1] * block + top[2]]]) / max(response_power, 1e-300)
+    blocks = power[:, between[:usable]].reshape(m, -1, block)  # (M, blocks, bins)
+    floor = np.median(blocks, axis=-1, keepdims=True) / math.log(2)
+    ratio = blocks / np.maximum(floor, 1e-300)
+    realisation, k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    strongest = float(ratio[realisation, k, j])
+    share = float(blocks[realisation, k, j]) / max(response_power, 1e-300)
     if strongest < math.log(ratio.size) + FALSE_ALARM_MARGIN or share < MIN_NONSYNCHRONOUS:
         return nan
-    return (float(between[top[1] * block + top[2]] * rate / (p * n)), 10 * math.log10(share),
-            10 * math.log10(strongest))
+    return float(between[k * block + j] * rate / (p * n)), 10 * math.log10(share), 10 * math.log10(strongest)
 
 
 @dataclass(frozen=True)
