@@ -148,7 +148,7 @@ def test_identify_and_plot_refuse_what_they_cannot_do_with_broadband_data_and_se
 def test_the_first_polish_on_a_smoothed_sign_leaves_the_minimum_a_stick_event_away():
     """stribeck_servo at 0.6 N RMS sticks and slips: from where a plain polish of the default plan once stopped (a
     stick event from the best fit), the plain polish stays at three times the noise; with the first descent on the
-    sign smoothed SMOOTHING_CONTINUATION times (identify's broadband fit), the polish reaches the fit at the noise,
+    sign smoothed as SMOOTHING_CONTINUATION says (identify's broadband fit), the polish reaches the fit at the noise,
     below the residual of the truth itself."""
     from servofmu.broadband.simulate import simulate_broadband
     from servofmu.broadband.store import BroadbandData
@@ -168,9 +168,9 @@ def test_the_first_polish_on_a_smoothed_sign_leaves_the_minimum_a_stick_event_aw
     truth = RecordCriterion(plant, data, BatchSimulator(plant)).relative_rms(
         truth_of(plant, identified_names(plant)), POLISH_RTOL)
     fitness = {}
-    for factor in (None, SMOOTHING_CONTINUATION):
+    for factors in ((), SMOOTHING_CONTINUATION):
         est = PSOANNIdentifier(plant, method="pso", pso=PsoOptions(particles=2, iterations=0), threads=1)
-        est.start, est.smoothing_continuation = (y0 - 1e-12, y0 + 1e-12, y0), factor  # the polish from y0
-        fitness[factor] = est.fit(data).fitness_
-    assert fitness[None] > 2 * truth
+        est.start, est.smoothing_continuation = (y0 - 1e-12, y0 + 1e-12, y0), factors  # the polish from y0
+        fitness[factors] = est.fit(data).fitness_
+    assert fitness[()] > 2 * truth
     assert fitness[SMOOTHING_CONTINUATION] <= truth

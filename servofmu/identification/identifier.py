@@ -170,10 +170,10 @@ class PSOANNIdentifier(EstimatorDisplay):
     work_limit: float = WORK_LIMIT_HOURS  # hours the search may be estimated at (runtime.check_work)
     _reduced_crit = None  # a long open-loop record's criterion at its reduced rate: the polish's first descent
     start: tuple | None = None  # (lower, upper, y0) in target coordinates: a box and first particle from elsewhere
-    # records: the polish first descends with the law's sign smoothed this many times wider (None: not), then with
-    # the structure's own (docs/broadband.md: long records of stick and slip have minima a stick event apart)
-    smoothing_continuation: float | None = None
-    _smoothed_crit = None
+    # records: the polish first descends with the law's sign smoothed these many times wider, one after the other,
+    # then with the structure's own (docs/broadband.md: long records of stick and slip have minima a stick event apart)
+    smoothing_continuation: tuple = ()
+    _smoothed_crits: tuple = ()
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -276,7 +276,7 @@ class PSOANNIdentifier(EstimatorDisplay):
         share = search_share(data if reduced is None else reduced)
         search = crit if share is data else self._criterion_of(share)
         self._reduced_crit = None if reduced is None else search if share is reduced else self._criterion_of(reduced)
-        self._smoothed_crit = self._smoothed_criterion(data)
+        self._smoothed_crits = self._smoothed_criteria(data)
         self.names_ = identified_names(self.structure)
 
         def cost(y):
@@ -313,7 +313,7 @@ class PSOANNIdentifier(EstimatorDisplay):
         self.stages_ = stages
         self.seconds_ = time.perf_counter() - start
         self.evaluations_ = sum(c.evaluations for c in {id(c): c for c in (crit, search, self._reduced_crit,
-                                                                            self._smoothed_crit)
+                                                                            *self._smoothed_crits)
                                                         if c is not None}.values())
         return self
 
@@ -350,16 +350,19 @@ class PSOANNIdentifier(EstimatorDisplay):
         6·10⁵ samples: 60 polish simulations of every sample were 25 of 29 s)."""
         return PSOANNIdentifier._criterion(self, data)
 
-    def _smoothed_criterion(self, data):
-        """The records' criterion of the structure with its v_smooth times smoothing_continuation, or None (not
-        asked, not records, or a law without a tanh sign)."""
+    def _smoothed_criteria(self, data) -> tuple:
+        """The records' criteria of the structure with its v_smooth times each of smoothing_continuation; none for
+        other data or a law without a tanh sign."""
         names = self.structure.parameter_names()
-        if self.smoothing_continuation is None or not isinstance(data, RecordData) or "v_smooth" not in names:
-            return None
-        full = self.structure.parameter_vector()
-        full[names.index("v_smooth")] *= self.smoothing_continuation
-        smoothed = self.structure.with_parameters(full)
-        return RecordCriterion(smoothed, data, BatchSimulator(smoothed, threads=self.threads))
+        if not isinstance(data, RecordData) or "v_smooth" not in names:
+            return ()
+        out = []
+        for factor in self.smoothing_continuation:
+            full = self.structure.parameter_vector()
+            full[names.index("v_smooth")] *= factor
+            smoothed = self.structure.with_parameters(full)
+            out.append(RecordCriterion(smoothed, data, BatchSimulator(smoothed, threads=self.threads)))
+        return tuple(out)
 
     def _search_and_polish(self, crit, cost, lower, upper, guesses, seed, stages: list) -> "_Fit":
         """One search from ``guesses`` in the box and its polish, their stages appended to ``stages``."""
@@ -373,8 +376,8 @@ class PSOANNIdentifier(EstimatorDisplay):
             t0, before = time.perf_counter(), crit.evaluations
             if self._reduced_crit is not None:
                 y_best, _ = polish(self._reduced_crit, self._to_theta, y_best, self.polish_iterations)
-            if self._smoothed_crit is not None:
-                y_best, _ = polish(self._smoothed_crit, self._to_theta, y_best, self.polish_iterations)
+            for smoothed in self._smoothed_crits:
+                y_best, _ = polish(smoothed, self._to_theta, y_best, self.polish_iterations)
             y_best, jac_y = polish(crit, self._to_theta, y_best, self.polish_iterations)
             if time_domain and len(crit.blocks) > 1:  # weights from each signal's noise, then the fit again
                 crit.reweight(self._to_theta(y_best[None]), POLISH_RTOL)
