@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 
 import numpy as np
 
+from ..broadband.bla import split_periods
 from ..broadband.frf import frf_of_file
-from ..errors import UserError
+from ..errors import ServofmuWarning, UserError
 from ..measurement.datafile import read_data_file
 from ..model.plant import Plant, load_plant
 from ..runtime import RunOptions, utc_now
@@ -28,9 +30,12 @@ from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
 
-__all__ = ["identify_broadband", "broadband_records", "broadband_start", "frequency_summary", "frequency_lines",
-           "BIAS_NOTE"]
+__all__ = ["identify_broadband", "broadband_records", "period_noise", "broadband_start", "frequency_summary",
+           "frequency_lines", "BIAS_NOTE"]
 
+# Residuals above this many times the periods' noise are reported: a fit at the noise is within a few 1e-3 of 1 on
+# records of 10⁴ samples and more (tests/test_frequency_fit.py)
+ABOVE_NOISE = 1.05
 # The polishes of a broadband fit with the law's sign smoothed these many times, before the structure's own: plain,
 # stribeck_servo's default plan (stick and slip at 0.6 N) stopped a stick event from the best at 1.35 times the
 # noise; smoothed 3 times first, it reached the best; its 60 s plan then stopped at 1.017 times the truth's residual
@@ -55,6 +60,20 @@ def broadband_records(data, skip: float = 0.0) -> RecordData:
         raise UserError(f"{data.path}: {fitted.sum()} samples after skipping {skip:g} s; it needs at least 10")
     series = RecordSeries(name="broadband", time=t, u=u, y=y, output="v", hold="zoh", fitted=fitted)
     return RecordData(records=(series,), source=str(data.path))
+
+
+def period_noise(data) -> float:
+    """σ of the output's noise on one sample from the analysed periods: a realisation's periods hold one response
+    but for the noise (their deviations from its mean, M·N·(P − 1) degrees of freedom per level); NaN with P = 1."""
+    plan = data.plan
+    if plan.periods < 2:
+        return math.nan
+    squares = 0.0
+    for lv in data.levels:
+        y = split_periods(lv.v if lv.v_noisy is None else lv.v_noisy, plan.samples, plan.periods,
+                          plan.transient_periods)
+        squares += float(np.sum((y - y.mean(axis=1, keepdims=True)) ** 2))
+    return math.sqrt(squares / (len(data.levels) * plan.realisations * plan.samples * (plan.periods - 1)))
 
 
 def broadband_start(structure: Plant, fit: FrequencyFit, spread: float):
@@ -85,17 +104,22 @@ def frequency_summary(fit: FrequencyFit, levels, seconds: float) -> dict:
 
 
 def frequency_lines(provenance: dict) -> list[str]:
-    """The identify table's lines on the frequency-domain fit (none for other data)."""
+    """The identify table's lines on the frequency-domain fit and the residuals against the periods' noise (none
+    for other data)."""
     fd = provenance.get("frequency_fit")
     if not fd:
         return []
+    noise = provenance.get("records_noise")  # results of older versions have none
+    head = [] if noise is None else [
+        f"residuals {noise['residual_ratio']:.3g} times the noise of the periods (σ {noise['sigma']:.3g}; about 1 when "
+        "the model fits)"]
     levels = ", ".join(f"{x['level']:g} N: {x['cost_ratio']:.3g}" for x in fd["levels"])
     lines = [f"frequency-domain fit of G to the BLA ({fd['lines']} lines; weights: {fd['weights']} variance): "
              f"relative error ‖G − G_BLA‖/‖G_BLA‖ {fd['relative_error']:.3g}, cost/dof {fd['cost_ratio']:.3g} ({levels}; about 1 "
              "when a linear G explains the BLA)",
              "  G from the BLA: " + ", ".join(f"{n} {v:.6g} [{lo:.6g}, {hi:.6g}]" for n, v, (lo, hi)
                                               in zip(fd["names"], fd["theta"], fd["intervals"]))]
-    return lines + [f"  note: {fd['note']}"]
+    return head + lines + [f"  note: {fd['note']}"]
 
 
 def identify_broadband(data_file, structure_file, output, options, run: RunOptions, method: str,
@@ -117,7 +141,15 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     est.work_limit = options.work_limit
     est.smoothing_continuation = SMOOTHING_CONTINUATION
     est.start = broadband_start(structure, fit, est.spread)
-    est.fit(broadband_records(data, options.skip))
+    records = broadband_records(data, options.skip)
+    est.fit(records)
+    fitted, sigma = records.records[0], period_noise(data)
+    ratio = est.fitness_ * float(np.std(fitted.y[fitted.fitted])) / sigma
+    noise = {"sigma": sigma, "residual_ratio": ratio} if math.isfinite(ratio) else None  # one period: no noise level
+    if math.isfinite(ratio) and ratio > ABOVE_NOISE:
+        warnings.warn(f"{data_file}: the fit's residuals are {noise['residual_ratio']:.3g} times the noise of the "
+                      f"periods (σ {noise['sigma']:.3g}): a minimum beside the best, a structure that does not fit, "
+                      "or a response that is not periodic (frf names such levels)", ServofmuWarning, stacklevel=2)
     theta0 = structure.parameter_vector()[identified_mask(structure)]
     theta0[[identified_names(structure).index(n) for n in fit.names]] = fit.theta
     est.stages_ = [Stage("frequency", theta0, fit.relative_error, seconds, fit.evaluations), *est.stages_]
@@ -125,6 +157,7 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     provenance = identification_provenance(ds, structure_file, run.command, None, options.skip,
                                            data_kind="broadband",
                                            frequency_fit=frequency_summary(fit, levels, seconds))
+    provenance["records_noise"] = noise
     provenance["date"] = utc_now()
     result = result_from_estimator(est, "pso", provenance)
     write_result(output, result, overwrite=True)  # claimed by the caller
