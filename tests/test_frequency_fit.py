@@ -178,7 +178,8 @@ def test_the_first_polish_on_a_smoothed_sign_leaves_the_minimum_a_stick_event_aw
 
 def test_the_periods_give_the_noise_level_and_identify_reports_its_residuals_against_it(tmp_path):
     """period_noise: white noise of a known σ recovered from the periods' deviations (within 6 %, three standard
-    deviations of an estimate on 1600 degrees of freedom, against the σ simulate_broadband adds); identify's fit at the noise reports a ratio of about 1, and a fit stopped at the
+    deviations of an estimate on 1600 degrees of freedom, against the σ simulate_broadband adds), from the levels
+    marked periodic only; identify's fit at the noise reports a ratio of about 1, and a fit stopped at the
     swarm's first particles, unpolished, is reported above the noise in one warning line."""
     from servofmu.broadband.simulate import simulate_broadband
     from servofmu.broadband.store import read_broadband
@@ -190,6 +191,13 @@ def test_the_periods_give_the_noise_level_and_identify_reports_its_residuals_aga
     clean = np.concatenate([lv.v for lv in simulate_broadband(truth, SMALL)])
     sigma = float(np.std(clean)) / 100  # 40 dB
     assert period_noise(read_broadband(data)) == pytest.approx(sigma, rel=0.06)
+    bb = read_broadband(data)  # a second level whose periods differ (a limit cycle's): left out when so marked
+    wild = replace(bb.levels[1], v_noisy=bb.levels[1].v_noisy + 50 * sigma * np.random.default_rng(0).standard_normal(
+        bb.levels[1].v_noisy.shape))
+    bb = replace(bb, levels=(bb.levels[0], wild))
+    assert period_noise(bb) > 10 * sigma
+    assert period_noise(bb, [True, False]) == pytest.approx(sigma, rel=0.08)
+    assert np.isnan(period_noise(bb, [False, False]))
     proc = run("identify", data, "--structure", "g1", "-o", tmp_path / "r.h5", "--iterations", "10")
     assert proc.returncode == 0 and "warning" not in proc.stderr, proc.stderr
     noise = read_result(tmp_path / "r.h5").provenance["records_noise"]

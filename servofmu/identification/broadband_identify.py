@@ -62,18 +62,21 @@ def broadband_records(data, skip: float = 0.0) -> RecordData:
     return RecordData(records=(series,), source=str(data.path))
 
 
-def period_noise(data) -> float:
-    """σ of the output's noise on one sample from the analysed periods: a realisation's periods hold one response
-    but for the noise (their deviations from its mean, M·N·(P − 1) degrees of freedom per level); NaN with P = 1."""
+def period_noise(data, periodic=None) -> float:
+    """σ of the output's noise on one sample from the analysed periods of the levels marked ``periodic`` (all by
+    default): a realisation's periods hold one response but for the noise (their deviations from its mean,
+    M·N·(P − 1) degrees of freedom per level); NaN with P = 1 or no such level (where a limit cycle makes the periods
+    differ, their deviations are its, not the sensor's)."""
     plan = data.plan
-    if plan.periods < 2:
+    used = [lv for lv, ok in zip(data.levels, periodic or [True] * len(data.levels)) if ok]
+    if plan.periods < 2 or not used:
         return math.nan
     squares = 0.0
-    for lv in data.levels:
+    for lv in used:
         y = split_periods(lv.v if lv.v_noisy is None else lv.v_noisy, plan.samples, plan.periods,
                           plan.transient_periods)
         squares += float(np.sum((y - y.mean(axis=1, keepdims=True)) ** 2))
-    return math.sqrt(squares / (len(data.levels) * plan.realisations * plan.samples * (plan.periods - 1)))
+    return math.sqrt(squares / (len(used) * plan.realisations * plan.samples * (plan.periods - 1)))
 
 
 def broadband_start(structure: Plant, fit: FrequencyFit, spread: float):
@@ -110,9 +113,9 @@ def frequency_lines(provenance: dict) -> list[str]:
     if not fd:
         return []
     noise = provenance.get("records_noise")  # results of older versions have none
-    head = [] if noise is None else [
-        f"residuals {noise['residual_ratio']:.3g} times the noise of the periods (σ {noise['sigma']:.3g}; about 1 when "
-        "the model fits)"]
+    head = [] if noise is None else ["no noise level: no level's response is periodic"] if not noise["levels"] else [
+        f"residuals {noise['residual_ratio']:.3g} times the noise of the periods (σ {noise['sigma']:.3g} from the "
+        f"periodic levels {', '.join(f'{x:g}' for x in noise['levels'])} N; about 1 when the model fits)"]
     levels = ", ".join(f"{x['level']:g} N: {x['cost_ratio']:.3g}" for x in fd["levels"])
     lines = [f"frequency-domain fit of G to the BLA ({fd['lines']} lines; weights: {fd['weights']} variance): "
              f"relative error ‖G − G_BLA‖/‖G_BLA‖ {fd['relative_error']:.3g}, cost/dof {fd['cost_ratio']:.3g} ({levels}; about 1 "
@@ -143,13 +146,21 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     est.start = broadband_start(structure, fit, est.spread)
     records = broadband_records(data, options.skip)
     est.fit(records)
-    fitted, sigma = records.records[0], period_noise(data)
+    periodic = [bla.periodic for _, bla in levels]
+    fitted, sigma = records.records[0], period_noise(data, periodic)
     ratio = est.fitness_ * float(np.std(fitted.y[fitted.fitted])) / sigma
-    noise = {"sigma": sigma, "residual_ratio": ratio} if math.isfinite(ratio) else None  # one period: no noise level
+    noise = None if data.plan.periods < 2 else {  # one period: no noise level
+        "sigma": sigma if math.isfinite(sigma) else None, "residual_ratio": ratio if math.isfinite(ratio) else None,
+        "levels": [lv for lv, ok in zip(data.plan.levels, periodic) if ok]}
     if math.isfinite(ratio) and ratio > ABOVE_NOISE:
-        warnings.warn(f"{data_file}: the fit's residuals are {noise['residual_ratio']:.3g} times the noise of the "
-                      f"periods (σ {noise['sigma']:.3g}): a minimum beside the best, a structure that does not fit, "
+        warnings.warn(f"{data_file}: the fit's residuals are {ratio:.3g} times the noise of the periods (σ "
+                      f"{sigma:.3g}): a minimum beside the best, a structure that does not fit, "
                       "or a response that is not periodic (frf names such levels)", ServofmuWarning, stacklevel=2)
+    elif noise is not None and not noise["levels"]:
+        warnings.warn(f"{data_file}: no level's response is periodic in the excitation's period (a limit cycle or a "
+                      "transient; frf names the component): the fit's residuals are not compared with a noise "
+                      "level, and its intervals assume a response smooth in the parameters", ServofmuWarning,
+                      stacklevel=2)
     theta0 = structure.parameter_vector()[identified_mask(structure)]
     theta0[[identified_names(structure).index(n) for n in fit.names]] = fit.theta
     est.stages_ = [Stage("frequency", theta0, fit.relative_error, seconds, fit.evaluations), *est.stages_]
