@@ -161,7 +161,7 @@ def test_the_first_polish_on_a_smoothed_sign_leaves_the_minimum_a_stick_event_aw
     from servofmu.simulation.batch import BatchSimulator
 
     plant = load_plant("stribeck_servo")
-    plan = BroadbandPlan("multisine", (0.6,), (0.2, 50.0), 1000.0, period=5.0, periods=2, realisations=1)
+    plan = BroadbandPlan("multisine", (0.6,), (0.2, 50.0), 1000.0, period=5.0, periods=1, realisations=1)
     data = broadband_records(BroadbandData("s", plan, tuple(simulate_broadband(plant, plan, 40.0, seed=0))))
     stuck = np.array([-4.94695, -39.99361, 2.0192, 0.30376, 0.25257, 0.44084, 0.35079, 0.0451])
     y0 = to_targets(plant, stuck[None])[0]
