@@ -206,3 +206,25 @@ def test_the_periods_give_the_noise_level_and_identify_reports_its_residuals_aga
     assert proc.returncode == 0
     assert "times the noise of the periods" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert read_result(tmp_path / "r0.h5").provenance["records_noise"]["residual_ratio"] > 1.05
+
+
+def test_identify_warns_when_no_level_is_periodic(tmp_path):
+    """A tone between the period's lines at every level (as a limit cycle puts there): the periods then differ by
+    more than the noise, so identify says it has no noise level, in one warning line and in its table."""
+    from servofmu.broadband.store import read_broadband, write_broadband
+
+    truth = load_plant("g1")
+    data, cycling = tmp_path / "bb.h5", tmp_path / "cycling.h5"
+    write_simulated(data, truth, SMALL, noise_snr_db=40.0, seed=2)
+    bb = read_broadband(data)
+    tone = [0.3 * np.std(lv.v) * np.sin(2 * np.pi * 7.3 * np.arange(lv.v.size) / RATE).reshape(lv.v.shape)
+            for lv in bb.levels]  # 7.3 Hz: between the 0.5 Hz lines
+    write_broadband(cycling, bb.plan, [replace(lv, v_noisy=lv.v_noisy + x) for lv, x in zip(bb.levels, tone)],
+                    bb.provenance, truth.parameters())
+    for path, periodic in ((data, True), (cycling, False)):
+        proc = run("identify", path, "--structure", "g1", "-o", tmp_path / "r.h5", "--force", "--iterations", "0",
+                   "--no-polish")
+        assert proc.returncode == 0, proc.stderr
+        assert ("no level's response is periodic" in proc.stderr) is not periodic
+        assert ("no noise level" in proc.stdout) is not periodic
+        assert read_result(tmp_path / "r.h5").provenance["records_noise"]["levels"] == ([2.0, 0.8] if periodic else [])

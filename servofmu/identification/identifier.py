@@ -276,7 +276,7 @@ class PSOANNIdentifier(EstimatorDisplay):
         share = search_share(data if reduced is None else reduced)
         search = crit if share is data else self._criterion_of(share)
         self._reduced_crit = None if reduced is None else search if share is reduced else self._criterion_of(reduced)
-        self._smoothed_crits = self._smoothed_criteria(data)
+        self._smoothed_crits = self._smoothed_criteria(data) if self.polish else ()
         self.names_ = identified_names(self.structure)
 
         def cost(y):
@@ -373,7 +373,8 @@ class PSOANNIdentifier(EstimatorDisplay):
                             int(result.evaluations)))
         time_domain = crit.blocks is not None
         if self.polish:
-            t0, before = time.perf_counter(), crit.evaluations
+            counted = (crit, *self._smoothed_crits)  # the polish's simulations (the smoothed descents' too)
+            t0, before = time.perf_counter(), sum(c.evaluations for c in counted)
             if self._reduced_crit is not None:
                 y_best, _ = polish(self._reduced_crit, self._to_theta, y_best, self.polish_iterations)
             for smoothed in self._smoothed_crits:
@@ -385,7 +386,8 @@ class PSOANNIdentifier(EstimatorDisplay):
             theta = self._to_theta(y_best[None])[0]
             r = crit.residuals(theta, POLISH_RTOL)[0]
             fitness = crit.relative_rms(theta, POLISH_RTOL) if time_domain else float(rms(r))
-            stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0, crit.evaluations - before))
+            stages.append(Stage("polish", theta, fitness, time.perf_counter() - t0,
+                                sum(c.evaluations for c in counted) - before))
             # the polish's last Jacobian, taken from target to parameter coordinates, gives the intervals
             jac = jac_y @ target_jacobian(self.structure, y_best)
             if not np.all(np.isfinite(jac)) and np.all(np.isfinite(r)):  # a parameter at its domain's edge (fs = fc)
