@@ -29,6 +29,7 @@ from .identifier import PSOANNIdentifier, swarm_options
 from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
+from .shortening import SEARCH_SAMPLES
 
 __all__ = ["identify_broadband", "broadband_records", "period_noise", "broadband_start", "frequency_summary",
            "frequency_lines", "BIAS_NOTE"]
@@ -60,6 +61,31 @@ def broadband_records(data, skip: float = 0.0) -> RecordData:
         raise UserError(f"{data.path}: {fitted.sum()} samples after skipping {skip:g} s; it needs at least 10")
     series = RecordSeries(name="broadband", time=t, u=u, y=y, output="v", hold="zoh", fitted=fitted)
     return RecordData(records=(series,), source=str(data.path))
+
+
+def level_pieces(data, samples: int, skip: float = 0.0) -> RecordData | None:
+    """The first realisation of every level as a record of its own, each fitted on the first ``samples`` / levels
+    samples after its transient periods (and after ``skip`` seconds of the run): a short stand-in for the whole run
+    that holds every level — the run's own start holds only the first level's transient.  Each piece is simulated
+    from rest at its start, which the transient periods absorb as they absorb the run's state there (the premise of
+    the BLA too); None where the plan has none (the pieces' starts would be fitted) or a level's response is not
+    periodic (a limit cycle: its phase at a piece's end depends on the state the piece started in)."""
+    plan = data.plan
+    if plan.transient_periods < 1 or not all(lv.bla.periodic for lv in data.levels):
+        return None
+    per_level = max(samples // len(data.levels), 10)
+    start = plan.transient_periods * plan.samples
+    records, offset = [], 0
+    for lv in data.levels:
+        y = lv.v if lv.v_noisy is None else lv.v_noisy
+        n = min(start + per_level, lv.u.shape[1])
+        t = np.arange(n) / plan.rate
+        fitted = (np.arange(n) >= start) & (offset + np.arange(n) >= skip * plan.rate)
+        offset += lv.u.size  # the level's realisations, played one after the other
+        if fitted.sum() >= 10:
+            records.append(RecordSeries(name=f"{lv.level:g} N", time=t, u=lv.u[0, :n].astype(float),
+                                        y=y[0, :n].astype(float), output="v", hold="zoh", fitted=fitted))
+    return RecordData(records=tuple(records), source=str(data.path)) if records else None
 
 
 def period_noise(data, periodic=None) -> float:
@@ -144,6 +170,7 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     est.work_limit = options.work_limit
     est.smoothing_continuation = SMOOTHING_CONTINUATION
     est.start = broadband_start(structure, fit, est.spread)
+    est.search_data = level_pieces(data, SEARCH_SAMPLES, options.skip)  # None: the run's start, as for records
     records = broadband_records(data, options.skip)
     est.fit(records)
     periodic = [bla.periodic for _, bla in levels]

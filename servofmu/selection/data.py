@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..identification.criterion import RecordCriterion, RecordData, SineCriterion, SineData, record_data, sine_data
-from ..identification.shortening import first_share
+from ..identification.shortening import first_share, shortened
 from ..identification.closed_loop import ClosedLoopCriterion, ClosedLoopData
 from ..measurement.datafile import DataFile, as_data_file, data_name
 from ..measurement.duplicates import file_items, refuse_repeats
@@ -20,7 +20,7 @@ from .estimate import Series, series_of_experiments, series_of_records
 
 __all__ = ["load_selection_data", "check_validation", "criterion_for", "estimation_series", "data_kind",
            "BoundedSimulator", "BoundedLoopSimulator", "without_quantiser", "STEPS_PER_SAMPLE", "steps_per_sample",
-           "first_share", "fitted_seconds"]
+           "first_share", "fitted_seconds", "ranked_data"]
 
 # The integrator steps a record's simulation may take per sample before it is stopped (its response then NaN, as
 # for a failed integration), at the polish's tolerance BUDGET_RTOL: the bench's true plants need at most 28 per
@@ -68,6 +68,22 @@ def _one(source, skip: float, controller):
     if skip:
         raise UserError(f"{path}: skip applies to records, not to stepped-sine experiments")
     return ds, sine_data(ds)
+
+
+def ranked_data(data, files: list[DataFile], samples: int, skip: float = 0.0):
+    """What the candidates are ranked on where ``data`` is long: of broadband files, the first realisation of
+    every level after its transient periods (identification.broadband_identify.level_pieces: the run's own start
+    holds only the first level's transient, one level where the paper needs two to tell G from the friction);
+    else ``data`` shortened to ``samples`` fitted samples (identification.shortening.shortened); and whether it
+    is the levels' realisations."""
+    if len(files) == 1 and files[0].kind == "broadband" and sum(r.fitted.sum() for r in data.records) > samples:
+        from ..broadband.store import read_broadband
+        from ..identification.broadband_identify import level_pieces
+
+        pieces = level_pieces(read_broadband(files[0].path), samples, skip)
+        if pieces is not None:
+            return pieces, True
+    return shortened(data, samples), False
 
 
 def _unique(records, files):

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import UserError, check_int
 from ..fileio import all_or_none, claim_outputs, file_sha256, holds_outputs, output_mode
-from ..identification.shortening import fitted_total, shortened
+from ..identification.shortening import fitted_total
 from ..identification.identifier import swarm_options
 from ..identification.roughness import ROUGH_RISE, finite_covariance
 from ..measurement.datafile import DataFile, data_name
@@ -21,7 +21,7 @@ from ..runtime import RunOptions, check_work, utc_now
 from ..simulation.parallel import Workers
 from .candidates import Candidate, candidate_plant, parse_candidates, term_candidates, with_second_stage
 from .data import (check_validation, data_kind, estimation_series, first_share, fitted_seconds,
-                   load_selection_data)
+                   load_selection_data, ranked_data)
 from .estimate import data_bandwidth, start_estimates
 from .store import SELECT_FORMAT, Selection, write_selection
 from .fitting import SAME_FIT, fit_all, fit_groups, keep_better, threads_per_job, with_new
@@ -30,7 +30,8 @@ from .select import (SCREEN_MARGIN, CandidateJob, CandidateScore, SelectOptions,
 from .starts import from_winner, nested_law_starts, reduced_starts, spring_starts, term_leader, within_first
 from .terms import fewer_friction_terms, friction_terms_on_final, more_friction_terms, ranked_term_starts
 
-__all__ = ["Selection", "select_files", "selection_outputs", "RANKED_SAMPLES", "SELECT_FORMAT"]
+__all__ = ["Selection", "select_files", "selection_outputs", "linear_starts", "frequency_starts", "RANKED_SAMPLES",
+           "SELECT_FORMAT"]
 
 def selection_outputs(output: str | Path, plant_output=None, result_output=None) -> dict[str, Path]:
     """The files a selection writes: SELECT.h5, the chosen plant file (default SELECT.toml beside it) and the
@@ -55,7 +56,7 @@ def _check_options(options: SelectOptions) -> list[Candidate]:
     return candidates
 
 
-def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]:
+def linear_starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]:
     """Each candidate's start plant from the linear estimate of its order and zeros; an exception in its place
     where the data does not give one."""
     try:
@@ -70,6 +71,32 @@ def _starts(candidates: list[Candidate], data, files) -> dict[Candidate, object]
         except UserError as exc:
             out[c] = exc
     return out
+
+
+def frequency_starts(pool: Workers, job: CandidateJob, starts: dict, files) -> dict[Candidate, object]:
+    """Broadband data: each start with its G fitted to the file's BLAs (identification.frequency_fit, the
+    friction the linear estimate's) where that fits the ranked records better (−2·ln L at the start): the BLA
+    holds every line of every level, the linear estimate's equation error the friction (docs/selection.md); other
+    data: ``starts`` as they are."""
+    if len(files) != 1 or files[0].kind != "broadband":
+        return starts
+    from ..broadband.store import read_broadband
+    from ..identification.frequency_fit import fit_bla
+
+    bb = read_broadband(files[0].path)
+    blas = [lv.bla for lv in bb.levels]
+    fitted = {}
+    for c, plant in starts.items():
+        if not isinstance(plant, Exception):
+            try:
+                fitted[c] = fit_bla(plant, blas, bb.plan.rate).plant
+            except (UserError, ValueError, np.linalg.LinAlgError):
+                continue  # no frequency-domain start: the linear estimate's stands
+    jobs = [replace(job, candidate=c, start=p) for c, p in (*fitted.items(), *((c, starts[c]) for c in fitted))]
+    costs = dict(pool.imap(start_neg2loglik, jobs))
+    k = len(fitted)
+    better = {c: p for i, (c, p) in enumerate(fitted.items()) if costs[i] < costs[k + i]}
+    return {c: better.get(c, p) for c, p in starts.items()}
 
 
 @holds_outputs
@@ -133,7 +160,7 @@ def select_files(data_files: Sequence[str | Path | DataFile], validation_file: s
                   "data_sha256": ", ".join(f.sha256 for f in files),  # of the bytes read and fitted
                   "validation_file": data_name(validation_file), "command": run.command, "date": utc_now(),
                   "structure_file": "selection candidate"}
-    selection = _select(candidates, data, files, validation, provenance, options, run)
+    selection = _select(candidates, data, files, (validation, vfile), provenance, options, run)
     selection = replace(selection, data_files=tuple(names), validation_file=data_name(validation_file))
     if not outputs:
         return selection
@@ -141,19 +168,22 @@ def select_files(data_files: Sequence[str | Path | DataFile], validation_file: s
         return write_selection(selection, outputs)
 
 
-def _select(candidates: list[Candidate], data, files, validation, provenance: dict, options: SelectOptions,
-            run: RunOptions) -> Selection:
-    """The candidates fitted to ``data`` and ranked on ``validation`` (select_files' work, nothing written)."""
+def _select(candidates: list[Candidate], data, files, validation_of: tuple, provenance: dict,
+            options: SelectOptions, run: RunOptions) -> Selection:
+    """The candidates fitted to ``data`` and ranked on the validation data of ``validation_of`` (data, DataFile)
+    (select_files' work, nothing written)."""
     screen = options.screen
+    validation, vfile = validation_of
     whole_job = CandidateJob(candidates[0], None, data, validation, options,
                              None if run.scheduler is None and run.workers == 0 else 1, provenance,
                              mode="screen" if screen else "full")
     # long records (a drive's log at 1 kHz and beyond): the candidates ranked on RANKED_SAMPLES of them (open-loop
-    # records at a reduced rate, then their first share), the chosen one polished on the whole of them at the end
-    ranked = shortened(data, RANKED_SAMPLES)
+    # records at a reduced rate, then their first share; broadband runs: every level's first realisation), the
+    # chosen one polished on the whole of them at the end
+    ranked, by_levels = ranked_data(data, files, RANKED_SAMPLES, options.skip)
     ranked_share = 1.0 if ranked is data else fitted_total(ranked) / fitted_total(data)
     job = whole_job if ranked is data else replace(
-        whole_job, data=ranked, validation=shortened(validation, RANKED_SAMPLES),
+        whole_job, data=ranked, validation=ranked_data(validation, [vfile], RANKED_SAMPLES, options.skip)[0],
         provenance={**provenance, "ranked_share": ranked_share})
     data = job.data
     with Workers(scheduler=run.scheduler, workers=run.workers) as pool:
@@ -184,7 +214,7 @@ def _select(candidates: list[Candidate], data, files, validation, provenance: di
                           outputs={},
                           roughness=roughness, horizon=share, roughness_whole=whole,
                           horizon_seconds=share * fitted_seconds(data) if data_kind(data) != "sine" else math.nan,
-                          ranked_share=ranked_share, final=final)
+                          ranked_share=ranked_share, final=final, ranked_levels=by_levels)
 
 
 # The fitted samples (all records together) the candidates of a selection are ranked on at most (shortening.shortened:
@@ -230,7 +260,7 @@ def _rounds(pool: Workers, job: CandidateJob, candidates: list[Candidate], files
     data, options = job.data, job.options
     screen = job.mode == "screen"
     checked = {}  # the roughness of the fits checked: the end's check repeats none the early one made
-    scores = fit_all(pool, job, _starts(candidates, data, files), run, [])
+    scores = fit_all(pool, job, frequency_starts(pool, job, linear_starts(candidates, data, files), files), run, [])
     series = estimation_series(data, files)
     speeds = np.concatenate([s.v for s in series])  # a nested law's Coulomb levels are averaged over them
     second_stage, seeded = with_second_stage(options.candidates), replace(job, seeded=True)

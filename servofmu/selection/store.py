@@ -43,6 +43,7 @@ class Selection:
     # ranked on, and the chosen structure polished again from its fit there on the whole records (its result written)
     ranked_share: float = 1.0
     final: CandidateScore | None = None
+    ranked_levels: bool = False  # broadband data ranked on every level's first realisation (selection.data)
 
     __repr__, _repr_html_ = shown_repr, shown_html
 

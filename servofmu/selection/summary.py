@@ -31,7 +31,8 @@ def rough_warning(selection: Selection) -> str | None:
     if selection.chosen is None:
         return None
     if selection.horizon < 1:
-        return (f"note: the response is chaotic in the parameters over the whole records (one standard error from "
+        over = "the whole records" if selection.ranked_share == 1 else "the ranked records (above)"
+        return (f"note: the response is chaotic in the parameters over {over} (one standard error from "
                 f"the best fits −2·ln L rose by {selection.roughness_whole:.3g}, not about 1): the candidates "
                 f"were fitted and ranked on the first {selection.horizon:g} of every record "
                 f"({selection.horizon_seconds:.3g} s of the longest), where it rises by {selection.roughness:.3g} "
@@ -51,13 +52,18 @@ def long_records_lines(selection: Selection) -> list[str]:
     lines = []
     if selection.ranked_share < 1 and selection.chosen is not None:
         final = selection.final
-        how = "at a reduced rate, then their first share" if selection.kind == "records" else \
+        how = "every level's first realisation after its transient periods" if selection.ranked_levels else \
+            "at a reduced rate, then their first share" if selection.kind == "records" else \
             "their first share: a loop runs at its drive's rate"
+        if final is not None:
+            then = (f"{final.name} then polished on the whole records (BIC {final.bic:.6g}, worst validation fit "
+                    f"{final.worst_validation_fit:.3f} %)")
+        elif selection.horizon < 1:  # chaotic over the share: no polish over the whole records either
+            then = "not polished on the whole records, whose response is chaotic (the note below): the share's fit is written"
+        else:
+            then = "its polish on the whole records failed: the share's fit is written"
         lines.append(f"ranked on {selection.ranked_share:.3g} of the records' fitted samples ({RANKED_SAMPLES}, "
-                     f"{how}); " + (f"{final.name} then polished on the whole records (BIC "
-                                                   f"{final.bic:.6g}, worst validation fit {final.worst_validation_fit:.3f} %)"
-                                                   if final is not None else "its polish on the whole records failed: "
-                                                   "the share's fit is written"))
+                     f"{how}); {then}")
     chosen = selection.final or selection.chosen
     if chosen is not None and chosen.result is not None:
         for group in chosen.result.confounded():
