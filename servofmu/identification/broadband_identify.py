@@ -29,7 +29,6 @@ from .identifier import PSOANNIdentifier, swarm_options
 from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
-from .shortening import SEARCH_SAMPLES
 
 __all__ = ["identify_broadband", "broadband_records", "period_noise", "broadband_start", "frequency_summary",
            "frequency_lines", "BIAS_NOTE"]
@@ -170,7 +169,6 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     est.work_limit = options.work_limit
     est.smoothing_continuation = SMOOTHING_CONTINUATION
     est.start = broadband_start(structure, fit, est.spread)
-    est.search_data = level_pieces(data, SEARCH_SAMPLES, options.skip)  # None: the run's start, as for records
     records = broadband_records(data, options.skip)
     est.fit(records)
     periodic = [bla.periodic for _, bla in levels]
