@@ -18,7 +18,7 @@ from servofmu.selection.candidates import parse_candidates
 from servofmu.selection.data import load_selection_data, ranked_data
 from servofmu.selection.run import frequency_starts, linear_starts
 from servofmu.selection.select import CandidateJob, SelectOptions
-from servofmu.selection.summary import rough_warning, selection_text
+from servofmu.selection.summary import rough_warning, selection_json, selection_text
 from servofmu.simulation.batch import BatchSimulator
 from servofmu.simulation.parallel import Workers
 
@@ -94,5 +94,6 @@ def test_the_summary_says_what_the_candidates_were_ranked_on_and_that_chaotic_re
     assert "every level's first realisation after its transient periods" in text
     assert "not polished on the whole records" in text and "failed" not in text
     assert "over the ranked records" in rough_warning(sel)
+    assert selection_json(sel)["ranked_levels"] is True
     text = selection_text(replace(sel, horizon=1.0, roughness=1.0))
     assert "its polish on the whole records failed" in text

@@ -225,7 +225,8 @@ def _residuals(structure, names, blas, sigmas, rate):
     def fun(x):
         full = base.copy()
         full[at] = x
-        e = (linear_response(structure, full, f, rate) - G) * scale
+        with np.errstate(all="ignore"):  # a pole on a line's point of the unit circle, or overflowing: not finite
+            e = (linear_response(structure, full, f, rate) - G) * scale
         return np.concatenate([e.real, e.imag])
 
     return fun

@@ -5,6 +5,7 @@ structure as a plant file and its result as a RESULT.h5."""
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -89,9 +90,11 @@ def frequency_starts(pool: Workers, job: CandidateJob, starts: dict, files) -> d
     for c, plant in starts.items():
         if not isinstance(plant, Exception):
             try:
-                fitted[c] = fit_bla(plant, blas, bb.plan.rate).plant
+                with warnings.catch_warnings():  # a start, not a result: what fails falls back to the linear one
+                    warnings.simplefilter("ignore")
+                    fitted[c] = fit_bla(plant, blas, bb.plan.rate).plant
             except (UserError, ValueError, np.linalg.LinAlgError):
-                continue  # no frequency-domain start: the linear estimate's stands
+                continue
     jobs = [replace(job, candidate=c, start=p) for c, p in (*fitted.items(), *((c, starts[c]) for c in fitted))]
     costs = dict(pool.imap(start_neg2loglik, jobs))
     k = len(fitted)

@@ -117,7 +117,7 @@ def _fill_ranking(f, selection: Selection) -> None:
     g.attrs.update({"format": SELECT_FORMAT, "schema_version": 1, "kind": selection.kind,
                     "chosen": chosen.name if chosen else "", "criterion": "bic", "roughness": selection.roughness,
                     "roughness_whole": selection.roughness_whole, "horizon": selection.horizon,
-                    "ranked_share": selection.ranked_share,
+                    "ranked_share": selection.ranked_share, "ranked_levels": selection.ranked_levels,
                     "final_bic": selection.final.bic if selection.final else math.nan,
                     "data_files": json.dumps(list(selection.data_files)),
                     "validation_file": selection.validation_file,

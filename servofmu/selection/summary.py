@@ -14,6 +14,7 @@ def selection_json(selection: Selection) -> dict:
     return {"chosen": selection.chosen.name if selection.chosen else None, "kind": selection.kind,
             "outputs": selection.outputs, "roughness": selection.roughness, "horizon": selection.horizon,
             "roughness_whole": selection.roughness_whole, "ranked_share": selection.ranked_share,
+            "ranked_levels": selection.ranked_levels,
             "final_bic": selection.final.bic if selection.final else None,
             "undetermined": list((selection.final or selection.chosen).undetermined) if selection.chosen else [],
             "candidates": [{"rank": s.rank, "name": s.name, "status": s.status, "message": s.message,
