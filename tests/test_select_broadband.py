@@ -3,6 +3,7 @@ fitted after its transient periods), their starts from the BLA's G where that fi
 on what the ranked records were."""
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -12,6 +13,7 @@ from test_display import selection as display_selection
 from servofmu.broadband import BroadbandPlan
 from servofmu.broadband.simulate import write_simulated
 from servofmu.broadband.store import read_broadband
+from servofmu.errors import ServofmuWarning
 from servofmu.identification.broadband_identify import level_pieces
 from servofmu.model.plant import load_plant
 from servofmu.selection.candidates import parse_candidates
@@ -51,13 +53,17 @@ def test_every_level_s_first_realisation_from_rest_is_the_run_once_its_transient
 
 def test_no_pieces_where_a_piece_s_start_would_be_fitted_or_a_level_is_not_periodic(tmp_path):
     """Without transient periods, and on g2 (a limit cycle whose phase remembers the state a piece started in),
-    select ranks on the run's own start instead."""
+    select ranks on the run's own start instead; of a response not periodic it warns in one line."""
     write_simulated(tmp_path / "g2.h5", load_plant("g2"), PLAN, 40.0)
     assert level_pieces(read_broadband(tmp_path / "g2.h5"), 1000) is None
+    with pytest.warns(ServofmuWarning, match=r"g2.h5: the response at 2, 0.8 N is not periodic"):
+        load_selection_data([tmp_path / "g2.h5"])
     plan = replace(PLAN, transient_periods=0)
     write_simulated(tmp_path / "t0.h5", load_plant("g1"), plan, 40.0)
     assert level_pieces(read_broadband(tmp_path / "t0.h5"), 1000) is None
-    data, files = load_selection_data([tmp_path / "t0.h5"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ServofmuWarning)  # g1's response is periodic: no warning
+        data, files = load_selection_data([tmp_path / "t0.h5"])
     ranked, by_levels = ranked_data(data, files, 1000)
     assert not by_levels and [r.name for r in ranked.records] == ["broadband"]
 

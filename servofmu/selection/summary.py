@@ -60,7 +60,8 @@ def long_records_lines(selection: Selection) -> list[str]:
             then = (f"{final.name} then polished on the whole records (BIC {final.bic:.6g}, worst validation fit "
                     f"{final.worst_validation_fit:.3f} %)")
         elif selection.horizon < 1:  # chaotic over the share: no polish over the whole records either
-            then = "not polished on the whole records, whose response is chaotic (the note below): the share's fit is written"
+            then = ("not polished on the whole records, whose response is chaotic (the note below): the share's fit is "
+                    "written")
         else:
             then = "its polish on the whole records failed: the share's fit is written"
         lines.append(f"ranked on {selection.ranked_share:.3g} of the records' fitted samples ({RANKED_SAMPLES}, "
