@@ -125,8 +125,11 @@ def test_identify_on_broadband_data_fits_g_and_the_friction_from_the_frequency_d
 def test_identify_and_plot_refuse_what_they_cannot_do_with_broadband_data_and_select_reads_its_records(tmp_path):
     data = tmp_path / "bb.h5"
     write_simulated(data, frictionless("g1"), SMALL)
-    proc = run("identify", data, "--structure", "g1", "--method", "ga-ann", "--ann", data, "-o", tmp_path / "r.h5")
-    assert_one_line_error(proc, "broadband", "--method pso")
+    proc = run("identify", data, "--structure", "g1", "--method", "ga-ann", "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, "ga-ann needs a network trained on this broadband plan")
+    proc = run("identify", data, "--structure", "g1", "--closed-loop", ROOT / "fmu_models" / "axis_controller.toml",
+               "-o", tmp_path / "r.h5")
+    assert_one_line_error(proc, "broadband data is open loop", "without --closed-loop")
     assert not (tmp_path / "r.h5").exists()
     # select fits its candidates to the records as identify does (one run from rest); not in a loop
     fit, files = load_selection_data([data])

@@ -17,14 +17,23 @@ def cmd_dataset(args) -> None:
     from ..measurement.datafile import read_data_file
     from ..model.plant import load_plant
 
-    structure, data = load_plant(args.plant), sine_data(read_data_file(args.like))
+    structure, like = load_plant(args.plant), read_data_file(args.like)
+    if like.kind == "broadband":  # its whole plan simulated, the BLA's bands the features (broadband_ann)
+        from ..broadband.store import read_broadband
+
+        data = read_broadband(args.like)
+    else:
+        data = sine_data(like)
     with ProgressBar(args, "plant") as bar:
         ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
                                run=run_options(args, bar))
+    count = ts.amplitudes.size
+    what = (f"{count} bands of its levels' BLA); {ts.usable().sum()} simulated to the end" if like.kind == "broadband"
+            else f"{count} experiments); {ts.usable().sum()} with every experiment at steady state")
     print_written(args, f"wrote {args.output}: {ts.done.sum()} plants like {structure.name} under the plan of "
-                  f"{args.like} ({data.amplitudes.size} experiments); {ts.usable().sum()} with every experiment at "
-                  "steady state", {"written": [args.output], "structure": structure.name, "plants": int(ts.done.sum()),
-                                   "usable": int(ts.usable().sum()), "experiments": int(data.amplitudes.size)})
+                  f"{args.like} ({what}", {"written": [args.output], "structure": structure.name,
+                                         "plants": int(ts.done.sum()), "usable": int(ts.usable().sum()),
+                                         "experiments": int(count)})
 
 
 def cmd_train(args) -> None:
@@ -128,7 +137,8 @@ def _register_dataset_train(sub) -> None:
     p = sub.add_parser("dataset", help="simulate plants drawn around a structure under a data file's plan")
     p.add_argument("plant", help="the structure: plant file or name in fmu_models/")
     p.add_argument("--like", required=True, role="input",
-                   help="data file (HDF5) whose plan the plants are simulated under")
+                   help="data file (HDF5) whose plan the plants are simulated under (stepped sines, or a "
+                        "broadband file's whole plan: docs/broadband.md)")
     p.add_argument("--samples", type=int, required=True, help="number of plants")
     p.add_argument("--spread", type=float, default=0.5, help="prior width: factors in [1/(1+S), 1+S] (default 0.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the prior draw (default 0)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +26,10 @@ from ..runtime import RunOptions, utc_now
 from .criterion import RecordData, RecordSeries, check_structure
 from .features import prior_box, to_targets
 from .frequency_fit import FrequencyFit, fit_bla
+from .ann import AnnModel, load_ann
+from .broadband_ann import broadband_sine_data
 from .identifier import PSOANNIdentifier, swarm_options
+from .methods import NEEDS_ANN
 from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
@@ -150,25 +154,43 @@ def frequency_lines(provenance: dict) -> list[str]:
     return head + lines + [f"  note: {fd['note']}"]
 
 
+def _network(ann_file, method: str, structure: Plant):
+    """The network of a method that needs one, refused where there is none or it estimates other parameters."""
+    if ann_file is None:
+        raise UserError(f"method {method} needs a network trained on this broadband plan (`servofmu dataset "
+                        "BROADBAND.h5 ...` and `servofmu train`); or use method pso")
+    ann = ann_file if isinstance(ann_file, AnnModel) else load_ann(ann_file)
+    names = identified_names(structure)
+    if list(ann.layout.parameter_names) != names:
+        raise UserError(f"{ann_file if not isinstance(ann_file, AnnModel) else 'the network'} estimates "
+                        f"{', '.join(ann.layout.parameter_names)}; the structure has {', '.join(names)}")
+    return ann
+
+
 def identify_broadband(data_file, structure_file, output, options, run: RunOptions, method: str,
-                       threads: int | None = None) -> Result:
+                       threads: int | None = None, ann_file=None) -> Result:
     """Identify the plant of a broadband data file and write its result (module docstring); ``options`` as
-    identification.run.IdentifyOptions, ``method`` the one chosen (only pso: the ANN works on stepped sines)."""
-    if method != "pso" or options.closed_loop is not None:
-        raise UserError(f"{data_file}: broadband data is identified by the frequency-domain fit of G and the swarm "
-                        "on its records (--method pso, no --ann, no --closed-loop)")
+    identification.run.IdentifyOptions, ``method`` the one chosen: the swarm from the frequency-domain G (pso),
+    or the network ``ann_file`` (trained on the file's bands, identification.broadband_ann) and its search."""
+    if options.closed_loop is not None:
+        raise UserError(f"{data_file}: broadband data is open loop (the plant driven by the excitation): identify "
+                        "without --closed-loop")
     structure = load_plant(structure_file)
+    ann = None if method not in NEEDS_ANN else _network(ann_file, method, structure)
     ds = read_data_file(data_file)
     check_structure(structure, ds, f"the structure {structure_file}")
     data, levels = frf_of_file(data_file)
     t0 = time.perf_counter()
     fit = fit_bla(structure, [b for _, b in levels], data.plan.rate)
     seconds = time.perf_counter() - t0
-    est = PSOANNIdentifier(structure, method="pso", seed=options.seed, polish=options.polish,
+    est = PSOANNIdentifier(structure, ann=ann, method=method, seed=options.seed, polish=options.polish,
                            pso=swarm_options(options.iterations), progress=run.progress, threads=threads)
     est.work_limit = options.work_limit
     est.smoothing_continuation = SMOOTHING_CONTINUATION
-    est.start = broadband_start(structure, fit, est.spread)
+    if ann is None:
+        est.start = broadband_start(structure, fit, est.spread)
+    else:  # the paper's first stage: the network's estimate and box, read from the BLA's bands
+        est.ann_data = broadband_sine_data(data)
     records = broadband_records(data, options.skip)
     est.fit(records)
     periodic = [bla.periodic for _, bla in levels]
@@ -190,11 +212,12 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     theta0[[identified_names(structure).index(n) for n in fit.names]] = fit.theta
     est.stages_ = [Stage("frequency", theta0, fit.relative_error, seconds, fit.evaluations), *est.stages_]
     est.seconds_ += seconds
-    provenance = identification_provenance(ds, structure_file, run.command, None, options.skip,
+    provenance = identification_provenance(ds, structure_file, run.command,
+                                           ann_file if isinstance(ann_file, (str, Path)) else None, options.skip,
                                            data_kind="broadband",
                                            frequency_fit=frequency_summary(fit, levels, seconds))
     provenance["records_noise"] = noise
     provenance["date"] = utc_now()
-    result = result_from_estimator(est, "pso", provenance)
+    result = result_from_estimator(est, method, provenance)
     write_result(output, result, overwrite=True)  # claimed by the caller
     return result

@@ -174,6 +174,8 @@ class PSOANNIdentifier(EstimatorDisplay):
     # then with the structure's own (docs/broadband.md: long records of stick and slip have minima a stick event apart)
     smoothing_continuation: tuple = ()
     _smoothed_crits: tuple = ()
+    # what the network reads where the fitted data are records: a broadband file's bands (broadband_ann)
+    ann_data: SineData | None = None
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -236,8 +238,8 @@ class PSOANNIdentifier(EstimatorDisplay):
         check_work_limit(self.work_limit)
         if self.method in NEEDS_ANN and self.ann is None:
             raise UserError(f"method {self.method} needs a trained network (see `servofmu train`)")
-        if self.method in NEEDS_ANN and not isinstance(data, SineData):
-            raise UserError("the ANN works on stepped-sine data; identify records with method pso")
+        if self.method in NEEDS_ANN and not isinstance(self.ann_data or data, SineData):
+            raise UserError("the ANN works on stepped-sine and broadband data; identify records with method pso")
 
     def _criterion(self, data):
         """What candidates are scored by: the data's own criterion when it brings one (closed-loop records)."""
@@ -286,7 +288,7 @@ class PSOANNIdentifier(EstimatorDisplay):
         self._check_work(cost, search)
         if self.method in NEEDS_ANN:
             t0 = time.perf_counter()
-            y0, half = self._ann_estimate(data)
+            y0, half = self._ann_estimate(self.ann_data or data)
             stages.append(Stage("ann", self._to_theta(y0[None])[0], float(cost(y0[None])[0]),
                                 time.perf_counter() - t0, 1))
             lower, upper = y0 - half, y0 + half

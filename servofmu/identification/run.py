@@ -97,7 +97,7 @@ def identify_to_file(data_file, structure_file, output, ann_file=None, options: 
     if _is_broadband(data_file):
         from .broadband_identify import identify_broadband
 
-        return identify_broadband(data_file, structure_file, output, options, run, method, threads)
+        return identify_broadband(data_file, structure_file, output, options, run, method, threads, ann_file)
     if options.closed_loop is not None:
         from .closed_loop import load_closed_loop_inputs
 

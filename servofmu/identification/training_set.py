@@ -29,6 +29,7 @@ __all__ = ["TrainingSet", "make_training_set", "load_training_set", "TRAINING_RT
 FORMAT = "servofmu-training-set"
 SCHEMA_VERSION = 1
 CHUNK = 250  # parameter sets per task
+BROADBAND_CHUNK = 8  # of a broadband plan: each a whole run (the default plan's 120 000 samples)
 # While the run goes on, the file is rewritten (whole, atomically) at most every WRITE_EVERY seconds: a killed run
 # loses at most that much work, and rewriting after every chunk took a tenth of a 10 000-plant run.
 WRITE_EVERY = 5.0
@@ -114,12 +115,13 @@ def load_training_set(path: str | Path) -> TrainingSet:
                        converged=arrays["converged"].astype(bool), done=arrays["done"].astype(bool), attributes=attrs)
 
 
-def _take_resumed(output: Path, arrays: dict, structure: Plant, data: SineData) -> None:
+def _take_resumed(output: Path, arrays: dict, structure: Plant, data: SineData, broadband_plan: str) -> None:
     """Copy into ``arrays`` what the training set ``output`` holds already, refusing one made with other arguments
-    (its drawn parameters, plan or structure differ)."""
+    (its drawn parameters, plan, broadband plan or structure differ)."""
     old, theta = load_training_set(output), arrays["parameters"]
     same = (old.parameters.shape == theta.shape and np.array_equal(old.parameters, theta)
-            and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml())
+            and np.array_equal(old.plan, data.plan) and old.structure.to_toml() == structure.to_toml()
+            and old.attributes.get("broadband_plan", "") == broadband_plan)
     if not same:
         raise UserError(f"{output}: made with other arguments (structure, plan, samples, spread or seed); "
                         "cannot resume it")
@@ -136,7 +138,7 @@ def _simulate_chunk(simulator, item):
 
 
 @holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
-def make_training_set(structure: Plant, data: SineData, samples: int, output: str | Path, spread: float = 0.5,
+def make_training_set(structure: Plant, data, samples: int, output: str | Path, spread: float = 0.5,
                       seed: int = 0, rtol: float = TRAINING_RTOL, run: RunOptions | None = None) -> TrainingSet:
     """Draw plants around a structure, simulate them under a measurement's plan and write the training set.
 
@@ -144,8 +146,10 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     ----------
     structure : Plant
         The structure (order, friction model) and the centre of the prior.
-    data : SineData
-        The measurement whose plan (amplitudes, frequencies) the plants are simulated under.
+    data : SineData or BroadbandData
+        The measurement whose plan the plants are simulated under: stepped sines at its (amplitude, frequency)
+        points, or a broadband file's whole plan from rest (servofmu.broadband.store.read_broadband), its features
+        the BLA's bands (identification.broadband_ann).
     samples : int
         Number of plants.
     output : str or Path
@@ -182,6 +186,11 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)
     run = run or RunOptions()
+    broadband = None if isinstance(data, SineData) else data.plan
+    if broadband is not None:
+        from .broadband_ann import broadband_sine_data
+
+        data = broadband_sine_data(data)
     output = claim_output(output, output_mode(run.overwrite, run.resume), inputs=(data.source,),
                           can_continue="resume")
     # the arrays below, the file's image in memory and its copy on every write
@@ -193,36 +202,45 @@ def make_training_set(structure: Plant, data: SineData, samples: int, output: st
     attrs = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "structure_toml": structure.to_toml(),
              "parameter_names": json.dumps(identified_names(structure)), "spread": spread, "seed": seed,
              "samples": samples, "data_file": data.source, "rtol": rtol, "package_version": __version__,
-             "command": run.command or " ".join(sys.argv)}
+             "command": run.command or " ".join(sys.argv),
+             "broadband_plan": "" if broadband is None else broadband.to_json()}
     n_exp = data.amplitudes.size
     arrays = {"amplitudes": data.amplitudes, "frequencies": data.frequencies, "parameters": theta,
               "H_re": np.full((samples, n_exp), np.nan), "H_im": np.full((samples, n_exp), np.nan),
               "dc": np.full((samples, n_exp), np.nan), "converged": np.zeros((samples, n_exp), np.uint8),
               "done": np.zeros(samples, np.uint8)}
     if run.resume and output.exists():
-        _take_resumed(output, arrays, structure, data)
-    _simulate_into(output, arrays, attrs, structure, full, rtol, run)
+        _take_resumed(output, arrays, structure, data, attrs["broadband_plan"])
+    _simulate_into(output, arrays, attrs, structure, full, rtol, run, broadband)
     return load_training_set(output)
 
 
 def _simulate_into(output: Path, arrays: dict, attrs: dict, structure: Plant, full: np.ndarray, rtol: float,
-                   run: RunOptions) -> None:
+                   run: RunOptions, broadband=None) -> None:
     """Simulate the plants ``full`` (full parameter vectors) not yet done into ``arrays``, in chunks on the
-    workers, writing the training set every WRITE_EVERY seconds and at the end (also when interrupted)."""
+    workers (under the ``broadband`` plan where given), writing the training set every WRITE_EVERY seconds and at
+    the end (also when interrupted)."""
+    from .broadband_ann import simulate_chunk
+
     samples = arrays["done"].size
     todo = np.flatnonzero(arrays["done"] == 0)
-    chunks = [todo[i:i + CHUNK] for i in range(0, len(todo), CHUNK)]
+    size = CHUNK if broadband is None else BROADBAND_CHUNK
+    chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
     # written first once a chunk is done: a run that fails at its start (a memory limit, Ctrl-C) leaves the file
     # it was to replace as it was, and a resumed file as it is
     done = start = samples - len(todo)
     run.report(done, samples)
     workers = Workers(scheduler=run.scheduler, workers=0 if run.scheduler is None else None)
     resource = WorkerResource(key=f"batch:{structure.to_toml()}", factory=functools.partial(BatchSimulator, structure))
-    items = [(full[rows], arrays["amplitudes"], arrays["frequencies"], rtol) for rows in chunks]
+    if broadband is None:
+        task, items = _simulate_chunk, [(full[rows], arrays["amplitudes"], arrays["frequencies"], rtol)
+                                        for rows in chunks]
+    else:
+        task, items = simulate_chunk, [(full[rows], broadband, rtol) for rows in chunks]
     written = time.monotonic()
     with workers:
         try:
-            for i, (H, dc, conv) in workers.imap(_simulate_chunk, items, resource=resource):
+            for i, (H, dc, conv) in workers.imap(task, items, resource=resource):
                 rows = chunks[i]
                 arrays["H_re"][rows], arrays["H_im"][rows], arrays["dc"][rows] = H.real, H.imag, dc
                 arrays["converged"][rows], arrays["done"][rows] = conv, 1
