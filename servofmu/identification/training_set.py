@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..broadband.store import BroadbandData
 from ..display import Shown, figure, shown_html, shown_repr
 from ..errors import UserError, check_int
 from ..fileio import check_values, claim_output, holds_outputs, output_mode, read_hdf5, store_array, write_hdf5
@@ -138,8 +139,9 @@ def _simulate_chunk(simulator, item):
 
 
 @holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
-def make_training_set(structure: Plant, data, samples: int, output: str | Path, spread: float = 0.5,
-                      seed: int = 0, rtol: float = TRAINING_RTOL, run: RunOptions | None = None) -> TrainingSet:
+def make_training_set(structure: Plant, data: SineData | BroadbandData, samples: int, output: str | Path,
+                      spread: float = 0.5, seed: int = 0, rtol: float = TRAINING_RTOL,
+                      run: RunOptions | None = None) -> TrainingSet:
     """Draw plants around a structure, simulate them under a measurement's plan and write the training set.
 
     Parameters
@@ -186,6 +188,8 @@ def make_training_set(structure: Plant, data, samples: int, output: str | Path, 
     check_int("samples", samples, 1)
     check_int("seed", seed, 0)
     run = run or RunOptions()
+    if not isinstance(data, (SineData, BroadbandData)):
+        raise UserError(f"make_training_set(): data must be a SineData or BroadbandData, not {type(data).__name__}")
     broadband = None if isinstance(data, SineData) else data.plan
     if broadband is not None:
         from .broadband_ann import broadband_sine_data
