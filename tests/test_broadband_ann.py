@@ -13,6 +13,7 @@ from scipy import signal
 from servofmu.broadband import BroadbandPlan
 from servofmu.broadband.simulate import write_simulated
 from servofmu.broadband.store import read_broadband
+from servofmu.errors import ServofmuWarning
 from servofmu.identification.broadband_ann import BINS, band_edges, broadband_sine_data, simulate_chunk
 from servofmu.identification.results import read_result
 from servofmu.model.plant import load_plant
@@ -81,3 +82,14 @@ def test_dataset_train_and_identify_with_the_network_on_a_broadband_file(tmp_pat
     proc = run("identify", data, "--structure", "g1", "--method", "pso-ann", "-o", tmp_path / "o.h5")
     assert_one_line_error(proc, "needs a network trained on this broadband plan")
     assert not (tmp_path / "o.h5").exists()
+
+
+def test_identify_of_a_broadband_file_without_an_output_writes_nothing(tmp_path):
+    from servofmu.identification.run import IdentifyOptions, identify_to_file
+
+    write_simulated(tmp_path / "bb.h5", load_plant("g1"), PLAN, 40.0)
+    with pytest.warns(ServofmuWarning, match="times the noise of the periods"):  # two iterations, no polish
+        result = identify_to_file(tmp_path / "bb.h5", "g1", None, options=IdentifyOptions(method="pso", iterations=2,
+                                                                                         polish=False))
+    assert result.method == "pso" and result.provenance["data_kind"] == "broadband"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bb.h5"]

@@ -33,6 +33,7 @@ from .methods import NEEDS_ANN
 from .inputs import identification_provenance
 from .prior import canonical_order, identified_mask, identified_names
 from .results import Result, Stage, result_from_estimator, write_result
+from .shortening import SEARCH_SAMPLES
 
 __all__ = ["identify_broadband", "broadband_records", "period_noise", "broadband_start", "frequency_summary",
            "frequency_lines", "BIAS_NOTE"]
@@ -191,6 +192,7 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
         est.start = broadband_start(structure, fit, est.spread)
     else:  # the paper's first stage: the network's estimate and box, read from the BLA's bands
         est.ann_data = broadband_sine_data(data)
+    est.search_data = level_pieces(data, SEARCH_SAMPLES, options.skip)  # None: the run's start, as for records
     records = broadband_records(data, options.skip)
     est.fit(records)
     periodic = [bla.periodic for _, bla in levels]
@@ -219,5 +221,6 @@ def identify_broadband(data_file, structure_file, output, options, run: RunOptio
     provenance["records_noise"] = noise
     provenance["date"] = utc_now()
     result = result_from_estimator(est, method, provenance)
-    write_result(output, result, overwrite=True)  # claimed by the caller
+    if output is not None:  # None: nothing written, as for other data
+        write_result(output, result, overwrite=True)  # claimed by the caller
     return result

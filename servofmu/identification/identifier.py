@@ -176,6 +176,9 @@ class PSOANNIdentifier(EstimatorDisplay):
     _smoothed_crits: tuple = ()
     # what the network reads where the fitted data are records: a broadband file's bands (broadband_ann)
     ann_data: SineData | None = None
+    # records the swarm scores its particles on instead of the fitted records' search share (broadband data: every
+    # level's first realisation, broadband_identify.level_pieces; the run's start holds the first level alone)
+    search_data = None
 
     def __init__(self, structure: Plant, ann: AnnModel | None = None, method: str = "pso-ann",
                  pso: PsoOptions = PsoOptions(), polish: bool = True, box: float = 4.0, spread: float = 0.5,
@@ -275,7 +278,8 @@ class PSOANNIdentifier(EstimatorDisplay):
         crit = self._criterion(data)
         # long records: the swarm on SEARCH_SAMPLES of them, the polish first on open-loop ones at a reduced rate
         reduced = long_open_loop(data)
-        share = search_share(data if reduced is None else reduced)
+        share = self.search_data if self.search_data is not None else search_share(data if reduced is None
+                                                                                      else reduced)
         search = crit if share is data else self._criterion_of(share)
         self._reduced_crit = None if reduced is None else search if share is reduced else self._criterion_of(reduced)
         self._smoothed_crits = self._smoothed_criteria(data) if self.polish else ()
