@@ -2,12 +2,13 @@
 the network trained on the file's plan) against `identify --method pso` (the swarm from the frequency-domain G),
 in one run.
 
-Per plant: the default broadband plan (multisine 0.2–50 Hz at 1 kHz, levels 2 and 0.6 N, 120 s) at 40 dB; a
+Per plant: the default broadband plan (multisine 0.2–50 Hz at 1 kHz, levels 2 and 0.6 N, 120 s; one signal, its
+phases and lines those of seed 0, measured once per noise seed) at 40 dB; a
 training set of SAMPLES plants drawn around the plant (`servofmu dataset --like` the first seed's file) and a
 network (`servofmu train`), their wall times; then per seed both identifications of the seed's file: the worst
-relative error against the truth, the residual over the noise of the periods, the first stage's fitness (the
-network's estimate, or the frequency-domain G with the structure's friction as the swarm's first particle), the
-wall time.
+relative error against the truth, the residual over the noise of the periods, the first stage's fitness after
+the frequency-domain fit (on the swarm's records: the network's estimate alone for pso-ann, the swarm's best for pso),
+the wall time.
 
     python scripts/bench_broadband_ann.py --seeds 5 --out docs/bench-broadband-ann.md
 """
@@ -17,7 +18,6 @@ import argparse
 import platform
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +47,7 @@ def bench_plant(name: str, seeds: int, folder: Path) -> list[dict]:
     files = []
     for seed in range(seeds):
         files.append(folder / f"{name}-{seed}.h5")
-        write_simulated(files[-1], plant, replace(PLAN, seed=seed), 40.0, seed=seed)
+        write_simulated(files[-1], plant, PLAN, 40.0, seed=seed)  # one signal, measured again: noise seeds
     t0 = time.perf_counter()
     make_training_set(plant, read_broadband(files[0]), SAMPLES, folder / f"{name}-ds.h5", run=RunOptions())
     t_ds = time.perf_counter() - t0
