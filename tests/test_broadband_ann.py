@@ -57,22 +57,23 @@ def test_the_training_set_simulates_the_features_the_measurement_gives(tmp_path)
 
 
 def test_dataset_train_and_identify_with_the_network_on_a_broadband_file(tmp_path):
-    """The paper's hybrid on broadband data: the network trained on the file's plan reads a start near the noise,
+    """The paper's hybrid on broadband data: the network trained on the file's plan reads an estimate near the truth,
     the swarm and polish end with intervals that hold g1's truth; a network of another plan, and pso-ann without
     one, are refused in one line."""
+    from servofmu.identification.run import identify_to_file
+    from servofmu.identification.train import train_from_file
+    from servofmu.identification.training_set import make_training_set, training_data
+
     data = tmp_path / "bb.h5"
     write_simulated(data, load_plant("g1"), PLAN, 40.0)
-    for args in (("dataset", "g1", "--like", data, "--samples", 150, "-o", tmp_path / "ds.h5"),
-                 ("train", tmp_path / "ds.h5", "-o", tmp_path / "net.h5")):
-        proc = run(*args)
-        assert proc.returncode == 0, proc.stderr
-        assert "bands of its levels' BLA" in proc.stdout or args[0] == "train"
-    proc = run("identify", data, "--structure", "g1", "--ann", tmp_path / "net.h5", "-o", tmp_path / "r.h5")
-    assert proc.returncode == 0, proc.stderr
-    result = read_result(tmp_path / "r.h5")
-    assert result.method == "pso-ann" and result.stages[1].name == "ann"
-    assert result.stages[1].fitness < 1.5 * result.fitness  # the network's start is near the fit already
+    ts = make_training_set(load_plant("g1"), training_data(data), 100, tmp_path / "ds.h5")
+    assert ts.attributes["broadband_plan"] == PLAN.to_json() and ts.usable().all()
+    train_from_file(tmp_path / "ds.h5", tmp_path / "net.h5")
+    result = identify_to_file(data, "g1", tmp_path / "r.h5", tmp_path / "net.h5")
+    assert read_result(tmp_path / "r.h5").method == "pso-ann" and result.stages[1].name == "ann"
     truth = load_plant("g1").parameters()
+    ann = dict(zip(result.names, result.stages[1].theta))
+    assert all(abs(ann[n] / truth[n] - 1) < 0.15 for n in result.names), ann  # the prior spans factors 1/1.5…1.5
     for name, (lo, hi) in zip(result.names, result.intervals):
         assert lo <= truth[name] <= hi, name
     other = tmp_path / "other.h5"

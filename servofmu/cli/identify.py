@@ -12,23 +12,15 @@ __all__ = ["register", "cmd_dataset", "cmd_train", "cmd_identify", "cmd_compare"
 
 def cmd_dataset(args) -> None:
     """Simulate plants around a structure under a data file's plan: the training set."""
-    from ..identification.criterion import sine_data
-    from ..identification.training_set import make_training_set
-    from ..measurement.datafile import read_data_file
+    from ..identification.training_set import make_training_set, training_data
     from ..model.plant import load_plant
 
-    structure, like = load_plant(args.plant), read_data_file(args.like)
-    if like.kind == "broadband":  # its whole plan simulated, the BLA's bands the features (broadband_ann)
-        from ..broadband.store import read_broadband
-
-        data = read_broadband(args.like)
-    else:
-        data = sine_data(like)
+    structure, data = load_plant(args.plant), training_data(args.like)
     with ProgressBar(args, "plant") as bar:
         ts = make_training_set(structure, data, args.samples, args.output, spread=args.spread, seed=args.seed,
                                run=run_options(args, bar))
-    count = ts.amplitudes.size
-    what = (f"{count} bands of its levels' BLA); {ts.usable().sum()} simulated to the end" if like.kind == "broadband"
+    count, broadband = ts.amplitudes.size, bool(ts.attributes.get("broadband_plan"))
+    what = (f"{count} bands of its levels' BLA); {ts.usable().sum()} simulated to the end" if broadband
             else f"{count} experiments); {ts.usable().sum()} with every experiment at steady state")
     print_written(args, f"wrote {args.output}: {ts.done.sum()} plants like {structure.name} under the plan of "
                   f"{args.like} ({what}", {"written": [args.output], "structure": structure.name,

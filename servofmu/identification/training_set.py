@@ -25,7 +25,7 @@ from ..version import __version__
 from .criterion import SineData
 from .prior import check_identifiable, full_vectors, identified_names, sample_identified
 
-__all__ = ["TrainingSet", "make_training_set", "load_training_set", "TRAINING_RTOL"]
+__all__ = ["TrainingSet", "make_training_set", "load_training_set", "training_data", "TRAINING_RTOL"]
 
 FORMAT = "servofmu-training-set"
 SCHEMA_VERSION = 1
@@ -136,6 +136,20 @@ def _simulate_chunk(simulator, item):
     params, amps, freqs, rtol = item
     feats = simulator.steady_state(params, amps, freqs, SteadyStateOptions(rtol=rtol))
     return feats.H, feats.dc, feats.converged
+
+
+def training_data(path: str | Path):
+    """What a training set's plan comes from (`servofmu dataset --like PATH`): the stepped-sine data of a data
+    file, or a broadband file itself (its whole plan simulated, identification.broadband_ann)."""
+    from ..measurement.datafile import read_data_file
+
+    if read_data_file(path).kind == "broadband":
+        from ..broadband.store import read_broadband
+
+        return read_broadband(path)
+    from .criterion import sine_data
+
+    return sine_data(read_data_file(path))
 
 
 @holds_outputs  # a long run: its outputs are its own until it ends (fileio.output_claims)
